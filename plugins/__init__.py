@@ -1,0 +1,1 @@
+"""rfmitsuba plugins (installed as :mod:`rfmitsuba.plugins`)."""
