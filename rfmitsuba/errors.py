@@ -28,3 +28,7 @@ class RunError(RfmError, ValueError):
 
 class GaussianError(RfmError, ValueError):
     """Gaussian parameters or render inputs are invalid (non-finite, wrong size, zero quaternion)."""
+
+
+class ImageError(RfmError, ValueError):
+    """Images of mismatched or too small shape were given to SSIM or the loss."""

@@ -54,16 +54,22 @@ def project_one(means, log_scales, rotations, rx, R, height, width):
 
 
 def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
-           rx_to_world=None, height=90, width=360, near=0.05):
-    """Same arguments as rfmitsuba.splat.render but numpy float64 [N, k] / [B*N, k]."""
+           rx_to_world=None, height=90, width=360, near=0.05, ambiguous=False):
+    """Same arguments as rfmitsuba.splat.render but numpy float64 [N, k] / [B*N, k].
+
+    With ``ambiguous=True`` also returns a bool [B, H, W] mask of pixels where some
+    alpha lies within 1e-4 (relative) of the skip threshold, where float32
+    rounding may legitimately keep or skip a contribution.
+    """
     rx_positions = np.atleast_2d(np.asarray(rx_positions, np.float64))
     views = rx_positions.shape[0]
     R = np.eye(3) if rx_to_world is None else np.asarray(rx_to_world, np.float64)
     params = [np.asarray(a, np.float64) for a in (means, log_scales, rotations, opacities, signals)]
     n = min(len(a) for a in params)
     out = np.zeros((views, height, width))
+    amb = np.zeros((views, height, width), bool)
     if n == 0:
-        return out
+        return (out, amb) if ambiguous else out
     jj, ii = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
     for b in range(views):
         m, ls, rot, op, sig = (a[b * n:(b + 1) * n] if len(a) == views * n and views > 1 else a
@@ -82,7 +88,8 @@ def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
             q = conic[0, 0] * du * du + 2 * conic[0, 1] * du * dv + conic[1, 1] * dv * dv
             alpha = np.minimum(op[k] * np.exp(-0.5 * q), ALPHA_MAX)
             use = alpha >= ALPHA_MIN
+            amb[b] |= np.abs(alpha / ALPHA_MIN - 1) < 1e-4
             img += np.where(use, T * alpha * sig[k], 0.0)
             T = np.where(use, T * (1 - alpha), T)
         out[b] = img
-    return out
+    return (out, amb) if ambiguous else out

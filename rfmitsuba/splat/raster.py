@@ -10,6 +10,12 @@ its tile list sorted by distance from the receiver:
     T_k = prod_{l<k, kept} (1 - alpha_l)
     I(p) = sum_{k kept} T_k alpha_k s_k
 
+The azimuth offset is taken to the nearest copy of the centre, so a Gaussian
+wider than half the azimuth circle (close to the zenith or to the receiver)
+is cut at the azimuth opposite its centre; with a tilted footprint (non-zero
+``b``) the image has a small step there. Gradients are those of this
+definition (the step itself has none).
+
 One lane per pixel, lanes ordered tile by tile, so the 16 lanes of an
 AVX-512 packet share one tile list. The forward pass is a symbolic
 ``dr.while_loop``; the backward pass (``dr.CustomOp``) walks the same list back

@@ -34,7 +34,9 @@ def _to_array(x, kind: str, name: str):
         return B.Float(a)
     if a.ndim != 2 or a.shape[1] != dims:
         raise GaussianError(f"{name}: expected shape [N, {dims}], got {a.shape}")
-    return tp(np.ascontiguousarray(a.T))
+    # Component by component: Array3f(numpy [3, N]) would gather lazily from one
+    # flat array with N baked into the kernel (a recompilation whenever N changes).
+    return tp(*(B.Float(np.ascontiguousarray(a[:, i])) for i in range(dims)))
 
 
 def _rx_array(rx_positions):
@@ -48,7 +50,7 @@ def _rx_array(rx_positions):
         host = host[None]
     if host.ndim != 2 or host.shape[1] != 3 or host.shape[0] == 0:
         raise GaussianError(f"rx_positions: expected shape [B, 3] with B >= 1, got {host.shape}")
-    return B.Array3f(np.ascontiguousarray(host.T.astype(np.float32))), host
+    return B.Array3f(*(B.Float(host[:, i].astype(np.float32)) for i in range(3))), host
 
 
 def _check_values(means, log_scales, rotations, opacities, signals) -> None:
