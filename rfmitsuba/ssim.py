@@ -6,7 +6,8 @@ data_range=1.0)`` for 2D images with its defaults: a 7x7 uniform window,
 SSIM map over the image cropped by 3 pixels on each side. The crop removes
 every position whose window touches the border, so skimage's reflective
 padding never enters: the map is computed on "valid" 7x7 windows only, by
-two separable box sums (gathers, differentiable by Dr.Jit's AD).
+two separable box sums (gathers; a ``dr.CustomOp`` whose adjoint is again a
+box sum, so the backward pass needs no atomic scatter-additions).
 
 :func:`loss` is the training loss ``0.8 * L1 + 0.2 * (1 - SSIM)`` (paper,
 Section "Model Training"), averaged over a batch [B, H, W].
@@ -39,23 +40,55 @@ def _flat(x, name):
     return x.array, shape
 
 
+class _BoxSum(dr.CustomOp):
+    """Sums over 7 consecutive elements along one axis of several arrays at once.
+
+    Each input is a flat Float holding [outer, length, inner] (row-major); the
+    output holds [outer, length - 6, inner]. The adjoint is again a box sum
+    (over the gradient, clipped at the ends), so both passes are gathers with
+    no atomic scatter-additions.
+    """
+
+    def eval(self, x0, x1, x2, x3, x4, outer, length, inner):
+        self.dims = (outer, length, inner)
+        lo = length - WIN + 1
+        k = dr.arange(B.UInt32, outer * lo * inner)
+        o = k // (lo * inner)
+        rest = k - o * (lo * inner)
+        base = o * (length * inner) + rest  # (o, i, c) -> ((o*length + i)*inner + c)
+        return tuple(sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN))
+                     for x in (x0, x1, x2, x3, x4))
+
+    def forward(self):
+        raise NotImplementedError("SSIM supports reverse-mode differentiation only")
+
+    def backward(self):
+        outer, length, inner = self.dims
+        lo = length - WIN + 1
+        k = dr.arange(B.UInt32, outer * length * inner)
+        o = k // (length * inner)
+        rest = k - o * (length * inner)
+        i = B.Int32(rest // inner)
+        c = rest - B.UInt32(i) * inner
+        totals = [B.Float(0.0) for _ in range(5)]
+        for d in range(WIN):
+            j = i - d
+            ok = (j >= 0) & (j < lo)
+            idx = (o * lo + B.UInt32(dr.maximum(j, 0))) * inner + c
+            for t, g in enumerate(self.grad_out()):
+                totals[t] += dr.gather(B.Float, g, idx, ok)
+        dr.eval(totals)  # one kernel for all five
+        for name, total in zip(("x0", "x1", "x2", "x3", "x4"), totals):
+            self.set_grad_in(name, total)
+
+    def name(self):
+        return "ssim.BoxSum"
+
+
 def _box(values, views, height, width):
     """Sums over every valid 7x7 window: Float [B*H*W] -> Float [B*(H-6)*(W-6)]."""
-    wo, ho = width - WIN + 1, height - WIN + 1
-    # Horizontal pass: [B, H, W] -> [B, H, Wo].
-    k = dr.arange(B.UInt32, views * height * wo)
-    row = k // wo  # b*H + r
-    col = k - row * wo
-    base = row * width + col
-    h = [sum(dr.gather(B.Float, v, base + d, mode=dr.ReduceMode.Direct) for d in range(WIN))
-         for v in values]
-    # Vertical pass: [B, H, Wo] -> [B, Ho, Wo].
-    k = dr.arange(B.UInt32, views * ho * wo)
-    plane = k // (ho * wo)
-    rem = k - plane * (ho * wo)
-    base = (plane * height) * wo + rem
-    return [sum(dr.gather(B.Float, v, base + d * wo, mode=dr.ReduceMode.Direct) for d in range(WIN))
-            for v in h]
+    h = dr.custom(_BoxSum, *values, views * height, width, 1)  # along rows
+    return dr.custom(_BoxSum, *h, views, height, width - WIN + 1)  # along columns
 
 
 def ssim(pred, gt):
