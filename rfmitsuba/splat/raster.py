@@ -75,8 +75,8 @@ class Rasterize(dr.CustomOp):
     def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width):
         self.params = (u, v, ca, cb, cc, op, sig)
         self.shape = (views, height, width)
-        self.entries = B.UInt32(lists.entries) if lists.entries.size else B.UInt32(0)
-        self.offsets = B.UInt32(lists.offsets)
+        self.entries = lists.entries
+        self.offsets = lists.offsets
         tile, py, px, pix, active = _lanes(views, height, width)
         start = dr.gather(B.UInt32, self.offsets, tile)
         end = dr.gather(B.UInt32, self.offsets, tile + 1)
@@ -160,8 +160,9 @@ def rasterize(proj, *, views: int, height: int, width: int):
     """
     dr.eval(proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c, proj.cov_uu, proj.cov_vv,
             proj.opacity, proj.signal, proj.depth)  # one kernel for the whole projection
-    fields = [dr.detach(x) for x in (proj.u, proj.v, proj.cov_uu, proj.cov_vv, proj.opacity, proj.depth)]
-    host = [np.asarray(x.numpy(), dtype=np.float32) for x in fields]
-    lists = _tiles.build(*host, views=views, height=height, width=width)
+    n = dr.width(proj.u) // views
+    lists = _tiles.build(*(dr.detach(x) for x in (proj.u, proj.v, proj.cov_uu, proj.cov_vv,
+                                                    proj.opacity, proj.depth)),
+                         views=views, n=n, height=height, width=width)
     return dr.custom(Rasterize, proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c,
                      proj.opacity, proj.signal, lists, views, height, width)
