@@ -37,12 +37,21 @@ from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_SIZE, TILE_W
 GRAD_MODE = dr.ReduceMode.Local
 
 
+#: Primes for the tile scrambling (the first one not dividing the tile count is used).
+_STRIDES = (7919, 7907, 7901)
+
+
 def _lanes(views: int, height: int, width: int):
     """Per-lane tile index, pixel row/column, image index and activity."""
     nty, ntx = _tiles.tile_grid(height, width)
-    lanes = dr.arange(B.UInt32, views * nty * ntx * TILE_SIZE)
-    tile = lanes // TILE_SIZE
-    k = lanes - tile * TILE_SIZE
+    num_tiles = views * nty * ntx
+    lanes = dr.arange(B.UInt32, num_tiles * TILE_SIZE)
+    slot = lanes // TILE_SIZE
+    k = lanes - slot * TILE_SIZE
+    # Tiles in a scrambled order (slot * stride mod T, a permutation), so that the
+    # contiguous lane blocks Dr.Jit hands to its threads mix busy and idle tiles.
+    stride = next(p for p in _STRIDES if num_tiles % p)
+    tile = (slot * dr.opaque(B.UInt32, stride)) % dr.opaque(B.UInt32, num_tiles)
     tiles_per_view = nty * ntx
     view = tile // tiles_per_view
     t = tile - view * tiles_per_view
@@ -55,8 +64,23 @@ def _lanes(views: int, height: int, width: int):
     return tile, B.Float(row), B.Float(col), pix, active
 
 
-def _alpha(params, g, px, py, width):
-    u, v, ca, cb, cc, op, sig = (dr.gather(B.Float, p, g) for p in params)
+def _pack(params):
+    """7 Float [M] -> one Float [8*M], entry-major, so a loop step reads one
+    entry's parameters with two aligned 4-wide packet loads."""
+    m = dr.width(params[0])
+    packed = dr.zeros(B.Float, 8 * m)
+    idx = dr.arange(B.UInt32, m) * 8
+    for c, p in enumerate(params):
+        dr.scatter(packed, p, idx + c)
+    dr.eval(packed)
+    return packed
+
+
+def _alpha(packed, g, px, py, width):
+    lo = dr.gather(B.Array4f, packed, 2 * g)
+    hi = dr.gather(B.Array4f, packed, 2 * g + 1)
+    u, v, ca, cb = lo[0], lo[1], lo[2], lo[3]
+    cc, op, sig = hi[0], hi[1], hi[2]
     du = px - u
     du = dr.select(du >= 0.5 * width, du - width, du)
     du = dr.select(du < -0.5 * width, du + width, du)
@@ -74,7 +98,9 @@ class Rasterize(dr.CustomOp):
 
     def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width):
         self.params = (u, v, ca, cb, cc, op, sig)
+        self.packed = _pack(self.params)
         self.shape = (views, height, width)
+        self.lists = lists
         self.entries = lists.entries
         self.offsets = lists.offsets
         tile, py, px, pix, active = _lanes(views, height, width)
@@ -84,7 +110,7 @@ class Rasterize(dr.CustomOp):
 
         def body(i, T, C):
             g = dr.gather(B.UInt32, self.entries, i)
-            alpha, _, _, _, _, _, _, _, s = _alpha(self.params, g, px, py, width)
+            alpha, _, _, _, _, _, _, _, s = _alpha(self.packed, g, px, py, width)
             use = alpha >= ALPHA_MIN
             C = dr.select(use, dr.fma(T * alpha, s, C), C)
             T = dr.select(use, T * (1.0 - alpha), T)
@@ -111,12 +137,15 @@ class Rasterize(dr.CustomOp):
         end = dr.select(active, end, start)
         gpix = dr.gather(B.Float, grad_img, pix, active)
         m = dr.width(self.params[0])
-        grads = [dr.zeros(B.Float, m) for _ in range(7)]
+        lists = self.lists
+        # Per-pair gradient slots: a slot is written by one tile (one packet) only,
+        # so the packet-local reduction's single atomic never contends.
+        pair_grads = [dr.zeros(B.Float, max(lists.count, 1)) for _ in range(7)]
 
         def body(i, T, acc):
             i = i - 1
             g = dr.gather(B.UInt32, self.entries, i)
-            alpha, raw, gauss, du, dv, ca, cb, cc, s = _alpha(self.params, g, px, py, width)
+            alpha, raw, gauss, du, dv, ca, cb, cc, s = _alpha(self.packed, g, px, py, width)
             use = alpha >= ALPHA_MIN
             one_m = 1.0 - alpha
             T_k = T / one_m
@@ -131,20 +160,43 @@ class Rasterize(dr.CustomOp):
             g_u = -g_q * 2.0 * (ca * du + cb * dv)
             g_v = -g_q * 2.0 * (cb * du + cc * dv)
             vals = (g_u, g_v, g_q * du * du, g_q * 2.0 * du * dv, g_q * dv * dv, g_op, g_s)
-            for target, val in zip(grads, vals):
-                dr.scatter_reduce(dr.ReduceOp.Add, target, val, g, use, mode=GRAD_MODE)
+            for target, val in zip(pair_grads, vals):
+                dr.scatter_reduce(dr.ReduceOp.Add, target, val, i, use, mode=GRAD_MODE)
             acc = dr.select(use, dr.fma(w, s, acc), acc)
             T = dr.select(use, T_k, T)
             return i, T, acc
 
         dr.while_loop((end, self.T_final, B.Float(0.0)), lambda i, T, acc: i > start, body,
                       labels=("i", "T", "acc"), label="splat_backward")
+        dr.eval(pair_grads)
+        grads = _sum_pairs(pair_grads, lists, m)
         names = ("u", "v", "ca", "cb", "cc", "op", "sig")
         for name, gr in zip(names, grads):
             self.set_grad_in(name, gr)
 
     def name(self):
         return "splat.Rasterize"
+
+
+def _sum_pairs(pair_grads, lists, m):
+    """Per-pair gradients (tile order) -> per-entry sums, Float [m] each, without atomics:
+    one lane per entry walks its contiguous range of the entry-major pair order."""
+    if lists.count == 0:
+        return [dr.zeros(B.Float, m) for _ in pair_grads]
+    first, length = lists.first, lists.length
+    end = first + length
+
+    def body(j, *acc):
+        slot = dr.gather(B.UInt32, lists.sorted_pos, j)
+        return (j + 1,) + tuple(a + dr.gather(B.Float, pg, slot) for a, pg in zip(acc, pair_grads))
+
+    _, *sums = dr.while_loop((B.UInt32(first),) + tuple(B.Float(0.0) for _ in pair_grads),
+                             lambda j, *acc: j < end, body, label="splat_pair_sums")
+    out = [dr.zeros(B.Float, m) for _ in pair_grads]
+    for o, v in zip(out, sums):
+        dr.scatter(o, v, lists.order)  # order is a permutation of the entries
+    dr.eval(out)
+    return out
 
 
 def rasterize(proj, *, views: int, height: int, width: int):

@@ -134,11 +134,23 @@ def build_numpy(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, height: int
 @dataclass
 class DeviceTileLists:
     """Like :class:`TileLists`, as Dr.Jit UInt32 arrays (``entries`` may be a
-    size-1 dummy when there are no pairs; ``count`` says how many there are)."""
+    size-1 dummy when there are no pairs; ``count`` says how many there are).
+
+    For the backward pass's per-Gaussian sums, the pairs also have an
+    entry-major order (Gaussians front to back, each Gaussian's pairs
+    contiguous): ``sorted_pos`` UInt32 [P] maps an entry-major pair to its
+    position in ``entries``; ``order`` UInt32 [B*N] lists entries front to
+    back; ``first`` / ``length`` UInt32 [B*N] give the entry-major pair range
+    of ``order[s]``.
+    """
 
     entries: object
     offsets: object
     count: int
+    sorted_pos: object = None
+    order: object = None
+    first: object = None
+    length: object = None
 
 
 #: Relative and absolute widening of the boxes (pixels), so that float32
@@ -213,7 +225,7 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     total = int((dr.gather(UInt32, start, last) + dr.gather(UInt32, count_s, last))[0])
     offsets_default = dr.zeros(UInt32, num_tiles + 1)
     if total == 0:
-        return DeviceTileLists(UInt32(0), offsets_default, 0)
+        return DeviceTileLists(UInt32(0), offsets_default, 0, UInt32(0), order, start, count_s)
     # Each pair's sorted-entry position: mark where each non-empty entry starts, max-scan.
     m = dr.width(count_s)
     mark = dr.zeros(UInt32, total)
@@ -241,5 +253,7 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     offsets = dr.binary_search(0, (1 << 31) - 1, lambda i: (i < total_o) & (
         dr.gather(UInt32, tile_sorted, dr.minimum(i, total_o - 1)) < t))
     offsets = dr.minimum(UInt32(offsets), total_o)
-    dr.eval(entries, offsets)
-    return DeviceTileLists(entries, offsets, total)
+    sorted_pos = dr.zeros(UInt32, total)
+    dr.scatter(sorted_pos, dr.arange(UInt32, total), perm)  # inverse permutation
+    dr.eval(entries, offsets, sorted_pos, order, start, count_s)
+    return DeviceTileLists(entries, offsets, total, sorted_pos, order, start, count_s)
