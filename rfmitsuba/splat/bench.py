@@ -7,8 +7,10 @@ other, so that peak memory is per run and the frameworks do not share cores):
 - backward: (forward + a weighted-sum loss + ``dr.backward``) minus forward;
 - iteration: forward + the training loss (0.8 L1 + 0.2 (1 - SSIM)) + backward
   + an SGD update of every parameter;
-- peak memory: growth of the worker's peak resident set during the runs
-  (and, for Dr.Jit, the JIT allocator's watermark);
+- peak memory: growth of the worker's peak resident set during the timed
+  runs, after a warm-up (the peak is reset through /proc/self/clear_refs, so
+  LLVM's compilation memory does not count); for Dr.Jit also the JIT
+  allocator's watermark;
 - compile time of the first iteration in a fresh process, with an empty and
   with a warm kernel cache (``DRJIT_CACHE_DIR`` pointed at a temporary folder).
 
@@ -55,11 +57,30 @@ def _rss_bytes() -> int:
 
 
 def _peak_bytes() -> int:
+    """Peak resident set (VmHWM) of this process, bytes."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def _median_ms(fn, repeats: int) -> float:
-    fn()  # warm-up (compilation, allocator)
+def _reset_peak() -> None:
+    """Reset the peak resident set to the current one (Linux >= 4.0), so that the
+    compiler's memory during warm-up does not count."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
+    for _ in range(warmup):  # compilation, allocator
+        fn()
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -87,6 +108,7 @@ def _drjit_step_functions(n: int, height: int, width: int):
     def attach():
         for p in params:
             dr.enable_grad(p)
+            dr.clear_grad(p)
 
     def forward():
         attach()
@@ -118,6 +140,9 @@ def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 
     import drjit as dr
 
     forward, forward_backward, iteration = _drjit_step_functions(n, height, width)
+    for fn in (forward, forward_backward, iteration, iteration):
+        fn()  # compile everything before memory is watched
+    _reset_peak()
     rss0 = _rss_bytes()
     dr.detail.malloc_clear_statistics()
     t_f = _median_ms(forward, repeats)
@@ -129,9 +154,9 @@ def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 
             "threads": dr.thread_count()}
 
 
-def first_call() -> dict:
-    """Time (ms) of the first and of a later training iteration in this process (N = 2000)."""
-    forward, forward_backward, iteration = _drjit_step_functions(2000, 90, 360)
+def first_call(n: int = 2000) -> dict:
+    """Time (ms) of the first and of a later training iteration in this process."""
+    forward, forward_backward, iteration = _drjit_step_functions(n, 90, 360)
     t0 = time.perf_counter()
     iteration()
     first = (time.perf_counter() - t0) * 1e3
@@ -193,6 +218,9 @@ def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 
             for i, p in enumerate(params):
                 params[i] = p - 1e-4 * p.grad
 
+    for fn in (forward, forward_backward, iteration, iteration):
+        fn()
+    _reset_peak()
     rss0 = _rss_bytes()
     t_f = _median_ms(forward, repeats)
     t_fb = _median_ms(forward_backward, repeats)
@@ -210,17 +238,17 @@ def _worker(args: list[str], env: dict | None = None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def compile_times() -> dict:
+def compile_times(n: int = 2000) -> dict:
     """First-iteration compile time (ms) with an empty and with a warm Dr.Jit kernel cache."""
     with tempfile.TemporaryDirectory(prefix="rfm-drjit-cache-") as cache:
         env = dict(os.environ, DRJIT_CACHE_DIR=cache)
-        cold = _worker(["first-call"], env)
-        warm = _worker(["first-call"], env)
-    return {"cold_ms": cold["compile_ms"], "warm_ms": warm["compile_ms"]}
+        cold = _worker(["first-call", "--n", str(n)], env)
+        warm = _worker(["first-call", "--n", str(n)], env)
+    return {"cold_ms": cold["compile_ms"], "warm_ms": warm["compile_ms"], "n": n}
 
 
 def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, torch: bool = True,
-        progress=None) -> dict:
+        progress=None, compile_n: int = 2000) -> dict:
     """Run the whole benchmark; returns a JSON-able dict (see :func:`format_report`)."""
     have_torch = torch and torch_available()
     rows = []
@@ -232,7 +260,8 @@ def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, to
         rows.append(row)
         if progress:
             progress(n)
-    return {"rows": rows, "compile": compile_times(), "torch": have_torch, "height": height,
+    return {"rows": rows, "compile": compile_times(compile_n), "torch": have_torch,
+            "torch_note": "" if have_torch else ("skipped" if not torch else "missing"), "height": height,
             "width": width, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count()}
 
 
@@ -256,10 +285,12 @@ def format_report(result: dict) -> str:
                      f"{t['iteration_ms'] / d['iteration_ms']:>5.1f}x")
         lines.append(line)
     c = result["compile"]
-    lines.append(f"compile time of a first iteration (N = 2000): empty kernel cache {c['cold_ms'] / 1e3:.2f} s, "
+    lines.append(f"compile time of a first iteration (N = {c['n']}, 90x360): empty kernel cache {c['cold_ms'] / 1e3:.2f} s, "
                  f"warm cache {c['warm_ms'] / 1e3:.2f} s")
-    if not result["torch"]:
-        lines.append("PyTorch is not installed: no comparison (pip install 'rfmitsuba[torch]')")
+    if result.get("torch_note") == "missing":
+        lines.append("PyTorch is missing: no comparison (pip install 'rfmitsuba[torch]', i.e. torch==2.13.0 CPU)")
+    elif result.get("torch_note") == "skipped":
+        lines.append("PyTorch comparison skipped (--no-torch)")
     return "\n".join(lines)
 
 
@@ -280,7 +311,7 @@ def _main(argv: list[str]) -> int:
     elif a.mode == "torch":
         res = measure_torch(a.n, height=a.height, width=a.width, repeats=a.repeats)
     else:
-        res = first_call()
+        res = first_call(a.n)
     print(json.dumps(res))
     return 0
 
