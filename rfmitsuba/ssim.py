@@ -70,12 +70,14 @@ class _BoxSum(dr.CustomOp):
         rest = k - o * (length * inner)
         i = B.Int32(rest // inner)
         c = rest - B.UInt32(i) * inner
+        grads = self.grad_out()
+        dr.eval(grads)  # one kernel for all five incoming gradients
         totals = [B.Float(0.0) for _ in range(5)]
         for d in range(WIN):
             j = i - d
             ok = (j >= 0) & (j < lo)
             idx = (o * lo + B.UInt32(dr.maximum(j, 0))) * inner + c
-            for t, g in enumerate(self.grad_out()):
+            for t, g in enumerate(grads):
                 totals[t] += dr.gather(B.Float, g, idx, ok)
         dr.eval(totals)  # one kernel for all five
         for name, total in zip(("x0", "x1", "x2", "x3", "x4"), totals):

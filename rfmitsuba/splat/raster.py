@@ -31,23 +31,26 @@ import numpy as np
 
 from .. import backend as B
 from . import tiles as _tiles
-from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_SIZE, TILE_W
+from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_LANES, TILE_SIZE, TILE_W
 
 #: Scatter mode of the backward pass (see module docstring).
 GRAD_MODE = dr.ReduceMode.Local
-
+#: Pixels drawn by one lane, and the row distance between them.
+SUB = TILE_SIZE // TILE_LANES
+SUB_STEP = TILE_LANES // TILE_W
 
 #: Primes for the tile scrambling (the first one not dividing the tile count is used).
 _STRIDES = (7919, 7907, 7901)
 
 
 def _lanes(views: int, height: int, width: int):
-    """Per-lane tile index, pixel row/column, image index and activity."""
+    """Per lane: tile index, and per sub-pixel q < SUB: pixel row (Float), image
+    index (UInt32) and activity; plus the pixel column (Float) and 'any active'."""
     nty, ntx = _tiles.tile_grid(height, width)
     num_tiles = views * nty * ntx
-    lanes = dr.arange(B.UInt32, num_tiles * TILE_SIZE)
-    slot = lanes // TILE_SIZE
-    k = lanes - slot * TILE_SIZE
+    lanes = dr.arange(B.UInt32, num_tiles * TILE_LANES)
+    slot = lanes // TILE_LANES
+    k = lanes - slot * TILE_LANES
     # Tiles in a scrambled order (slot * stride mod T, a permutation), so that the
     # contiguous lane blocks Dr.Jit hands to its threads mix busy and idle tiles.
     stride = next(p for p in _STRIDES if num_tiles % p)
@@ -57,11 +60,18 @@ def _lanes(views: int, height: int, width: int):
     t = tile - view * tiles_per_view
     ty = t // ntx
     tx = t - ty * ntx
-    row = ty * TILE_H + k // TILE_W
-    col = tx * TILE_W + (k - (k // TILE_W) * TILE_W)
-    active = (row < height) & (col < width)
-    pix = view * (height * width) + row * width + col
-    return tile, B.Float(row), B.Float(col), pix, active
+    lane_row = k // TILE_W
+    col = tx * TILE_W + (k - lane_row * TILE_W)
+    rows, pix, active = [], [], []
+    for q in range(SUB):
+        row = ty * TILE_H + lane_row + q * SUB_STEP
+        rows.append(B.Float(row))
+        active.append((row < height) & (col < width))
+        pix.append(view * (height * width) + row * width + col)
+    any_active = active[0]
+    for a in active[1:]:
+        any_active |= a
+    return tile, rows, B.Float(col), pix, active, any_active
 
 
 def _pack(params):
@@ -76,11 +86,14 @@ def _pack(params):
     return packed
 
 
-def _alpha(packed, g, px, py, width):
+def _load(packed, g):
     lo = dr.gather(B.Array4f, packed, 2 * g)
     hi = dr.gather(B.Array4f, packed, 2 * g + 1)
-    u, v, ca, cb = lo[0], lo[1], lo[2], lo[3]
-    cc, op, sig = hi[0], hi[1], hi[2]
+    return lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2]  # u, v, a, b, c, opacity, signal
+
+
+def _alpha(par, px, py, width):
+    u, v, ca, cb, cc, op, _ = par
     du = px - u
     du = dr.select(du >= 0.5 * width, du - width, du)
     du = dr.select(du < -0.5 * width, du + width, du)
@@ -89,7 +102,7 @@ def _alpha(packed, g, px, py, width):
     gauss = dr.exp(-0.5 * q)
     raw = op * gauss
     alpha = dr.minimum(raw, ALPHA_MAX)
-    return alpha, raw, gauss, du, dv, ca, cb, cc, sig
+    return alpha, raw, gauss, du, dv
 
 
 class Rasterize(dr.CustomOp):
@@ -101,28 +114,31 @@ class Rasterize(dr.CustomOp):
         self.packed = _pack(self.params)
         self.shape = (views, height, width)
         self.lists = lists
-        self.entries = lists.entries
-        self.offsets = lists.offsets
-        tile, py, px, pix, active = _lanes(views, height, width)
-        start = dr.gather(B.UInt32, self.offsets, tile)
-        end = dr.gather(B.UInt32, self.offsets, tile + 1)
-        end = dr.select(active, end, start)
+        tile, rows, px, pix, active, any_active = _lanes(views, height, width)
+        start = dr.gather(B.UInt32, lists.offsets, tile)
+        end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
 
         def body(i, T, C):
-            g = dr.gather(B.UInt32, self.entries, i)
-            alpha, _, _, _, _, _, _, _, s = _alpha(self.packed, g, px, py, width)
-            use = alpha >= ALPHA_MIN
-            C = dr.select(use, dr.fma(T * alpha, s, C), C)
-            T = dr.select(use, T * (1.0 - alpha), T)
-            return i + 1, T, C
+            par = _load(self.packed, dr.gather(B.UInt32, lists.entries, i))
+            s = par[6]
+            T, C = list(T), list(C)
+            for q in range(SUB):
+                alpha = _alpha(par, px, rows[q], width)[0]
+                use = (alpha >= ALPHA_MIN) & active[q]
+                C[q] = dr.select(use, dr.fma(T[q] * alpha, s, C[q]), C[q])
+                T[q] = dr.select(use, T[q] * (1.0 - alpha), T[q])
+            return i + 1, tuple(T), tuple(C)
 
-        _, T, C = dr.while_loop((start, B.Float(1.0), B.Float(0.0)),
-                                lambda i, T, C: i < end, body, labels=("i", "T", "C"),
-                                label="splat_forward")
+        one = tuple(B.Float(1.0) for _ in range(SUB))
+        zero = tuple(B.Float(0.0) for _ in range(SUB))
+        _, T, C = dr.while_loop((start, one, zero), lambda i, T, C: i < end, body,
+                                labels=("i", "T", "C"), label="splat_forward")
         self.T_final = T
+        dr.eval(T, C)  # one kernel for the loop (each scatter below would otherwise re-run it)
         image = dr.zeros(B.Float, views * height * width)
-        dr.scatter(image, C, pix, active)
-        dr.eval(image, T)
+        for q in range(SUB):
+            dr.scatter(image, C[q], pix[q], active[q])
+        dr.eval(image)
         return image
 
     def forward(self):
@@ -131,42 +147,44 @@ class Rasterize(dr.CustomOp):
     def backward(self):
         views, height, width = self.shape
         grad_img = self.grad_out()
-        tile, py, px, pix, active = _lanes(views, height, width)
-        start = dr.gather(B.UInt32, self.offsets, tile)
-        end = dr.gather(B.UInt32, self.offsets, tile + 1)
-        end = dr.select(active, end, start)
-        gpix = dr.gather(B.Float, grad_img, pix, active)
-        m = dr.width(self.params[0])
         lists = self.lists
+        tile, rows, px, pix, active, any_active = _lanes(views, height, width)
+        start = dr.gather(B.UInt32, lists.offsets, tile)
+        end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
+        gpix = [dr.gather(B.Float, grad_img, pix[q], active[q]) for q in range(SUB)]
+        m = dr.width(self.params[0])
         # Per-pair gradient slots: a slot is written by one tile (one packet) only,
         # so the packet-local reduction's single atomic never contends.
         pair_grads = [dr.zeros(B.Float, max(lists.count, 1)) for _ in range(7)]
 
         def body(i, T, acc):
             i = i - 1
-            g = dr.gather(B.UInt32, self.entries, i)
-            alpha, raw, gauss, du, dv, ca, cb, cc, s = _alpha(self.packed, g, px, py, width)
-            use = alpha >= ALPHA_MIN
-            one_m = 1.0 - alpha
-            T_k = T / one_m
-            w = T_k * alpha
-            g_s = gpix * w
-            g_alpha = gpix * (T_k * s - acc / one_m)
-            free = raw < ALPHA_MAX  # not clamped: alpha depends on opacity and q
-            g_alpha = dr.select(free, g_alpha, 0.0)
-            g_op = g_alpha * gauss
-            g_q = -0.5 * g_alpha * alpha
-            # dq/du_centre = -(2a du + 2b dv); dq/dv_centre = -(2b du + 2c dv)
-            g_u = -g_q * 2.0 * (ca * du + cb * dv)
-            g_v = -g_q * 2.0 * (cb * du + cc * dv)
-            vals = (g_u, g_v, g_q * du * du, g_q * 2.0 * du * dv, g_q * dv * dv, g_op, g_s)
-            for target, val in zip(pair_grads, vals):
-                dr.scatter_reduce(dr.ReduceOp.Add, target, val, i, use, mode=GRAD_MODE)
-            acc = dr.select(use, dr.fma(w, s, acc), acc)
-            T = dr.select(use, T_k, T)
-            return i, T, acc
+            par = _load(self.packed, dr.gather(B.UInt32, lists.entries, i))
+            _, _, ca, cb, cc, _, s = par
+            T, acc = list(T), list(acc)
+            sums = [B.Float(0.0) for _ in range(7)]
+            for q in range(SUB):
+                alpha, raw, gauss, du, dv = _alpha(par, px, rows[q], width)
+                use = (alpha >= ALPHA_MIN) & active[q]
+                one_m = 1.0 - alpha
+                T_k = T[q] / one_m
+                w = T_k * alpha
+                g_alpha = gpix[q] * (T_k * s - acc[q] / one_m)
+                g_alpha = dr.select(use & (raw < ALPHA_MAX), g_alpha, 0.0)  # clamped: no dependence
+                g_q = -0.5 * g_alpha * alpha
+                g_s = dr.select(use, gpix[q] * w, 0.0)
+                # dq/du_centre = -(2a du + 2b dv); dq/dv_centre = -(2b du + 2c dv)
+                vals = (-2.0 * g_q * (ca * du + cb * dv), -2.0 * g_q * (cb * du + cc * dv),
+                        g_q * du * du, 2.0 * g_q * du * dv, g_q * dv * dv, g_alpha * gauss, g_s)
+                sums = [a + b for a, b in zip(sums, vals)]
+                acc[q] = dr.select(use, dr.fma(w, s, acc[q]), acc[q])
+                T[q] = dr.select(use, T_k, T[q])
+            for target, val in zip(pair_grads, sums):
+                dr.scatter_reduce(dr.ReduceOp.Add, target, val, i, mode=GRAD_MODE)
+            return i, tuple(T), tuple(acc)
 
-        dr.while_loop((end, self.T_final, B.Float(0.0)), lambda i, T, acc: i > start, body,
+        zero = tuple(B.Float(0.0) for _ in range(SUB))
+        dr.while_loop((end, tuple(self.T_final), zero), lambda i, T, acc: i > start, body,
                       labels=("i", "T", "acc"), label="splat_backward")
         dr.eval(pair_grads)
         grads = _sum_pairs(pair_grads, lists, m)
