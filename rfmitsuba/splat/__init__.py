@@ -8,7 +8,7 @@ Pipeline (one call):
 
 1. :mod:`.project` -- every (view, Gaussian) pair becomes a 2D Gaussian in
    pixel units via the Jacobian of the direction map (Dr.Jit, AD).
-2. :mod:`.tiles` -- tile lists (4x8-pixel tiles), front to back by distance
+2. :mod:`.tiles` -- tile lists (8x8-pixel tiles), front to back by distance
    from the receiver (NumPy on the host, one synchronisation).
 3. :mod:`.raster` -- per-pixel compositing loop with a hand-written backward
    (``dr.CustomOp``).
