@@ -140,8 +140,12 @@ def loss(pred, gt):
     y, shape_gt = _flat(gt, "gt")
     if shape != shape_gt:
         raise ImageError(f"pred and gt differ in shape: {shape} vs {shape_gt}")
-    l1 = dr.mean(dr.abs(x - y))
-    return (1.0 - LAMBDA) * l1 + LAMBDA * (1.0 - dr.mean(ssim(pred, gt)))
+    # Means as sums times opaque reciprocals: a literal 1/size would be compiled
+    # into the kernels, and a different batch size would recompile them.
+    inv_pixels = dr.opaque(B.Float, 1.0 / dr.width(x))
+    inv_views = dr.opaque(B.Float, 1.0 / shape[0])
+    l1 = dr.sum(dr.abs(x - y)) * inv_pixels
+    return (1.0 - LAMBDA) * l1 + LAMBDA * (1.0 - dr.sum(ssim(pred, gt)) * inv_views)
 
 
 def ssim_np(pred, gt) -> np.ndarray | float:

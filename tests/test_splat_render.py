@@ -210,27 +210,30 @@ def test_size_and_shape_errors(variant):
         render(m, ls, rot, op, sig, [[0, 0, 0]], height=0)
 
 
-def test_no_recompilation_when_n_changes(variant):
-    # A training step (render, loss, backward) at several N launches the same
-    # kernels (same hashes): densification must not recompile. (Hashes, not
-    # cache hits, so the on-disk cache of earlier runs cannot hide a recompile.)
-    rng = np.random.default_rng(8)
-    rx = np.array([[0.1, 0.2, 0.0], [0.3, 0.1, 0.2]])
-    target = B.Float(np.float32(rng.uniform(0, 1, 2 * 18 * 72)))
+def test_no_recompilation_when_n_or_batch_changes(variant):
+    # A training step (render, SSIM loss, backward) at several N and batch sizes
+    # launches the same kernels (same hashes): densification and a short last
+    # batch must not recompile. (Hashes, not cache hits, so the on-disk cache of
+    # earlier runs cannot hide a recompile.)
+    from rfmitsuba import ssim
 
-    def step(n):
+    rng = np.random.default_rng(8)
+
+    def step(n, views):
         jit = to_jit(*random_scene(rng, n))
         for a in jit:
             dr.enable_grad(a)
+        rx = rng.uniform(-1, 1, (views, 3))
+        target = B.TensorXf(np.float32(rng.uniform(0, 1, (views, 18, 72))))
         dr.kernel_history_clear()
         img = render(*jit, rx, height=18, width=72, check=False)
-        dr.backward(dr.mean(dr.abs(img.array - target)))
+        dr.backward(ssim.loss(img, target))
         dr.eval([dr.grad(a) for a in jit])
         return sorted(h["hash"] for h in dr.kernel_history([dr.KernelType.JIT]))
 
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
-        kernels = {n: step(n) for n in (50, 90, 131, 64, 200)}
-    first = kernels[50]
+        kernels = {(n, v): step(n, v) for n, v in ((50, 2), (90, 2), (131, 3), (64, 2), (200, 5))}
+    first = kernels[(50, 2)]
     assert len(first) >= 3  # projection, forward loop, backward loop at least
-    for n, hashes in kernels.items():
-        assert hashes == first, f"N = {n} launched other kernels than N = 50"
+    for key, hashes in kernels.items():
+        assert hashes == first, f"(N, B) = {key} launched other kernels than (50, 2)"

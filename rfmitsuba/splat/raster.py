@@ -16,18 +16,26 @@ is cut at the azimuth opposite its centre; with a tilted footprint (non-zero
 ``b``) the image has a small step there. Gradients are those of this
 definition (the step itself has none).
 
-One lane per pixel, lanes ordered tile by tile, so the 16 lanes of an
-AVX-512 packet share one tile list. The forward pass is a symbolic
-``dr.while_loop``; the backward pass (``dr.CustomOp``) walks the same list back
-to front, recovering ``T_k = T_{k+1} / (1 - alpha_k)`` from the final
-transmittance as 3DGS does, and scatter-adds per-pair gradients of
-(u, v, a, b, c, opacity, signal) with ``ReduceMode.Local`` (the lanes of a
-packet hit the same Gaussian at the same step, so one atomic per packet).
+Layout: 16 lanes per 8x8 tile (one AVX-512 packet), each lane drawing four
+pixels of one column, so all lanes of a packet walk the same tile list and a
+Gaussian's seven parameters come with two 4-wide packet loads per step.
+Tiles are visited in a scrambled order so that the two equal lane blocks
+Dr.Jit gives its threads hold a similar amount of work.
+
+Forward: a symbolic ``dr.while_loop`` over the tile list (one kernel).
+Backward (``dr.CustomOp``): the same list back to front, recovering
+``T_k = T_{k+1} / (1 - alpha_k)`` from the final transmittance as 3DGS does;
+each step sums the gradients of (u, v, a, b, c, opacity, signal) over the
+lane's four pixels and scatter-adds them with ``ReduceMode.Local`` (one
+packet reduction and one uncontended atomic) into a slot of *that pair* --
+a slot belongs to one tile, so threads never fight over it. A second loop
+(one lane per Gaussian) then sums each Gaussian's pair slots. No kernel
+contains N, the number of pairs or any other size: densification does not
+recompile.
 """
 from __future__ import annotations
 
 import drjit as dr
-import numpy as np
 
 from .. import backend as B
 from . import tiles as _tiles
