@@ -15,6 +15,7 @@ def register(sub) -> None:
     p.add_argument("--sizes", default=None,
                    help="comma-separated Gaussian counts (default 2000,10000,50000)")
     p.add_argument("--repeats", type=int, default=None, help="timed repetitions per figure (default 5)")
+    p.add_argument("--views", type=int, default=1, help="PAS per call (a batch of receiver positions)")
     p.add_argument("--no-torch", action="store_true", help="skip the PyTorch comparison")
     p.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     p.set_defaults(func=run)
@@ -36,11 +37,13 @@ def run(args) -> int:
     repeats = args.repeats if args.repeats is not None else (1 if args.quick else 5)
     if repeats < 1:
         raise ConfigError(f"--repeats must be >= 1, got {repeats}")
+    if args.views < 1:
+        raise ConfigError(f"--views must be >= 1, got {args.views}")
     height, width = (18, 72) if args.quick else (90, 360)
     with bar(total=len(sizes), desc="bench splat", unit="N") as pb:
         result = bench.run(sizes=sizes, repeats=repeats, height=height, width=width,
                            torch=not args.no_torch, progress=lambda n: pb.update(1),
-                           compile_n=300 if args.quick else 2000)
+                           compile_n=300 if args.quick else 2000, views=args.views)
     print(bench.format_report(result))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

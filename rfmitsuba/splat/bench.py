@@ -38,16 +38,16 @@ QUICK_SIZES = (300,)
 ROOM = ((0.0, 0.0, 0.0), (6.0, 5.0, 3.0))
 
 
-def make_scene(n: int, *, seed: int = 0):
+def make_scene(n: int, *, seed: int = 0, views: int = 1):
     """Benchmark scene: numpy float32 means [n,3] m, log_scales [n,3], rotations [n,4],
-    opacities [n], signals [n], rx [1,3] m."""
+    opacities [n], signals [n], rx [views,3] m (the first near the room's middle)."""
     rng = np.random.default_rng(seed)
     means = rng.uniform(*ROOM, (n, 3))
     log_scales = np.log(rng.uniform(0.02, 0.10, (n, 3)))
     rotations = rng.normal(size=(n, 4))
     opacities = rng.uniform(0.05, 0.9, n)
     signals = rng.uniform(0.0, 1.0, n)
-    rx = np.array([[3.1, 2.4, 1.2]])
+    rx = np.array([[3.1, 2.4, 1.2]] + [list(rng.uniform((1, 1, 0.5), (5, 4, 2.5))) for _ in range(views - 1)])
     return tuple(np.asarray(a, np.float32) for a in (means, log_scales, rotations, opacities, signals)), rx
 
 
@@ -90,7 +90,7 @@ def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
 
 
 # --------------------------------------------------------------------------- Dr.Jit
-def _drjit_step_functions(n: int, height: int, width: int):
+def _drjit_step_functions(n: int, height: int, width: int, views: int = 1):
     import drjit as dr
 
     from .. import backend as B
@@ -98,12 +98,12 @@ def _drjit_step_functions(n: int, height: int, width: int):
     from .render import render
 
     B.ensure()
-    (means, ls, rot, op, sig), rx = make_scene(n)
+    (means, ls, rot, op, sig), rx = make_scene(n, views=views)
     vec = lambda tp, a: tp(*(B.Float(np.ascontiguousarray(a[:, i])) for i in range(a.shape[1])))  # noqa: E731
     params = [vec(B.Array3f, means), vec(B.Array3f, ls), vec(B.Array4f, rot), B.Float(op), B.Float(sig)]
     rng = np.random.default_rng(1)
-    weights = B.Float(rng.normal(size=height * width).astype(np.float32))
-    target = B.TensorXf(rng.uniform(0, 1, (1, height, width)).astype(np.float32))
+    weights = B.Float(rng.normal(size=views * height * width).astype(np.float32))
+    target = B.TensorXf(rng.uniform(0, 1, (views, height, width)).astype(np.float32))
 
     def attach():
         for p in params:
@@ -135,11 +135,11 @@ def _drjit_step_functions(n: int, height: int, width: int):
     return forward, forward_backward, iteration
 
 
-def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 5) -> dict:
-    """Dr.Jit timings (ms) and memory (MiB) at N Gaussians, in this process."""
+def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1) -> dict:
+    """Dr.Jit timings (ms) and memory (MiB) at N Gaussians and B views, in this process."""
     import drjit as dr
 
-    forward, forward_backward, iteration = _drjit_step_functions(n, height, width)
+    forward, forward_backward, iteration = _drjit_step_functions(n, height, width, views)
     for fn in (forward, forward_backward, iteration, iteration):
         fn()  # compile everything before memory is watched
     _reset_peak()
@@ -173,23 +173,24 @@ def torch_available() -> bool:
     return True
 
 
-def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 5) -> dict:
-    """PyTorch-CPU timings (ms) and memory (MiB) of :mod:`.torch_baseline` at N Gaussians."""
+def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1) -> dict:
+    """PyTorch-CPU timings (ms) and memory (MiB) of :mod:`.torch_baseline` at N Gaussians
+    (several views: one vectorised render per view)."""
     import torch
 
     from .torch_baseline import render as trender
 
     torch.set_num_threads(os.cpu_count() or 1)
-    (means, ls, rot, op, sig), rx = make_scene(n)
+    (means, ls, rot, op, sig), rx = make_scene(n, views=views)
     params = [torch.tensor(a) for a in (means, ls, rot, op, sig)]
-    rx_t = torch.tensor(rx[0], dtype=torch.float32)
+    rx_t = [torch.tensor(r, dtype=torch.float32) for r in rx]
     rng = np.random.default_rng(1)
-    weights = torch.tensor(rng.normal(size=(height, width)).astype(np.float32))
-    target = torch.tensor(rng.uniform(0, 1, (height, width)).astype(np.float32))
+    weights = torch.tensor(rng.normal(size=(views, height, width)).astype(np.float32))
+    target = torch.tensor(rng.uniform(0, 1, (views, height, width)).astype(np.float32))
     box = torch.nn.AvgPool2d(7, stride=1)
 
     def ssim_t(x, y):  # skimage defaults on valid windows (= the cropped mean)
-        x, y = x[None, None], y[None, None]
+        x, y = x[:, None], y[:, None]
         mx, my = box(x), box(y)
         c = 49.0 / 48.0
         vx = c * (box(x * x) - mx * mx)
@@ -205,7 +206,7 @@ def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 
 
     def forward():
         attach()
-        return trender(torch, *params, rx_t, height=height, width=width)
+        return torch.stack([trender(torch, *params, r, height=height, width=width) for r in rx_t])
 
     def forward_backward():
         (forward() * weights).sum().backward()
@@ -248,12 +249,13 @@ def compile_times(n: int = 2000) -> dict:
 
 
 def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, torch: bool = True,
-        progress=None, compile_n: int = 2000) -> dict:
+        progress=None, compile_n: int = 2000, views: int = 1) -> dict:
     """Run the whole benchmark; returns a JSON-able dict (see :func:`format_report`)."""
     have_torch = torch and torch_available()
     rows = []
     for n in sizes:
-        common = ["--n", str(n), "--repeats", str(repeats), "--height", str(height), "--width", str(width)]
+        common = ["--n", str(n), "--repeats", str(repeats), "--height", str(height), "--width", str(width),
+                  "--views", str(views)]
         row = {"n": n, "drjit": _worker(["drjit", *common])}
         if have_torch:
             row["torch"] = _worker(["torch", *common])
@@ -262,28 +264,33 @@ def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, to
             progress(n)
     return {"rows": rows, "compile": compile_times(compile_n), "torch": have_torch,
             "torch_note": "" if have_torch else ("skipped" if not torch else "missing"), "height": height,
-            "width": width, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count()}
+            "width": width, "views": views, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count()}
 
 
 def format_report(result: dict) -> str:
     """Plain-text table of :func:`run`'s result."""
     h, w = result["height"], result["width"]
-    lines = [f"splat benchmark: one {h}x{w} PAS per iteration, median of {result['repeats']} "
+    views = result.get("views", 1)
+    what = f"one {h}x{w} PAS" if views == 1 else f"{views} PAS of {h}x{w} (one call)"
+    lines = [f"splat benchmark: {what} per iteration, median of {result['repeats']} "
              f"(cores {result['cores']}, load {' '.join(f'{x:.2f}' for x in result['load'])})",
-             f"{'N':>7} | {'Dr.Jit fwd':>10} {'bwd':>8} {'iter':>8} {'peak':>8} |"
-             + (f" {'torch fwd':>10} {'bwd':>8} {'iter':>8} {'peak':>8} | {'speed-up fwd':>12} {'bwd':>6} {'iter':>6}"
+             f"{'N':>7} | {'Dr.Jit fwd':>10} {'bwd':>8} {'iter':>8} {'mem':>8} |"
+             + (f" {'torch fwd':>10} {'bwd':>8} {'iter':>8} {'mem':>8} | {'speed-up fwd':>12} {'bwd':>6} {'iter':>6}"
                 if result["torch"] else "")]
     for row in result["rows"]:
         d = row["drjit"]
+        mem = d.get("jit_watermark_mib", d["peak_mib"])
         line = (f"{row['n']:>7} | {d['forward_ms']:>8.1f}ms {d['backward_ms']:>6.1f}ms {d['iteration_ms']:>6.1f}ms "
-                f"{d['peak_mib']:>5.0f}MiB |")
+                f"{mem:>5.1f}MiB |")
         if result["torch"]:
             t = row["torch"]
             line += (f" {t['forward_ms']:>8.1f}ms {t['backward_ms']:>6.1f}ms {t['iteration_ms']:>6.1f}ms "
-                     f"{t['peak_mib']:>5.0f}MiB | {t['forward_ms'] / d['forward_ms']:>11.1f}x "
+                     f"{t['peak_mib']:>5.1f}MiB | {t['forward_ms'] / d['forward_ms']:>11.1f}x "
                      f"{t['backward_ms'] / max(d['backward_ms'], 1e-3):>5.1f}x "
                      f"{t['iteration_ms'] / d['iteration_ms']:>5.1f}x")
         lines.append(line)
+    lines.append("mem: Dr.Jit = peak of the JIT allocator (arrays alive) during the timed runs; "
+                 "torch = growth of the peak resident set")
     c = result["compile"]
     lines.append(f"compile time of a first iteration (N = {c['n']}, 90x360): empty kernel cache {c['cold_ms'] / 1e3:.2f} s, "
                  f"warm cache {c['warm_ms'] / 1e3:.2f} s")
@@ -305,11 +312,12 @@ def _main(argv: list[str]) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--height", type=int, default=90)
     p.add_argument("--width", type=int, default=360)
+    p.add_argument("--views", type=int, default=1)
     a = p.parse_args(argv)
     if a.mode == "drjit":
-        res = measure_drjit(a.n, height=a.height, width=a.width, repeats=a.repeats)
+        res = measure_drjit(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views)
     elif a.mode == "torch":
-        res = measure_torch(a.n, height=a.height, width=a.width, repeats=a.repeats)
+        res = measure_torch(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views)
     else:
         res = first_call(a.n)
     print(json.dumps(res))
