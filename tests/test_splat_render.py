@@ -131,7 +131,7 @@ def test_gradients_match_finite_differences(variant):
     rx = np.array([[0.1, 0.2, 0.0], [0.4, -0.3, 0.3]])
     errors = gradient_check(scene, rx, 18, 72, rng)
     for name, err in errors.items():
-        assert err < 2e-4, f"{name}: relative gradient error {err:.3g}"
+        assert err < 5e-5, f"{name}: relative gradient error {err:.3g}"
 
 
 def test_gradients_at_seam_and_zenith(variant):
@@ -145,7 +145,7 @@ def test_gradients_at_seam_and_zenith(variant):
     scene = (d,) + scene[1:]
     errors = gradient_check(scene, rx, 18, 72, rng)
     for name, err in errors.items():
-        assert err < 2e-4, f"{name}: relative gradient error {err:.3g}"
+        assert err < 5e-5, f"{name}: relative gradient error {err:.3g}"
 
 
 def test_empty_set_gives_zero_images(variant):

@@ -174,10 +174,10 @@ class Rasterize(dr.CustomOp):
             for q in range(SUB):
                 alpha, raw, gauss, du, dv = _alpha(par, px, rows[q], width)
                 use = (alpha >= ALPHA_MIN) & active[q]
-                one_m = 1.0 - alpha
-                T_k = T[q] / one_m
+                inv_one_m = dr.rcp(1.0 - alpha)
+                T_k = T[q] * inv_one_m
                 w = T_k * alpha
-                g_alpha = gpix[q] * (T_k * s - acc[q] / one_m)
+                g_alpha = gpix[q] * (T_k * s - acc[q] * inv_one_m)
                 g_alpha = dr.select(use & (raw < ALPHA_MAX), g_alpha, 0.0)  # clamped: no dependence
                 g_q = -0.5 * g_alpha * alpha
                 g_s = dr.select(use, gpix[q] * w, 0.0)

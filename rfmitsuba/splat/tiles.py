@@ -220,6 +220,7 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     tiles_per_view = nty * ntx
     num_tiles = views * tiles_per_view
     count, ty0, tx0, ncol1, ncols = _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width)
+    dr.eval(count, ty0, tx0, ncol1, ncols)  # one kernel (each gather below would re-run it)
     # Front to back: one global depth sort. The tile sort below is stable and tiles
     # belong to one view, so every tile list is in depth order of its own view.
     key = dr.select(count > 0, depth, dr.inf)
