@@ -9,9 +9,17 @@ Pipeline (one call):
 1. :mod:`.project` -- every (view, Gaussian) pair becomes a 2D Gaussian in
    pixel units via the Jacobian of the direction map (Dr.Jit, AD).
 2. :mod:`.tiles` -- tile lists (8x8-pixel tiles), front to back by distance
-   from the receiver (NumPy on the host, one synchronisation).
-3. :mod:`.raster` -- per-pixel compositing loop with a hand-written backward
-   (``dr.CustomOp``).
+   from the receiver, built on the device (one synchronisation: the number
+   of pairs).
+3. :mod:`.raster` -- compositing loop over each tile's list (16 lanes per
+   tile, 4 pixels per lane) with a hand-written backward (``dr.CustomOp``).
+
+No kernel depends on N, on the number of pairs or on the batch size B (for
+B >= 2), so densification does not recompile anything. ``render(...,
+check=True)`` (the default) validates the parameter values with one fused
+reduction and a synchronisation; a training loop passes ``check=False``:
+non-finite or degenerate geometry then drops those Gaussians (never a crash),
+non-finite signals give non-finite pixels.
 
 Definitions: ``I = sum_i T_i alpha_i s_i``, ``T_i = prod_{j<i}(1 - alpha_j)``,
 ``alpha_i = min(0.99, opacity_i exp(-d^T Sigma^-1 d / 2))``, contributions with
