@@ -48,7 +48,7 @@ SUB = TILE_SIZE // TILE_LANES
 SUB_STEP = TILE_LANES // TILE_W
 
 #: Primes for the tile scrambling (the first one not dividing the tile count is used).
-_STRIDES = (7919, 7907, 7901)
+_STRIDES = (37, 41, 43)  # small: slot * stride stays far below 2^32
 
 
 def _lanes(views: int, height: int, width: int):
@@ -61,7 +61,7 @@ def _lanes(views: int, height: int, width: int):
     k = lanes - slot * TILE_LANES
     # Tiles in a scrambled order (slot * stride mod T, a permutation), so that the
     # contiguous lane blocks Dr.Jit hands to its threads mix busy and idle tiles.
-    stride = next(p for p in _STRIDES if num_tiles % p)
+    stride = next((p for p in _STRIDES if num_tiles % p), 1)
     tile = (slot * dr.opaque(B.UInt32, stride)) % dr.opaque(B.UInt32, num_tiles)
     tiles_per_view = nty * ntx
     view = tile // tiles_per_view
