@@ -11,7 +11,7 @@ import pytest
 import splat_reference as ref
 from rfmitsuba import backend as B
 from rfmitsuba.errors import GaussianError
-from rfmitsuba.splat import render
+from rfmitsuba.splat import as_jit_array, render
 
 
 def random_scene(rng, n, *, box=((-3, -3, -1.5), (3, 3, 2.5)), scale=(0.08, 0.5)):
@@ -24,12 +24,10 @@ def random_scene(rng, n, *, box=((-3, -3, -1.5), (3, 3, 2.5)), scale=(0.08, 0.5)
 
 
 def to_jit(means, log_scales, rotations, opacities, signals):
-    """numpy -> Dr.Jit arrays, one evaluated Float per component (no size in any kernel)."""
-    def vec(tp, a):
-        a = np.asarray(a, np.float32)
-        return tp(*(B.Float(np.ascontiguousarray(a[:, i])) for i in range(a.shape[1])))
-    return (vec(B.Array3f, means), vec(B.Array3f, log_scales), vec(B.Array4f, rotations),
-            B.Float(np.float32(opacities)), B.Float(np.float32(signals)))
+    """numpy -> Dr.Jit arrays via the public converter (no size in any kernel,
+    which the recompilation test below checks)."""
+    kinds = ("Array3f", "Array3f", "Array4f", "Float", "Float")
+    return tuple(as_jit_array(a, k) for a, k in zip((means, log_scales, rotations, opacities, signals), kinds))
 
 
 def assert_close(img, expected, tol=2e-5):

@@ -29,7 +29,7 @@ array cannot tell up from down); Gaussians closer than ``near`` are culled;
 ``Sigma`` includes a 0.3 px^2 blur (as 3DGS).
 """
 from .project import DILATION
-from .render import render
+from .render import as_jit_array, render
 from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_W
 
-__all__ = ["render", "ALPHA_MAX", "ALPHA_MIN", "DILATION", "TILE_H", "TILE_W"]
+__all__ = ["render", "as_jit_array", "ALPHA_MAX", "ALPHA_MIN", "DILATION", "TILE_H", "TILE_W"]

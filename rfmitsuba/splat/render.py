@@ -15,8 +15,14 @@ from .raster import rasterize
 LOG_SCALE_RANGE = (-87.0, 88.0)
 
 
-def _to_array(x, kind: str, name: str):
-    """numpy [N, k] / [N] or a Dr.Jit array -> Dr.Jit array of the backend."""
+def as_jit_array(x, kind: str, name: str = "array"):
+    """numpy [N, k] / [N] or a Dr.Jit array -> Dr.Jit array of the backend.
+
+    ``kind`` is ``"Array3f"``, ``"Array4f"`` or ``"Float"``. NumPy input is
+    converted one component at a time: ``Array3f(numpy [3, N])`` would gather
+    lazily from one flat array with N compiled into the kernel, so every new N
+    (densification) would recompile. Raises GaussianError on a wrong shape.
+    """
     dims = {"Array3f": 3, "Array4f": 4, "Float": 1}[kind]
     tp = getattr(B, kind)
     if isinstance(x, tp):
@@ -128,11 +134,11 @@ def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
         raise GaussianError(f"rx_to_world must be a finite 3x3 rotation matrix, got {R.tolist()!r}")
 
     arrays = {
-        "means": _to_array(means, "Array3f", "means"),
-        "log_scales": _to_array(log_scales, "Array3f", "log_scales"),
-        "rotations": _to_array(rotations, "Array4f", "rotations"),
-        "opacities": _to_array(opacities, "Float", "opacities"),
-        "signals": _to_array(signals, "Float", "signals"),
+        "means": as_jit_array(means, "Array3f", "means"),
+        "log_scales": as_jit_array(log_scales, "Array3f", "log_scales"),
+        "rotations": as_jit_array(rotations, "Array4f", "rotations"),
+        "opacities": as_jit_array(opacities, "Float", "opacities"),
+        "signals": as_jit_array(signals, "Float", "signals"),
     }
     sizes = {k: dr.width(v) for k, v in arrays.items()}
     n = min(sizes.values())
