@@ -78,7 +78,7 @@ def _reset_peak() -> None:
         pass
 
 
-def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
+def _times_ms(fn, repeats: int, *, warmup: int = 2) -> list[float]:
     for _ in range(warmup):  # compilation, allocator
         fn()
     times = []
@@ -86,7 +86,23 @@ def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
         t0 = time.perf_counter()
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times)
+    return times
+
+
+def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
+    return statistics.median(_times_ms(fn, repeats, warmup=warmup))
+
+
+def _figures(forward, forward_backward, iteration, repeats: int) -> dict:
+    """Median and best (minimum) times, ms. Backward = (forward + backward) - forward.
+    The best-of figures are the ones least disturbed by other load on shared cores."""
+    f = _times_ms(forward, repeats)
+    fb = _times_ms(forward_backward, repeats)
+    it = _times_ms(iteration, repeats)
+    med = statistics.median
+    return {"forward_ms": med(f), "backward_ms": max(med(fb) - med(f), 0.0), "iteration_ms": med(it),
+            "forward_min_ms": min(f), "backward_min_ms": max(min(fb) - min(f), 0.0),
+            "iteration_min_ms": min(it)}
 
 
 # --------------------------------------------------------------------------- Dr.Jit
@@ -145,10 +161,7 @@ def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 
     _reset_peak()
     rss0 = _rss_bytes()
     dr.detail.malloc_clear_statistics()
-    t_f = _median_ms(forward, repeats)
-    t_fb = _median_ms(forward_backward, repeats)
-    t_it = _median_ms(iteration, repeats)
-    return {"forward_ms": t_f, "backward_ms": max(t_fb - t_f, 0.0), "iteration_ms": t_it,
+    return {**_figures(forward, forward_backward, iteration, repeats),
             "peak_mib": max(_peak_bytes() - rss0, 0) / 2**20,
             "jit_watermark_mib": dr.detail.malloc_watermark(dr.JitBackend.LLVM) / 2**20,
             "threads": dr.thread_count()}
@@ -223,10 +236,7 @@ def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 
         fn()
     _reset_peak()
     rss0 = _rss_bytes()
-    t_f = _median_ms(forward, repeats)
-    t_fb = _median_ms(forward_backward, repeats)
-    t_it = _median_ms(iteration, repeats)
-    return {"forward_ms": t_f, "backward_ms": max(t_fb - t_f, 0.0), "iteration_ms": t_it,
+    return {**_figures(forward, forward_backward, iteration, repeats),
             "peak_mib": max(_peak_bytes() - rss0, 0) / 2**20, "threads": torch.get_num_threads()}
 
 
@@ -290,6 +300,18 @@ def format_report(result: dict) -> str:
                      f"{t['backward_ms'] / max(d['backward_ms'], 1e-3):>5.1f}x "
                      f"{t['iteration_ms'] / d['iteration_ms']:>5.1f}x")
         lines.append(line)
+    if result["rows"] and "iteration_min_ms" in result["rows"][0]["drjit"]:
+        lines.append(f"best of {result['repeats']} (least disturbed by other load), ms:")
+        for row in result["rows"]:
+            d = row["drjit"]
+            line = (f"{row['n']:>7} | Dr.Jit fwd {d['forward_min_ms']:.1f}  bwd {d['backward_min_ms']:.1f}  "
+                    f"iter {d['iteration_min_ms']:.1f}")
+            if result["torch"]:
+                t = row["torch"]
+                line += (f" | torch fwd {t['forward_min_ms']:.1f}  bwd {t['backward_min_ms']:.1f}  "
+                         f"iter {t['iteration_min_ms']:.1f} | speed-up iter "
+                         f"{t['iteration_min_ms'] / d['iteration_min_ms']:.1f}x")
+            lines.append(line)
     lines.append("mem: Dr.Jit = peak of the JIT allocator (arrays alive) during the timed runs; "
                  "torch = growth of the peak resident set")
     c = result["compile"]
