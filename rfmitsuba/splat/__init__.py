@@ -1,0 +1,35 @@
+"""Differentiable azimuth-elevation Gaussian splatting (issue 3).
+
+:func:`render` draws power angular spectra (SPEC layout, rows = elevation
+(i+1)*90/H degrees, columns = azimuth j*360/W degrees, array frame) of N 3D
+Gaussians seen from B receiver positions, differentiable in reverse mode.
+
+Pipeline (one call):
+
+1. :mod:`.project` -- every (view, Gaussian) pair becomes a 2D Gaussian in
+   pixel units via the Jacobian of the direction map (Dr.Jit, AD).
+2. :mod:`.tiles` -- tile lists (8x8-pixel tiles), front to back by distance
+   from the receiver, built on the device (one synchronisation: the number
+   of pairs).
+3. :mod:`.raster` -- compositing loop over each tile's list (16 lanes per
+   tile, 4 pixels per lane) with a hand-written backward (``dr.CustomOp``).
+
+No kernel depends on N, on the number of pairs or on the batch size B (for
+B >= 2), so densification does not recompile anything. ``render(...,
+check=True)`` (the default) validates the parameter values with one fused
+reduction and a synchronisation; a training loop passes ``check=False``:
+non-finite or degenerate geometry then drops those Gaussians (never a crash),
+non-finite signals give non-finite pixels.
+
+Definitions: ``I = sum_i T_i alpha_i s_i``, ``T_i = prod_{j<i}(1 - alpha_j)``,
+``alpha_i = min(0.99, opacity_i exp(-d^T Sigma^-1 d / 2))``, contributions with
+``alpha < 1/255`` skipped; azimuth distance wraps (nearest of the 360-degree
+copies); below-horizon Gaussians are mirrored to ``|elevation|`` (a horizontal
+array cannot tell up from down); Gaussians closer than ``near`` are culled;
+``Sigma`` includes a 0.3 px^2 blur (as 3DGS).
+"""
+from .project import DILATION
+from .render import as_jit_array, render
+from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_W
+
+__all__ = ["render", "as_jit_array", "ALPHA_MAX", "ALPHA_MIN", "DILATION", "TILE_H", "TILE_W"]

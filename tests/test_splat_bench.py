@@ -1,0 +1,58 @@
+"""Tests of the splat benchmark (rfmitsuba.splat.bench, rfmitsuba.cli.bench) and of
+the PyTorch baseline it compares against (rfmitsuba.splat.torch_baseline)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import splat_reference as ref
+from rfmitsuba.cli import main
+from rfmitsuba.splat import bench
+
+
+def test_torch_baseline_matches_reference():
+    torch = pytest.importorskip("torch")
+    from rfmitsuba.splat import torch_baseline
+
+    (means, ls, rot, op, sig), rx = bench.make_scene(150, seed=3)
+    img = torch_baseline.render(torch, *(torch.tensor(a) for a in (means, ls, rot, op, sig)),
+                                torch.tensor(rx[0], dtype=torch.float32), height=18, width=72)
+    expected, amb = ref.render(means, ls, rot, op, sig, rx, height=18, width=72, ambiguous=True)
+    assert np.abs(np.where(amb[0], 0, img.detach().numpy() - expected[0])).max() < 1e-4
+
+
+def test_cli_quick_prints_table_and_json(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "splat", "--quick", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Dr.Jit fwd" in text and "compile time of a first iteration" in text
+    result = json.loads(out.read_text())
+    row = result["rows"][0]
+    assert row["n"] == bench.QUICK_SIZES[0]
+    for key in ("forward_ms", "backward_ms", "iteration_ms", "peak_mib"):
+        assert row["drjit"][key] >= 0
+    assert row["drjit"]["forward_ms"] > 0 and row["drjit"]["iteration_ms"] > 0
+    assert result["compile"]["cold_ms"] >= 0 and result["compile"]["warm_ms"] >= 0
+    if bench.torch_available():
+        assert "speed-up" in text and row["torch"]["iteration_ms"] > 0
+    else:
+        assert "PyTorch is missing" in text
+
+
+def test_cli_rejects_bad_sizes(capsys):
+    assert main(["bench", "splat", "--sizes", "10,x"]) == 2
+    assert "--sizes" in capsys.readouterr().err
+    assert main(["bench", "splat", "--sizes", "0"]) == 2
+
+
+def test_report_without_torch_says_so():
+    result = {"height": 90, "width": 360, "repeats": 5, "cores": 2, "load": (1.0, 1.0, 1.0),
+              "torch": False, "torch_note": "missing",
+              "rows": [{"n": 10, "drjit": {"forward_ms": 1.0, "backward_ms": 2.0, "iteration_ms": 4.0,
+                                           "peak_mib": 1.0}}],
+              "compile": {"cold_ms": 1500.0, "warm_ms": 50.0, "n": 2000}}
+    text = bench.format_report(result)
+    assert "PyTorch is missing" in text and "speed-up" not in text
+    assert "empty kernel cache 1.50 s, warm cache 0.05 s" in text
