@@ -20,3 +20,57 @@ def variant() -> str:
     from rfmitsuba import backend
 
     return backend.set_variant(os.environ.get("RFMITSUBA_VARIANT") or "llvm")
+
+
+# ----------------------------------------------------------------------------- tiny hand-made rooms
+def _quad_ply(path, corners) -> None:
+    """Write one planar quad (two triangles, both windings) as an ASCII PLY file."""
+    import numpy as np
+
+    v = np.asarray(corners, float)
+    lines = ["ply", "format ascii 1.0", "element vertex 4", "property float x", "property float y",
+             "property float z", "element face 2", "property list uchar int vertex_indices", "end_header"]
+    lines += [f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in v]
+    lines += ["3 0 1 2", "3 0 2 3"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_quads_scene(folder, quads: dict, *, material: str = "concrete") -> "Path":
+    """A Sionna scene of named planar quads (id -> 4 corners [4, 3], metres), one ITU material.
+
+    Returns the XML path. Used by the physics tests (free space, one plate, a closed box).
+    """
+    from pathlib import Path
+
+    folder = Path(folder)
+    (folder / "meshes").mkdir(parents=True, exist_ok=True)
+    shapes = []
+    for name, corners in quads.items():
+        _quad_ply(folder / "meshes" / f"{name}.ply", corners)
+        shapes.append(f'  <shape type="ply" id="{name}"><string name="filename" value="meshes/{name}.ply"/>'
+                      f'<boolean name="face_normals" value="true"/><ref id="mat-itu-{material}" name="bsdf"/></shape>')
+    xml = ['<scene version="2.1.0">',
+           f'  <bsdf type="itu-radio-material" id="mat-itu-{material}"><string name="type" value="{material}"/>'
+           '<float name="thickness" value="0.1"/></bsdf>', *shapes, "</scene>"]
+    path = folder / "scene.xml"
+    path.write_text("\n".join(xml) + "\n")
+    return path
+
+
+def box_quads(lo=(0.0, 0.0, 0.0), hi=(4.0, 3.0, 2.6)) -> dict:
+    """The six faces of an axis-aligned box room."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    return {
+        "floor": [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],
+        "ceiling": [(x0, y0, z1), (x0, y1, z1), (x1, y1, z1), (x1, y0, z1)],
+        "wall-xmin": [(x0, y0, z0), (x0, y1, z0), (x0, y1, z1), (x0, y0, z1)],
+        "wall-xmax": [(x1, y0, z0), (x1, y0, z1), (x1, y1, z1), (x1, y1, z0)],
+        "wall-ymin": [(x0, y0, z0), (x0, y0, z1), (x1, y0, z1), (x1, y0, z0)],
+        "wall-ymax": [(x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)],
+    }
+
+
+@pytest.fixture(scope="session")
+def box_room(tmp_path_factory):
+    """XML path of a closed 4 x 3 x 2.6 m concrete box room (corner at the origin)."""
+    return write_quads_scene(tmp_path_factory.mktemp("box_room"), box_quads())

@@ -1,0 +1,49 @@
+"""Tests of rfmitsuba.antenna: URA geometry and the plane-wave array response."""
+import numpy as np
+import pytest
+
+from rfmitsuba import antenna
+from rfmitsuba.errors import ConfigError
+
+
+def test_wavelength_2_4ghz():
+    assert antenna.wavelength(2.4e9) == pytest.approx(0.12491352, rel=1e-6)
+
+
+@pytest.mark.parametrize("f", [0.0, -1.0, float("nan"), float("inf")])
+def test_wavelength_rejects_bad_frequency(f):
+    with pytest.raises(ConfigError, match="frequency_hz"):
+        antenna.wavelength(f)
+
+
+def test_element_positions_half_wavelength_x_fastest():
+    lam = antenna.wavelength(2.4e9)
+    p = antenna.element_positions(2.4e9)
+    assert p.shape == (16, 3)
+    assert np.allclose(p[:, 2], 0)  # horizontal array
+    assert np.allclose(p.mean(axis=0), 0)  # centred
+    assert np.isclose(p[1, 0] - p[0, 0], lam / 2) and np.isclose(p[1, 1], p[0, 1])  # x fastest
+    assert np.isclose(p[4, 1] - p[0, 1], lam / 2) and np.isclose(p[4, 0], p[0, 0])
+    assert np.isclose(p[:, 0].max() - p[:, 0].min(), 1.5 * lam)
+
+
+def test_array_response_matches_explicit_sum():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(3, 5)) + 1j * rng.normal(size=(3, 5))
+    u = rng.normal(size=(3, 5, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    pos = antenna.element_positions(2.4e9)
+    k = 2 * np.pi / antenna.wavelength(2.4e9)
+    ref = np.array([[sum(a[n, p] * np.exp(1j * k * pos[m] @ u[n, p]) for p in range(5)) for m in range(16)]
+                    for n in range(3)])
+    assert np.allclose(antenna.array_response(a, u, frequency_hz=2.4e9), ref, rtol=1e-5, atol=1e-6)
+
+
+def test_array_response_shape_mismatch():
+    with pytest.raises(ConfigError, match="directions"):
+        antenna.array_response(np.ones((2, 3)), np.ones((2, 4, 3)), frequency_hz=2.4e9)
+
+
+def test_describe_records_geometry():
+    d = antenna.describe(2.4e9)
+    assert d["rows"] == 4 and d["cols"] == 4 and len(d["element_positions_m"]) == 16

@@ -1,0 +1,72 @@
+"""Tests of rfmitsuba.pas: SPEC layout, Bartlett beamformer, normalisation."""
+import numpy as np
+import pytest
+
+from rfmitsuba import antenna, pas
+from rfmitsuba.errors import ConfigError
+
+F = 2.4e9
+
+
+def plane_wave(el, az):
+    u = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return antenna.array_response(np.ones((1, 1)), u[None, None], frequency_hz=F)
+
+
+def test_angle_grid_layout():
+    el, az = pas.angle_grid()
+    assert el.shape == (90, 360)
+    assert np.isclose(np.degrees(el[0, 0]), 1) and np.isclose(np.degrees(el[-1, 0]), 90)
+    assert np.isclose(np.degrees(az[0, 0]), 0) and np.isclose(np.degrees(az[0, -1]), 359)
+    assert pas.angle_grid(resolution_deg=2.0)[0].shape == (45, 180)
+    with pytest.raises(ConfigError, match="resolution_deg"):
+        pas.angle_grid(resolution_deg=7.0)
+
+
+@pytest.mark.parametrize("el_deg,az_deg", [(30, 0), (20, 117), (45, 250), (60, 333)])
+def test_peak_points_at_plane_wave_source(el_deg, az_deg):
+    p = pas.bartlett(plane_wave(np.radians(el_deg), np.radians(az_deg)), frequency_hz=F)
+    assert p.shape == (1, 90, 360) and p.dtype == np.float32
+    el, az = np.degrees(pas.peak_direction(p[0]))
+    assert abs(el - el_deg) <= 2
+    assert abs((az - az_deg + 180) % 360 - 180) <= 2
+    assert p.max() == pytest.approx(1.0, abs=1e-3)  # unit plane wave, |sum| / 16 at the peak
+
+
+def test_matches_direct_formula():
+    rng = np.random.default_rng(0)
+    h = (rng.normal(size=(2, 16)) + 1j * rng.normal(size=(2, 16))).astype(np.complex64)
+    p = pas.bartlett(h, frequency_hz=F)
+    pos = antenna.element_positions(F)
+    k = 2 * np.pi / antenna.wavelength(F)
+    for i, j in [(0, 0), (10, 45), (44, 200), (89, 359)]:
+        el, az = np.radians(i + 1), np.radians(j)
+        d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        v = np.exp(1j * k * pos @ d)
+        for n in range(2):
+            assert p[n, i, j] == pytest.approx(abs(np.conj(v) @ h[n]) / 16, rel=1e-4)
+
+
+def test_batching_does_not_change_result():
+    rng = np.random.default_rng(2)
+    h = rng.normal(size=(7, 16)) + 1j * rng.normal(size=(7, 16))
+    a, b = pas.bartlett(h, frequency_hz=F, batch=3), pas.bartlett(h, frequency_hz=F, batch=100)
+    assert np.allclose(a, b, rtol=1e-5, atol=1e-7)
+    assert np.array_equal(a, pas.bartlett(h, frequency_hz=F, batch=3))  # same input, same bits
+
+
+def test_bad_channels():
+    with pytest.raises(ConfigError, match="elements"):
+        pas.bartlett(np.ones((2, 8)), frequency_hz=F)
+    with pytest.raises(ConfigError, match="NaN"):
+        pas.bartlett(np.full((1, 16), np.nan), frequency_hz=F)
+    with pytest.raises(ConfigError, match=r"\[K, M\]"):
+        pas.bartlett(np.ones(16), frequency_hz=F)
+
+
+def test_normalize_per_image():
+    x = np.stack([np.linspace(2, 5, 90 * 360).reshape(90, 360), np.full((90, 360), 3.0)])
+    n = pas.normalize(x)
+    assert n[0].min() == 0 and n[0].max() == pytest.approx(1)
+    assert np.all(n[1] == 0)  # constant image
+    assert n.dtype == np.float32
