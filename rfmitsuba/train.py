@@ -154,27 +154,23 @@ def quat_xyzw_to_matrix(q) -> np.ndarray:
 
 
 def _scene_xml(meta: dict, root: Path) -> Path | None:
-    for key in ("scene_xml", "scene_file", "scene_path", "scene"):
-        v = meta.get(key)
-        if isinstance(v, dict):
-            v = v.get("xml") or v.get("path") or v.get("file") or v.get("name")
+    """The scene XML a dataset was simulated in (meta "scene": {"file", "name"} or a string), or None."""
+    sc = meta.get("scene")
+    cands = []
+    if isinstance(sc, dict):
+        cands = [sc.get("file"), sc.get("name")]
+    elif isinstance(sc, str):
+        cands = [sc]
+    for v in cands:
         if not isinstance(v, str) or not v:
             continue
         p = Path(v) if Path(v).is_absolute() else root / v
-        if p.is_file():
+        if p.suffix.lower() == ".xml" and p.is_file():
             return p
-        if Path(v).is_file():
-            return Path(v)
         try:
-            from . import scenes  # noqa: F401
-
             from .scenes import path as scene_path
 
-            p = Path(scene_path(v))
-            if p.is_dir():
-                p = p / f"{v}.xml"
-            if p.is_file():
-                return p
+            return Path(scene_path(Path(v).stem))
         except Exception:  # noqa: BLE001 - not a built-in scene name
             continue
     return None
@@ -266,26 +262,16 @@ class TrainData:
         return minmax(downsample(raw, d))
 
     def meshes(self):
-        """Scene meshes (list of (vertices, faces)) or None when the dataset names no scene."""
+        """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, or None
+        when the dataset names no scene (NeRF2 folders)."""
         if self.scene_xml is None:
             return None
         try:
-            from .geometry import RoomGeometry  # the scenes helper's parser, when present
-
-            geo = RoomGeometry.from_xml(self.scene_xml)
-            ms = getattr(geo, "meshes", None)
-            if ms:
-                out = []
-                for m in (ms.values() if isinstance(ms, dict) else ms):
-                    v = getattr(m, "vertices", None)
-                    f = getattr(m, "faces", None)
-                    if v is None and isinstance(m, tuple):
-                        v, f = m
-                    out.append((np.asarray(v, np.float64), np.asarray(f, np.int64)))
-                return out
-        except ImportError:
-            pass
-        return scene_meshes(self.scene_xml)
+            from .geometry import RoomGeometry
+        except ImportError:  # pragma: no cover - the geometry module ships with the package
+            return scene_meshes(self.scene_xml)
+        geo = RoomGeometry.from_xml(self.scene_xml)
+        return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64)) for sh in geo.shapes]
 
 
 # =========================================================================== trainer
