@@ -163,6 +163,18 @@ class Simulator:
         self._tmp = tempfile.TemporaryDirectory(prefix="rfm-human-")
         self.timing = Timing()
 
+    def set_scattering(self, coefficient: float) -> None:
+        """Set every scene material's scattering coefficient (in [0, 1]); needed for diffuse reflection.
+
+        Sionna's XML loader rewrites ``itu-radio-material`` entries, so this is set after loading.
+        """
+        c = float(coefficient)
+        if not 0.0 <= c <= 1.0:
+            raise ConfigError(f"scattering coefficient must be in [0, 1], got {coefficient!r}")
+        for mat in self.scene.radio_materials.values():
+            if hasattr(mat, "scattering_coefficient"):
+                mat.scattering_coefficient = c
+
     # ------------------------------------------------------------------ positions
     def set_positions(self, positions: np.ndarray) -> None:
         """Place one isotropic receiver at each antenna position (float [N, 3], metres)."""

@@ -74,3 +74,15 @@ def box_quads(lo=(0.0, 0.0, 0.0), hi=(4.0, 3.0, 2.6)) -> dict:
 def box_room(tmp_path_factory):
     """XML path of a closed 4 x 3 x 2.6 m concrete box room (corner at the origin)."""
     return write_quads_scene(tmp_path_factory.mktemp("box_room"), box_quads())
+
+
+@pytest.fixture(scope="session")
+def quick_dataset(tmp_path_factory, variant):
+    """A quick bedroom dataset (moving RX, 36 antenna positions x 5 states), generated once per session.
+
+    Same as ``rfmitsuba generate bedroom --task rx --quick --seed 0``.
+    """
+    from rfmitsuba import dataset
+
+    out = tmp_path_factory.mktemp("quick_bedroom") / "ds"
+    return dataset.generate(out, dataset.quick_config("bedroom", task="rx", seed=0), quiet=True)

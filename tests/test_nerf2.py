@@ -1,0 +1,92 @@
+"""Tests of rfmitsuba.nerf2: NeRF2 spectrum folders, write -> read round trip and bad folders."""
+import numpy as np
+import pytest
+
+from rfmitsuba import dataset as D
+from rfmitsuba import nerf2
+from rfmitsuba.errors import DatasetError
+
+
+@pytest.fixture
+def small(tmp_path):
+    rng = np.random.default_rng(0)
+    S, A = 2, 12
+    hp = np.full((S, 3), np.nan)
+    hp[1] = [1.0, 2.0, 0.0]
+    pas = rng.random((S, A, 90, 360)).astype(np.float32) * 3 + 1
+    return D.write_dataset(tmp_path / "ds", pas=pas, antenna_pos=rng.random((A, 3)) * 4, human_pos=hp,
+                           meta={"task": "tx", "fixed_pos": [0.3, 0.3, 2.0]})
+
+
+def test_write_read_round_trip(small, tmp_path):
+    out = nerf2.write(small, tmp_path / "n", state=1)
+    names = sorted(p.name for p in (out / "spectrum").iterdir())
+    assert names[0] == "00001.png" and len(names) == 12
+    assert (out / "tx_pos.csv").read_text().splitlines()[0] == "x,y,z"
+    assert "gateway1:" in (out / "gateway_info.yml").read_text()
+    back = nerf2.read(out)
+    assert back.num_antennas == 12 and back.task == "tx"
+    want = np.round(D.Dataset(small.path).pas(1) * 0)  # shape only
+    p = back.pas(0)
+    assert p.shape == want.shape and p.min() == 0 and p.max() == 1
+    from rfmitsuba.pas import normalize
+
+    assert np.abs(p - normalize(small.pas(1))).max() <= 0.5 / 255 + 1e-6  # 8-bit quantisation
+    assert np.allclose(back.antenna_pos, small.antenna_pos, atol=1e-6)
+    assert np.allclose(back.fixed_pos, [0.3, 0.3, 2.0]) and np.allclose(back.rx_to_world, np.eye(3))
+    assert np.array_equal(back.split.antenna_test, small.split.antenna_test)
+    assert np.allclose(back.human_pos[0], [1.0, 2.0, 0.0])
+    # open_dataset recognises the folder too
+    assert D.open_dataset(out).num_antennas == 12
+
+
+def test_index_files_are_one_based(small, tmp_path):
+    out = nerf2.write(small, tmp_path / "n")
+    tr = [int(x) for x in (out / "train_index.txt").read_text().split()]
+    te = [int(x) for x in (out / "test_index.txt").read_text().split()]
+    assert sorted(tr + te) == list(range(1, 13))
+
+
+def test_quaternion_matrix():
+    assert np.allclose(nerf2.quaternion_matrix([0, 0, 0, 1]), np.eye(3))
+    r = nerf2.quaternion_matrix([0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)])  # 90 deg about z
+    assert np.allclose(r @ [1, 0, 0], [0, 1, 0])
+
+
+def test_gateway_with_rotation_is_read(small, tmp_path):
+    out = nerf2.write(small, tmp_path / "n")
+    (out / "gateway_info.yml").write_text("gateway1:\n  position: [1, 2, 3]\n  orientation: [0, 0, 0.7071068, 0.7071068]\n")
+    back = nerf2.read(out)
+    assert np.allclose(back.fixed_pos, [1, 2, 3]) and np.allclose(back.rx_to_world @ [1, 0, 0], [0, 1, 0], atol=1e-6)
+
+
+def test_bad_folders(small, tmp_path):
+    with pytest.raises(DatasetError, match="no spectrum"):
+        nerf2.read(tmp_path)
+    out = nerf2.write(small, tmp_path / "n")
+    with pytest.raises(DatasetError, match="not empty"):
+        nerf2.write(small, out)
+    with pytest.raises(DatasetError, match="state 5"):
+        nerf2.write(small, tmp_path / "m", state=5)
+    (out / "gateway_info.yml").write_text("gateway1:\n  position: [1, 2]\n  orientation: [0, 0, 0, 1]\n")
+    with pytest.raises(DatasetError, match="gateway_info.yml"):
+        nerf2.read(out)
+    (out / "gateway_info.yml").write_text("gateway1:\n  position: oops\n")
+    with pytest.raises(DatasetError, match="cannot parse"):
+        nerf2.read(out)
+    nerf2._write_gateway(out / "gateway_info.yml", [0, 0, 1], [0, 0, 0, 1])
+    (out / "tx_pos.csv").write_text("x,y,z\n1,2\n")
+    with pytest.raises(DatasetError, match="tx_pos.csv"):
+        nerf2.read(out)
+    (out / "spectrum" / "00003.png").unlink()
+    with pytest.raises(DatasetError, match="without gaps"):
+        nerf2.read(out)
+
+
+def test_wrong_image_size(small, tmp_path):
+    from PIL import Image
+
+    out = nerf2.write(small, tmp_path / "n")
+    Image.fromarray(np.zeros((45, 180), np.uint8), mode="L").save(out / "spectrum" / "00002.png")
+    with pytest.raises(DatasetError, match="00002.png.*90x360"):
+        nerf2.read(out)
