@@ -46,11 +46,17 @@ class FieldConfig:
         (uniform in the scene box).
     num_gaussians: number of Gaussians at initialisation.
     init_opacity: initial attenuation delta of every Gaussian, in (0, 1).
-    init_scale: initial isotropic scale in metres; 0 = mean distance to the 3 nearest
-        initial neighbours (3DGS rule), clipped to [min_scale, max_init_scale].
+    init_scale: initial isotropic scale in metres (radians with scale_mode "angular"); 0 = mean
+        distance to the 3 nearest initial neighbours (3DGS rule), clipped to [min_scale,
+        max_init_scale] (0.15 rad with scale_mode "angular").
     source_points: extra Gaussians placed within 0.1 m of the fixed transmitter (moving-RX
         task only; the direct path starts there).
     box_margin: margin (metres) added around the scene bounds for the normalisation box.
+    scale_mode: "metric" (log_scales are log metres, as 3DGS) or "angular" (log_scales are the log
+        of the angular size in radians: each view's metric scale is that times the Gaussian's
+        distance from the array, so a Gaussian keeps its angular width - the beam width of the
+        array - from every viewpoint).
+    scale_net: let the network add a per-view isotropic log-scale offset (bounded by +-1).
     net: EM-feature network architecture.
     """
 
@@ -62,6 +68,8 @@ class FieldConfig:
     max_init_scale: float = 0.3
     source_points: int = 16
     box_margin: float = 0.3
+    scale_mode: Literal["metric", "angular"] = "metric"
+    scale_net: bool = False
     net: NetConfig = dc_field(default_factory=NetConfig)
 
     def __post_init__(self) -> None:
@@ -267,6 +275,8 @@ class GaussianField:
         n = len(points)
         if cfg.init_scale > 0:
             s = np.full(n, cfg.init_scale)
+        elif cfg.scale_mode == "angular":
+            s = np.full(n, 0.15)  # radians, about the half-power half-width of a 4x4 array's beam
         else:
             s = np.clip(knn_scale(points), cfg.min_scale, cfg.max_init_scale)
         params = {
@@ -387,13 +397,16 @@ class GaussianField:
         p = np.asarray(p, dtype=np.float64)
         return ((p - self.box[0]) / (self.box[1] - self.box[0])).astype(np.float32)
 
-    def splats(self, antenna_pos: np.ndarray, *, extra: np.ndarray | None = None) -> Splats:
+    def splats(self, antenna_pos: np.ndarray, *, extra: np.ndarray | None = None,
+               view_pos: np.ndarray | None = None) -> Splats:
         """Gaussians as seen for B views.
 
         Args:
             antenna_pos: float [B, 3] metres, the moving antenna's position per view (the RX in
                 the moving-RX task, the TX in the moving-TX task).
             extra: float [B, extra_inputs] already scaled to about [0, 1], or None.
+            view_pos: float [B, 3] metres, where the array is in each view (needed with
+                scale_mode "angular"; default antenna_pos).
 
         Returns:
             :class:`Splats` with geometry of size N and signal/opacity of size B*N, where
@@ -416,14 +429,26 @@ class GaussianField:
                 raise ValueError(f"field {self.name!r} needs {self.extra_inputs} extra inputs per view")
             e = np.asarray(extra, dtype=np.float32).reshape(nb, self.extra_inputs)
             ex = [B.Float(e[:, k]) for k in range(self.extra_inputs)]
-        sig_logit, att = self.net(pos01, ant01, ex)
+        sig_logit, att, dscale = self.net(pos01, ant01, ex)
         idx = dr.arange(B.UInt32, n * nb) % dr.opaque(B.UInt32, n)
         op_logit = dr.gather(B.Float, self.params["opacity_logits"], idx) + att
         q = dr.unravel(B.Array4f, self.params["rotations"])
         q = q / dr.sqrt(dr.squared_norm(q) + 1e-12)
+        log_scales = dr.unravel(B.Array3f, self.params["log_scales"])
+        if self.cfg.scale_mode == "angular" or self.cfg.scale_net:
+            ls = dr.gather(B.Array3f, log_scales, idx)
+            if self.cfg.scale_mode == "angular":
+                vp = np.asarray(antenna_pos if view_pos is None else view_pos, dtype=np.float32).reshape(nb, 3)
+                vpa = dr.gather(B.Array3f, B.Array3f(vp[:, 0], vp[:, 1], vp[:, 2]),
+                                dr.arange(B.UInt32, n * nb) // dr.opaque(B.UInt32, n))
+                dist = dr.norm(dr.gather(B.Array3f, means, idx) - vpa)
+                ls = ls + dr.log(dr.maximum(dist, 0.05))
+            if self.cfg.scale_net:
+                ls = ls + dr.tanh(dscale)
+            log_scales = ls
         return Splats(
             means=means,
-            log_scales=dr.unravel(B.Array3f, self.params["log_scales"]),
+            log_scales=log_scales,
             rotations=q,
             opacities=_sigmoid(op_logit),
             signals=_sigmoid(sig_logit),

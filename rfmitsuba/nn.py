@@ -223,7 +223,7 @@ class HashGrid:
 
 class EMNetwork:
     """EM-feature network: (Gaussian position, antenna position, extra inputs) ->
-    per-view signal and attenuation offsets of every Gaussian.
+    per-view signal, attenuation offset and log-scale offset of every Gaussian.
 
     Args:
         cfg: architecture.
@@ -244,8 +244,8 @@ class EMNetwork:
         n_a = 3 * (1 + 2 * cfg.antenna_octaves) + self.extra_inputs
         self.gaussian = MLP(n_g, w, width=w, layers=cfg.branch_layers, seed=seed + 1)
         self.antenna = MLP(n_a, w, width=w, layers=cfg.branch_layers, seed=seed + 2)
-        self.head = MLP(w, 2, width=w, layers=cfg.head_layers, seed=seed + 3,
-                        out_bias=[cfg.signal_bias, 0.0])
+        self.head = MLP(w, 3, width=w, layers=cfg.head_layers, seed=seed + 3,
+                        out_bias=[cfg.signal_bias, 0.0, 0.0])
 
     def modules(self) -> dict:
         """Name -> module (each has ``weights``, ``set_weights``, ``num_parameters``)."""
@@ -285,7 +285,8 @@ class EMNetwork:
             extra: ``extra_inputs`` ``Float`` [B] or None.
 
         Returns:
-            (signal_logit, attenuation_logit): ``Float`` [B*N] each, view-major (b*N + i).
+            (signal_logit, attenuation_logit, log_scale_offset): ``Float`` [B*N] each,
+            view-major (b*N + i).
         """
         import drjit as dr
 
@@ -300,7 +301,7 @@ class EMNetwork:
         h = [dr.gather(B.Float, gg, gi) + dr.gather(B.Float, aa, bi) for gg, aa in zip(g, a)]
         h = [dr.maximum(x, 0) + 0.01 * dr.minimum(x, 0) for x in h]
         out = self.head(h)
-        return out[0], out[1]
+        return out[0], out[1], out[2]
 
 
 def config_dict(cfg: NetConfig) -> dict:

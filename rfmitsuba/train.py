@@ -424,7 +424,8 @@ class Trainer:
         from .field import Splats
 
         render = load_render()
-        sets = [f.splats(self.data.antenna_pos[idx]) for f in self.frozen] + [field.splats(self.data.antenna_pos[idx])]
+        ap, vp = self.data.antenna_pos[idx], self.data.view_pos[idx]
+        sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp)]
         s = Splats.concat(sets)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, self.data.view_pos[idx],
                       rx_to_world=self.data.rx_to_world, height=h or self.h, width=w or self.w)
