@@ -57,6 +57,9 @@ class FieldConfig:
         distance from the array, so a Gaussian keeps its angular width - the beam width of the
         array - from every viewpoint).
     scale_net: let the network add a per-view isotropic log-scale offset (bounded by +-1).
+    readout: "direct" (the splatted image is the PAS, as WRF-GS) or "bartlett" (the splatted image,
+        rendered on ``arrival_grid`` (rows, columns), is the arrival spectrum and the PAS is the
+        array's Bartlett response to it; see :mod:`rfmitsuba.beam`).
     net: EM-feature network architecture.
     """
 
@@ -70,6 +73,8 @@ class FieldConfig:
     box_margin: float = 0.3
     scale_mode: Literal["metric", "angular"] = "metric"
     scale_net: bool = False
+    readout: Literal["direct", "bartlett"] = "direct"
+    arrival_grid: tuple[int, int] = (30, 120)
     net: NetConfig = dc_field(default_factory=NetConfig)
 
     def __post_init__(self) -> None:

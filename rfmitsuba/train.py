@@ -427,8 +427,16 @@ class Trainer:
         ap, vp = self.data.antenna_pos[idx], self.data.view_pos[idx]
         sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp)]
         s = Splats.concat(sets)
-        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, self.data.view_pos[idx],
-                      rx_to_world=self.data.rx_to_world, height=h or self.h, width=w or self.w)
+        h, w = h or self.h, w or self.w
+        if field.cfg.readout == "bartlett":
+            from .beam import BartlettReadout
+
+            ha, wa = field.cfg.arrival_grid
+            arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                         rx_to_world=self.data.rx_to_world, height=ha, width=wa)
+            return BartlettReadout(ha, wa, h, w)(arr)
+        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                      rx_to_world=self.data.rx_to_world, height=h, width=w)
 
     def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
