@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import time
 from dataclasses import dataclass, field as dc_field
@@ -673,7 +674,8 @@ class Trainer:
                    "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
-                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve())}
+                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
+                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
         _write_json(fd / "summary.json", summary)
         return summary
 
