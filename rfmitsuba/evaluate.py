@@ -153,8 +153,9 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
 
 def summary_markdown(m: dict) -> str:
     """The Markdown report of :func:`evaluate_run`'s metrics."""
-    verdict = ("beats" if m["beats_nearest_neighbour"] else "does NOT beat (it has learned nothing useful "
-               "beyond a lookup)")
+    verdict = ("The model beats the nearest-neighbour floor (mean SSIM)." if m["beats_nearest_neighbour"] else
+               "The model does NOT beat the nearest-neighbour floor (mean SSIM): on average it has learned "
+               "nothing more useful than a lookup of the closest training PAS.")
     rows = [("model", m["model"]), ("nearest neighbour", m["nearest_neighbour"]), ("mean image", m["mean_image"])]
     lines = [
         f"# Evaluation of `{m['run']}`", "",
@@ -164,7 +165,7 @@ def summary_markdown(m: dict) -> str:
         "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
     ]
     lines += [f"| {name} | {s['mean']:.4f} | {s['median']:.4f} | {s['p10']:.4f} | {s['min']:.4f} |" for name, s in rows]
-    lines += ["", f"The model {verdict} the nearest-neighbour floor.", "",
+    lines += ["", verdict, "",
               f"- Gaussians: {m['num_gaussians']}; parameters: {m['num_parameters']} "
               f"(network {m['network_parameters']})",
               f"- training: {m['train_steps']} steps, {m['train_time_s']:.1f} s wall time",
