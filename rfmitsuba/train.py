@@ -327,16 +327,24 @@ class Trainer:
         extra_inputs: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
             for the trained field (Stage 2: human position), or None.
         quiet: no progress bar.
+        name: the trained field's key prefix in the optimizer.
+        field_factory: callable (trainer, rng) -> the field to train (default
+            :meth:`init_field`: Stage-1 initialisation from the scene), e.g. Stage 2's human field.
+
+    Keys of a field's parameters that contain a dot (``net.<module>``, ``deform.<module>``) are
+    network weights and get the network learning rate.
 
     Use :meth:`run`; afterwards :attr:`field` is the trained field.
     """
 
     def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
-                 quiet: bool = False, name: str = "bg"):
+                 quiet: bool = False, name: str = "bg", extra_inputs=None, field_factory=None):
         self.cfg = cfg
         self.data = data
         self.run_dir = Path(run_dir)
         self.frozen = list(frozen or [])
+        self.extra_inputs = extra_inputs
+        self.field_factory = field_factory
         self.quiet = quiet
         self.name = name
         self.prefix = name + "."
@@ -395,6 +403,19 @@ class Trainer:
         return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
 
     def _init_field(self, rng: np.random.Generator) -> GaussianField:
+        if self.field_factory is not None:
+            return self.field_factory(self, rng)
+        return self.init_field(rng)
+
+    def _extra(self, idx: np.ndarray) -> dict:
+        """Keyword arguments with the trained field's extra network inputs at antenna indices ``idx``."""
+        if self.extra_inputs is None:
+            return {}
+        return {"extra": np.asarray(self.extra_inputs(np.asarray(idx)), dtype=np.float32)}
+
+    def init_field(self, rng: np.random.Generator, *, extra_inputs: int = 0) -> GaussianField:
+        """The Stage-1 initial field (scene mesh points or random in the bounds); ``extra_inputs``
+        extra per-view network inputs."""
         fc = self.cfg.field
         meshes = self.data.meshes() if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
@@ -408,7 +429,7 @@ class Trainer:
             pad = 0.5
             bounds = (bounds[0] - pad, bounds[1] + pad)
         return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
-                                        seed=self.cfg.seed, name=self.name)
+                                        seed=self.cfg.seed, name=self.name, extra_inputs=extra_inputs)
 
     def _lrs(self, step: int) -> dict:
         o = self.cfg.optim
@@ -425,7 +446,7 @@ class Trainer:
 
         render = load_render()
         ap, vp = self.data.antenna_pos[idx], self.data.view_pos[idx]
-        sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp)]
+        sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp, **self._extra(idx))]
         s = Splats.concat(sets)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, self.data.view_pos[idx],
                       rx_to_world=self.data.rx_to_world, height=h or self.h, width=w or self.w)
@@ -547,7 +568,7 @@ class Trainer:
 
         def probe_opacity():
             with dr.suspend_grad():
-                s = field.splats(self.data.antenna_pos[probe])
+                s = field.splats(self.data.antenna_pos[probe], view_pos=self.data.view_pos[probe], **self._extra(probe))
                 op = np.asarray(s.opacities.numpy(), dtype=np.float32).reshape(len(probe), -1)
             return op.max(axis=0)
 
@@ -571,7 +592,7 @@ class Trainer:
                 lrs = self._lrs(step)
                 for k in list(opt.keys()):
                     short = k[len(self.prefix):]
-                    opt.set_learning_rate({k: lrs["net"] if short.startswith("net.") else lrs[short]})
+                    opt.set_learning_rate({k: lrs["net"] if "." in short else lrs[short]})
                 pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
                 idx = fit[pick]
                 pred = self.render(field, idx)
@@ -646,10 +667,10 @@ class Trainer:
         field.save(fd / "field.npz")
         probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
         with dr.suspend_grad():
-            s = field.splats(self.data.antenna_pos[probe])
+            s = field.splats(self.data.antenna_pos[probe], view_pos=self.data.view_pos[probe], **self._extra(probe))
             sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
         write_ply(fd / "gaussians.ply", field, signal=sig)
-        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if k.startswith("net.") or k == "box"})
+        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
         summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time,
                    "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
                    "network_parameters": field.net.num_parameters,
