@@ -449,7 +449,7 @@ class Trainer:
         sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp, **self._extra(idx))]
         s = Splats.concat(sets)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, self.data.view_pos[idx],
-                      rx_to_world=self.data.rx_to_world, height=h or self.h, width=w or self.w)
+                      rx_to_world=self.data.rx_to_world, height=h or self.h, width=w or self.w, num_gaussians=s.n)
 
     def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
