@@ -107,8 +107,8 @@ SIZES = {
         position_counts=[10], tables=["main", "two_stage", "perturbation", "positions", "noise"]),
     "quick": ExperimentConfig(
         size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
-        train=TrainSize(stage1_iterations=80, stage2_iterations=60, downsample=6, batch_views=4,
-                        num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=70, density=False),
+        train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
+                        num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
         snr_db=[10.0], position_counts=[12]),
     "full": ExperimentConfig(),
 }
@@ -341,8 +341,10 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     t_start = time.perf_counter()
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys(j.dataset for j in jobs))
-    for spec in bar(specs, desc="datasets", unit="dataset", quiet=quiet) if specs else []:
-        ensure_dataset(spec, cfg, data_dir, quiet=True)
+    with bar(total=len(specs), desc="datasets", unit="dataset", quiet=quiet) as pb:
+        for spec in specs:
+            ensure_dataset(spec, cfg, data_dir, quiet=True)
+            pb.update(1)
     done_new = 0
     results = {}
     with bar(total=len(jobs), desc="jobs", unit="job", quiet=quiet) as pb:
