@@ -49,14 +49,17 @@ class FieldConfig:
     init_scale: initial isotropic scale in metres (radians with scale_mode "angular"); 0 = mean
         distance to the 3 nearest initial neighbours (3DGS rule), clipped to [min_scale,
         max_init_scale] (0.15 rad with scale_mode "angular").
-    source_points: extra Gaussians placed within 0.1 m of the fixed transmitter (moving-RX
-        task only; the direct path starts there).
+    source_points: how many of the num_gaussians are placed within 0.1 m of the fixed
+        transmitter (moving-RX task only; the direct path starts there).
     box_margin: margin (metres) added around the scene bounds for the normalisation box.
     scale_mode: "metric" (log_scales are log metres, as 3DGS) or "angular" (log_scales are the log
         of the angular size in radians: each view's metric scale is that times the Gaussian's
         distance from the array, so a Gaussian keeps its angular width - the beam width of the
         array - from every viewpoint).
     scale_net: let the network add a per-view isotropic log-scale offset (bounded by +-1).
+    readout: "direct" (the splatted image is the PAS, as WRF-GS) or "bartlett" (the splatted image,
+        rendered on ``arrival_grid`` (rows, columns), is the arrival spectrum and the PAS is the
+        array's Bartlett response to it; see :mod:`rfmitsuba.beam`).
     net: EM-feature network architecture.
     """
 
@@ -70,6 +73,8 @@ class FieldConfig:
     box_margin: float = 0.3
     scale_mode: Literal["metric", "angular"] = "metric"
     scale_net: bool = False
+    readout: Literal["direct", "bartlett"] = "direct"
+    arrival_grid: tuple[int, int] = (30, 120)
     net: NetConfig = dc_field(default_factory=NetConfig)
 
     def __post_init__(self) -> None:
@@ -318,10 +323,12 @@ class GaussianField:
             bounds: (lo [3], hi [3]) metres; default: the meshes' bounds.
             source: float [3] metres or None; cfg.source_points extra Gaussians near it.
         """
+        n_src = min(cfg.source_points, cfg.num_gaussians - 1) if source is not None else 0
+        n_main = cfg.num_gaussians - n_src
         if cfg.init == "mesh":
             if not meshes:
                 raise ConfigError("FieldConfig.init = 'mesh' needs scene meshes; use init = 'random' without a scene")
-            pts = sample_surface(meshes, cfg.num_gaussians, rng=rng)
+            pts = sample_surface(meshes, n_main, rng=rng)
             if bounds is None:
                 allv = np.concatenate([v for v, _ in meshes])
                 bounds = (allv.min(0), allv.max(0))
@@ -329,9 +336,9 @@ class GaussianField:
             if bounds is None:
                 raise ConfigError("FieldConfig.init = 'random' needs scene bounds")
             lo, hi = (np.asarray(x, dtype=np.float64) for x in bounds)
-            pts = lo + rng.random((cfg.num_gaussians, 3)) * (hi - lo)
-        if source is not None and cfg.source_points > 0:
-            src = np.asarray(source, dtype=np.float64) + rng.normal(0, 0.05, (cfg.source_points, 3))
+            pts = lo + rng.random((n_main, 3)) * (hi - lo)
+        if n_src > 0:
+            src = np.asarray(source, dtype=np.float64) + rng.normal(0, 0.05, (n_src, 3))
             pts = np.concatenate([pts, src])
         lo, hi = (np.asarray(x, dtype=np.float64) for x in bounds)
         box = np.stack([np.minimum(lo, pts.min(0)) - cfg.box_margin, np.maximum(hi, pts.max(0)) + cfg.box_margin])

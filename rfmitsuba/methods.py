@@ -154,8 +154,7 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         kw = {}
         if m.human_input:
             nf = num_human_features(mcfg.human.human_octaves)
-            kw = {"extra_inputs": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves),
-                  "field_factory": lambda tr, rng: tr.init_field(rng, extra_inputs=nf)}
+            kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves), "extra_inputs": nf}
         s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()
         return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
                 "runs": [str(out / "train")]}
@@ -181,7 +180,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
                                     name="human")
 
     tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
-                 extra_inputs=lambda idx: data.features(idx, octaves=oct_, raw=True), field_factory=factory)
+                 extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
+                 extra_inputs=num_human_features(oct_), field_factory=factory)
     _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
     s2 = tr.run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],

@@ -1,8 +1,8 @@
-"""The Markdown report of :func:`rfmitsuba.experiments.reproduce`: the paper's tables (ours as
+"""The Markdown report of :func:`rfmitsuba.reproduce.reproduce`: the paper's tables (ours as
 mean +- std over seeds beside the published figures), claims checked, speed against accuracy,
 and where each method breaks.
 
-Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.run_job`}.
+Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.reproduce.run_job`}.
 Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png``.
 """
 from __future__ import annotations
@@ -90,7 +90,7 @@ class _Claims:
 
 def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
     """Write ``out/report.md`` (+ ``speed_accuracy.png``); returns the report path."""
-    from .experiments import DatasetSpec
+    from .reproduce import DatasetSpec
 
     out = Path(out)
     L: list[str] = []

@@ -20,7 +20,7 @@ def build_config(args):
     """The ExperimentConfig of the command line: --config file or size, then --set overrides."""
     from .. import config as C
     from ..errors import ConfigError
-    from ..experiments import ExperimentConfig, size_config
+    from ..reproduce import ExperimentConfig, size_config
 
     if args.config and (args.quick or args.size):
         raise ConfigError("give either --config or --quick/--size, not both")
@@ -32,7 +32,7 @@ def build_config(args):
 
 
 def run(args) -> int:
-    from ..experiments import reproduce
+    from ..reproduce import reproduce
 
     cfg = build_config(args)
     path = reproduce(args.out, cfg, data_dir=args.data, quiet=args.quiet)
