@@ -24,3 +24,11 @@ class DatasetError(RfmError, ValueError):
 
 class RunError(RfmError, ValueError):
     """A training run folder is inconsistent with the requested configuration."""
+
+
+class GaussianError(RfmError, ValueError):
+    """Gaussian parameters or render inputs are invalid (non-finite, wrong size, zero quaternion)."""
+
+
+class ImageError(RfmError, ValueError):
+    """Images of mismatched or too small shape were given to SSIM or the loss."""

@@ -1,0 +1,38 @@
+"""``rfmitsuba train DATASET --out RUN``: train a Stage-1 background Gaussian field."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("train", help="train a background Gaussian field on a dataset (resumes an interrupted run)")
+    p.add_argument("dataset", help="dataset folder (rfmitsuba generate) or NeRF2 spectrum folder")
+    p.add_argument("--out", required=True, help="run folder (created; an interrupted run of the same config resumes)")
+    p.add_argument("--config", default=None, help="TrainConfig TOML file")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set iterations=2000 --set field.num_gaussians=4000")
+    p.add_argument("--quick", action="store_true", help="small fast run (300 steps, half resolution)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def build_config(args):
+    """The TrainConfig of the command line: file, then --quick, then --set overrides."""
+    from .. import config as C
+    from ..train import TrainConfig, quick_config
+
+    cfg = C.load(TrainConfig, args.config) if args.config else TrainConfig()
+    if args.quick:
+        cfg = quick_config(cfg)
+    return C.override(cfg, list(args.set)) if args.set else cfg
+
+
+def run(args) -> int:
+    from ..train import train
+
+    cfg = build_config(args)
+    s = train(args.dataset, args.out, cfg=cfg, quiet=args.quiet)
+    print(f"run {Path(args.out)}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} Gaussians, "
+          f"{s['num_parameters']} parameters, validation SSIM {s['val_ssim']}")
+    print(f"next: rfmitsuba eval {args.out}")
+    return 0

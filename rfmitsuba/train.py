@@ -1,0 +1,697 @@
+"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+
+* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
+  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
+* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
+  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
+* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
+  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
+  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
+  same result, a progress bar, and the run folder.
+
+Run folder layout::
+
+    config.toml      the TrainConfig (a run folder of another config is refused)
+    run.json         dataset path, task, split sizes, package versions
+    split.json       train / validation / test antenna indices
+    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    checkpoint/      latest resumable state (written atomically)
+    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/gaussians.ply, final/network.npz, final/summary.json
+
+Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
+(view = the fixed array, network input = transmitter position).
+"""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from . import backend as B
+from . import config as C
+from .density import DensityConfig, DensityStrategy
+from .errors import ConfigError, DatasetError, RunError
+from .field import FieldConfig, GaussianField, scene_meshes, write_ply
+
+PAS_SHAPE = (90, 360)
+
+
+# =========================================================================== configuration
+
+@dataclass
+class OptimConfig:
+    """Adam learning rates (per step). ``*_final`` values are reached at the last iteration by
+    exponential decay; the others are constant."""
+
+    lr_means: float = 2e-3
+    lr_means_final: float = 2e-5
+    lr_log_scales: float = 5e-3
+    lr_rotations: float = 1e-3
+    lr_opacity: float = 2e-2
+    lr_net: float = 2e-3
+    lr_net_final: float = 2e-4
+
+    def __post_init__(self) -> None:
+        for k, v in vars(self).items():
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"OptimConfig.{k} must be a finite number >= 0, got {v!r}")
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (besides the dataset).
+
+    iterations: optimizer steps; batch_views: PAS per step; downsample: train on
+    (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
+    resolution); seed: all randomness; val_fraction / val_max: training positions held out
+    for validation (never test positions); val_every / checkpoint_every / log_every: steps;
+    time_limit_s: stop early after this much training wall time (0 = no limit);
+    max_train_positions: use only this many training positions (0 = all; motivation table);
+    state: dataset state to train on (0 = empty room).
+    """
+
+    iterations: int = 3000
+    batch_views: int = 4
+    downsample: int = 1
+    seed: int = 0
+    val_fraction: float = 0.05
+    val_max: int = 24
+    val_every: int = 250
+    checkpoint_every: int = 250
+    log_every: int = 25
+    time_limit_s: float = 0.0
+    max_train_positions: int = 0
+    state: int = 0
+    field: FieldConfig = dc_field(default_factory=FieldConfig)
+    density: DensityConfig = dc_field(default_factory=DensityConfig)
+    optim: OptimConfig = dc_field(default_factory=OptimConfig)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.batch_views < 1:
+            raise ConfigError("TrainConfig: iterations and batch_views must be >= 1")
+        if self.downsample not in (1, 2, 3, 5, 6, 9, 10):
+            raise ConfigError(f"TrainConfig.downsample must divide 90 and 360 (1, 2, 3, 5, 6, 9, 10), got {self.downsample}")
+        if not 0 <= self.val_fraction < 0.5:
+            raise ConfigError(f"TrainConfig.val_fraction must be in [0, 0.5), got {self.val_fraction}")
+        for k in ("val_every", "checkpoint_every", "log_every"):
+            if getattr(self, k) < 1:
+                raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
+        if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
+            raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
+
+
+def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
+    """A small, fast variant (for --quick and smoke tests): 300 steps, 600 Gaussians, half resolution."""
+    cfg = cfg or TrainConfig()
+    return C.override(cfg, ["iterations=300", "downsample=2", "val_every=100", "checkpoint_every=100",
+                            "field.num_gaussians=600", "density.start=100", "density.every=50",
+                            "density.max_gaussians=2000", "density.reset_every=0"])
+
+
+def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted keys where two (nested) config dicts differ, with both values."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += config_diff(va, vb, f"{prefix}{k}.")
+        elif va != vb:
+            out.append(f"{prefix}{k} (run has {va!r}, requested {vb!r})")
+    return out
+
+
+# =========================================================================== data
+
+def minmax(x: np.ndarray) -> np.ndarray:
+    """Per-image min-max normalisation to [0, 1]: float [..., H, W] -> float32, same shape
+    (a constant image becomes 0)."""
+    x = np.asarray(x, dtype=np.float32)
+    lo = x.min(axis=(-2, -1), keepdims=True)
+    hi = x.max(axis=(-2, -1), keepdims=True)
+    return ((x - lo) / np.maximum(hi - lo, 1e-30)).astype(np.float32)
+
+
+def downsample(x: np.ndarray, d: int) -> np.ndarray:
+    """Block means of d x d pixels: float [K, H, W] -> [K, H/d, W/d]."""
+    if d == 1:
+        return np.asarray(x, dtype=np.float32)
+    k, h, w = x.shape
+    return x.reshape(k, h // d, d, w // d, d).mean(axis=(2, 4)).astype(np.float32)
+
+
+def quat_xyzw_to_matrix(q) -> np.ndarray:
+    """3x3 rotation of a quaternion given as [x, y, z, w] (NeRF2 gateway_info.yml order)."""
+    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _scene_xml(meta: dict, root: Path) -> Path | None:
+    """The scene XML a dataset was simulated in (meta "scene": {"file", "name"} or a string), or None."""
+    sc = meta.get("scene")
+    cands = []
+    if isinstance(sc, dict):
+        cands = [sc.get("file"), sc.get("name")]
+    elif isinstance(sc, str):
+        cands = [sc]
+    for v in cands:
+        if not isinstance(v, str) or not v:
+            continue
+        p = Path(v) if Path(v).is_absolute() else root / v
+        if p.suffix.lower() == ".xml" and p.is_file():
+            return p
+        try:
+            from .scenes import path as scene_path
+
+            return Path(scene_path(Path(v).stem))
+        except Exception:  # noqa: BLE001 - not a built-in scene name
+            continue
+    return None
+
+
+@dataclass
+class TrainData:
+    """What a run trains and is evaluated on.
+
+    antenna_pos: float64 [A, 3] metres, moving device per position; view_pos: float64 [A, 3]
+    metres, where the array is (= antenna_pos for task "rx", the fixed array for "tx");
+    rx_to_world: float64 [3, 3] or None (array frame); train / test: int64 antenna indices;
+    scene_xml: path or None; source: float64 [3] or None (fixed transmitter, task "rx");
+    bounds: (lo [3], hi [3]) metres of everything known (positions, scene).
+    """
+
+    path: Path
+    task: str
+    antenna_pos: np.ndarray
+    view_pos: np.ndarray
+    rx_to_world: np.ndarray | None
+    train: np.ndarray
+    test: np.ndarray
+    scene_xml: Path | None
+    source: np.ndarray | None
+    bounds: tuple
+    _pas: object = None
+    state: int = 0
+
+    @classmethod
+    def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
+        """Open a dataset folder (or NeRF2 spectrum folder) for training on ``state``.
+
+        Raises:
+            DatasetError: missing folder/arrays, mismatched shapes, unknown task.
+        """
+        from .dataset import open_dataset
+
+        path = Path(path)
+        if not path.exists():
+            raise DatasetError(f"dataset {path} does not exist")
+        ds = open_dataset(path)
+        task = getattr(ds, "task", None)
+        if task not in ("rx", "tx"):
+            raise DatasetError(f"{path}: task must be 'rx' or 'tx', got {task!r}")
+        if not 0 <= state < int(getattr(ds, "num_states", 1)):
+            raise DatasetError(f"{path}: state {state} does not exist (dataset has {ds.num_states} states)")
+        ap = np.asarray(ds.antenna_pos, dtype=np.float64)
+        if ap.ndim != 2 or ap.shape[1] != 3:
+            raise DatasetError(f"{path}: antenna_pos has shape {ap.shape}, expected [A, 3]")
+        if not np.isfinite(ap).all():
+            raise DatasetError(f"{path}: antenna_pos has non-finite values (row {int(np.flatnonzero(~np.isfinite(ap).all(1))[0])})")
+        fixed = np.asarray(getattr(ds, "fixed_pos", np.zeros(3)), dtype=np.float64).reshape(3)
+        meta = dict(getattr(ds, "meta", {}) or {})
+        r2w = getattr(ds, "rx_to_world", None)
+        if r2w is None and "gateway_orientation_xyzw" in meta:
+            r2w = quat_xyzw_to_matrix(meta["gateway_orientation_xyzw"])
+        r2w = None if r2w is None else np.asarray(r2w, dtype=np.float64).reshape(3, 3)
+        view = ap.copy() if task == "rx" else np.tile(fixed, (len(ap), 1))
+        sp = ds.split
+        train = np.asarray(sp.antenna_train, dtype=np.int64)
+        test = np.asarray(sp.antenna_test, dtype=np.int64)
+        if len(train) == 0 or len(test) == 0:
+            raise DatasetError(f"{path}: the split has {len(train)} training and {len(test)} test positions; both must be > 0")
+        xml = _scene_xml(meta, path)
+        pts = np.concatenate([ap, fixed[None]])
+        bounds = (pts.min(0), pts.max(0))
+        data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
+                   scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state)
+        data._pas = ds.pas(state)
+        shp = tuple(np.shape(data._pas))
+        if shp != (len(ap), *PAS_SHAPE):
+            raise DatasetError(f"{path}: pas of state {state} has shape {shp}, expected ({len(ap)}, 90, 360)")
+        return data
+
+    def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
+        """Min-max normalised PAS of antenna indices ``idx``: float32 [K, 90/d, 360/d].
+
+        Raises:
+            DatasetError: a PAS with NaN/inf values (naming the antenna index).
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        raw = np.asarray(self._pas[np.sort(idx)] if len(idx) else np.zeros((0, *PAS_SHAPE)), dtype=np.float32)
+        raw = raw[np.argsort(np.argsort(idx))] if len(idx) else raw
+        bad = ~np.isfinite(raw).all(axis=(1, 2))
+        if bad.any():
+            raise DatasetError(f"{self.path}: PAS of antenna position {int(idx[np.flatnonzero(bad)[0]])} "
+                               f"(state {self.state}) contains NaN or infinite values")
+        return minmax(downsample(raw, d))
+
+    def meshes(self):
+        """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, or None
+        when the dataset names no scene (NeRF2 folders)."""
+        if self.scene_xml is None:
+            return None
+        try:
+            from .geometry import RoomGeometry
+        except ImportError:  # pragma: no cover - the geometry module ships with the package
+            return scene_meshes(self.scene_xml)
+        geo = RoomGeometry.from_xml(self.scene_xml)
+        return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64)) for sh in geo.shapes]
+
+
+# =========================================================================== trainer
+
+def _lr(v0: float, v1: float | None, t: float) -> float:
+    if v1 is None or v0 <= 0 or v1 <= 0:
+        return v0
+    return float(v0 * (v1 / v0) ** min(max(t, 0.0), 1.0))
+
+
+def _versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for p in ("rfmitsuba", "drjit", "numpy"):
+        try:
+            out[p] = version(p)
+        except PackageNotFoundError:
+            out[p] = None
+    return out
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True))
+    tmp.replace(path)
+
+
+def load_loss():
+    """The training loss ``loss(pred, gt) -> Float`` (0.8*L1 + 0.2*(1-SSIM), rfmitsuba.ssim)."""
+    from .ssim import loss
+
+    return loss
+
+
+def load_render():
+    """The splatting renderer (rfmitsuba.splat.render)."""
+    from .splat import render
+
+    return render
+
+
+class Trainer:
+    """Train a :class:`GaussianField` on a :class:`TrainData` into a run folder.
+
+    Args:
+        cfg: the configuration.
+        data: the data.
+        run_dir: the run folder (created; an existing one must hold the same config and dataset,
+            and is then resumed from its checkpoint).
+        frozen: already trained fields rendered together with the trained one (their
+            parameters are not optimised), e.g. a frozen background in Stage 2.
+        extra_inputs: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
+            for the trained field (Stage 2: human position), or None.
+        quiet: no progress bar.
+
+    Use :meth:`run`; afterwards :attr:`field` is the trained field.
+    """
+
+    def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
+                 quiet: bool = False, name: str = "bg"):
+        self.cfg = cfg
+        self.data = data
+        self.run_dir = Path(run_dir)
+        self.frozen = list(frozen or [])
+        self.quiet = quiet
+        self.name = name
+        self.prefix = name + "."
+        self.h, self.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+        self._check_run_dir()
+
+    # ---- run folder ---------------------------------------------------------------------
+    def _check_run_dir(self) -> None:
+        rd = self.run_dir
+        want = C.to_dict(self.cfg)
+        cfg_file = rd / "config.toml"
+        if rd.exists() and not rd.is_dir():
+            raise RunError(f"run folder {rd} exists and is not a folder")
+        if rd.is_dir() and any(rd.iterdir()):
+            if not cfg_file.is_file():
+                raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
+            try:
+                have = C.to_dict(C.load(TrainConfig, cfg_file))
+            except ConfigError as e:
+                raise RunError(f"{cfg_file}: unreadable run config ({e}); nothing was changed") from None
+            diff = config_diff(have, want)
+            if diff:
+                raise RunError(f"run folder {rd} belongs to another configuration: {'; '.join(diff)}. "
+                               "Use another --out; nothing was changed")
+            rj = rd / "run.json"
+            if rj.is_file():
+                old = json.loads(rj.read_text()).get("dataset")
+                if old and Path(old).resolve() != self.data.path.resolve():
+                    raise RunError(f"run folder {rd} was trained on dataset {old}, not {self.data.path}; "
+                                   "nothing was changed")
+
+    def _init_run_dir(self, split: dict) -> None:
+        rd = self.run_dir
+        rd.mkdir(parents=True, exist_ok=True)
+        if not (rd / "config.toml").exists():
+            C.save(self.cfg, rd / "config.toml")
+        if not (rd / "run.json").exists():
+            _write_json(rd / "run.json", {
+                "format": "rfmitsuba-run/1", "dataset": str(self.data.path.resolve()), "task": self.data.task,
+                "state": self.data.state, "scene_xml": str(self.data.scene_xml) if self.data.scene_xml else None,
+                "image": [self.h, self.w], "versions": _versions(),
+                "sizes": {k: len(v) for k, v in split.items()}})
+        if not (rd / "split.json").exists():
+            _write_json(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
+
+    # ---- setup ----------------------------------------------------------------------------
+    def _make_split(self, rng: np.random.Generator) -> dict:
+        cfg = self.cfg
+        train = np.array(self.data.train)
+        if cfg.max_train_positions and cfg.max_train_positions < len(train):
+            train = np.sort(rng.choice(train, cfg.max_train_positions, replace=False))
+        n_val = int(round(cfg.val_fraction * len(train)))
+        n_val = min(n_val, cfg.val_max, len(train) - 1)
+        val = np.sort(rng.choice(train, n_val, replace=False)) if n_val > 0 else np.zeros(0, np.int64)
+        fit = np.setdiff1d(train, val)
+        return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
+
+    def _init_field(self, rng: np.random.Generator) -> GaussianField:
+        fc = self.cfg.field
+        meshes = self.data.meshes() if fc.init == "mesh" else None
+        if fc.init == "mesh" and meshes is None:
+            raise ConfigError(f"field.init = 'mesh' but dataset {self.data.path} names no scene; "
+                              "use --set field.init=\"random\"")
+        bounds = self.data.bounds
+        if meshes:
+            allv = np.concatenate([v for v, _ in meshes])
+            bounds = (np.minimum(bounds[0], allv.min(0)), np.maximum(bounds[1], allv.max(0)))
+        else:
+            pad = 0.5
+            bounds = (bounds[0] - pad, bounds[1] + pad)
+        return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
+                                        seed=self.cfg.seed, name=self.name)
+
+    def _lrs(self, step: int) -> dict:
+        o = self.cfg.optim
+        t = step / max(self.cfg.iterations - 1, 1)
+        net = _lr(o.lr_net, o.lr_net_final, t)
+        return {"means": _lr(o.lr_means, o.lr_means_final, t), "log_scales": o.lr_log_scales,
+                "rotations": o.lr_rotations, "opacity_logits": o.lr_opacity, "net": net}
+
+    # ---- rendering -------------------------------------------------------------------------
+    def render(self, field: GaussianField, idx: np.ndarray, *, h: int | None = None, w: int | None = None):
+        """Render the trained field (and the frozen ones) at antenna indices ``idx``:
+        TensorXf [K, h, w] (default the training resolution)."""
+        from .field import Splats
+
+        render = load_render()
+        ap, vp = self.data.antenna_pos[idx], self.data.view_pos[idx]
+        sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp)]
+        s = Splats.concat(sets)
+        h, w = h or self.h, w or self.w
+        if field.cfg.readout == "bartlett":
+            from .beam import BartlettReadout
+
+            ha, wa = field.cfg.arrival_grid
+            arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                         rx_to_world=self.data.rx_to_world, height=ha, width=wa)
+            return BartlettReadout(ha, wa, h, w)(arr)
+        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                      rx_to_world=self.data.rx_to_world, height=h, width=w)
+
+    def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
+                batch: int = 8) -> np.ndarray:
+        """Predicted PAS (not normalised) at antenna indices: float32 [K, h, w]."""
+        import drjit as dr
+
+        out = []
+        for i in range(0, len(idx), batch):
+            with dr.suspend_grad():
+                img = self.render(field, np.asarray(idx[i:i + batch]), h=h, w=w)
+            out.append(np.array(img.numpy(), dtype=np.float32).reshape(-1, h, w))
+        return np.concatenate(out) if out else np.zeros((0, h, w), np.float32)
+
+    def validate(self, field: GaussianField, val: np.ndarray, gt: np.ndarray) -> float:
+        """Mean SSIM (SPEC protocol, at the training resolution) over the validation positions."""
+        from skimage.metrics import structural_similarity
+
+        if len(val) == 0:
+            return float("nan")
+        pred = minmax(self.predict(field, val, h=self.h, w=self.w, batch=self.cfg.batch_views * 2))
+        return float(np.mean([structural_similarity(p, g, data_range=1.0) for p, g in zip(pred, gt)]))
+
+    # ---- checkpoints ------------------------------------------------------------------------
+    def _save_checkpoint(self, step, field, opt, strategy, rng, train_time, val_hist) -> None:
+        rd = self.run_dir
+        tmp = rd / "checkpoint.tmp"
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir()
+        arrays = {f"field/{k}": v for k, v in field.state_dict().items()}
+        for key, (value, promoted, lr, extra) in opt.state.items():
+            t, m, v, _ = extra
+            arrays[f"opt/{key}/value"] = np.array(value.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/m"] = np.array(m.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/v"] = np.array(v.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/t"] = np.array(np.asarray(t.numpy()).ravel()[0] if hasattr(t, "numpy") else t)
+        arrays.update({f"density/{k}": v for k, v in strategy.state_dict().items()})
+        np.savez(tmp / "state.npz", **arrays)
+        _write_json(tmp / "meta.json", {"step": step, "rng": rng.bit_generator.state, "train_time_s": train_time,
+                                        "val_history": val_hist, "density_history": strategy.history})
+        final = rd / "checkpoint"
+        old = rd / "checkpoint.old"
+        if old.exists():
+            shutil.rmtree(old)
+        if final.exists():
+            final.rename(old)
+        tmp.rename(final)
+        if old.exists():
+            shutil.rmtree(old)
+
+    def _load_checkpoint(self, field, opt, strategy, rng):
+        import drjit as dr
+
+        ck = self.run_dir / "checkpoint"
+        if not (ck / "meta.json").is_file():
+            old = self.run_dir / "checkpoint.old"
+            if (old / "meta.json").is_file():  # killed between the two renames
+                old.rename(ck)
+            else:
+                return None
+        meta = json.loads((ck / "meta.json").read_text())
+        with np.load(ck / "state.npz", allow_pickle=False) as z:
+            st = {k: z[k] for k in z.files}
+        fs = {k[len("field/"):]: v for k, v in st.items() if k.startswith("field/")}
+        field.load_state_dict(fs)
+        for key in list(opt.state.keys()):
+            value = B.Float(st[f"opt/{key}/value"])
+            dr.enable_grad(value)
+            _, promoted, lr, _ = opt.state[key]
+            t = B.UInt32(int(st[f"opt/{key}/t"]))
+            opt.state[key] = (value, promoted, lr, (t, B.Float(st[f"opt/{key}/m"]), B.Float(st[f"opt/{key}/v"]), None))
+        strategy.load_state_dict({k[len("density/"):]: v for k, v in st.items() if k.startswith("density/")})
+        strategy.history = list(meta.get("density_history", []))
+        rng.bit_generator.state = meta["rng"]
+        return meta
+
+    # ---- main loop --------------------------------------------------------------------------
+    def run(self, *, stop_at: int | None = None) -> dict:
+        """Train (or resume) to ``cfg.iterations`` steps; returns the summary dict.
+
+        Args:
+            stop_at: stop after this many steps as if interrupted (no final files; the latest
+                checkpoint stays), for tests of resuming.
+        """
+        import drjit as dr
+        from drjit.opt import Adam
+
+        B.ensure()
+        cfg = self.cfg
+        summary_file = self.run_dir / "final" / "summary.json"
+        if summary_file.is_file():
+            return json.loads(summary_file.read_text())
+        rng = np.random.default_rng(cfg.seed)
+        split = self._make_split(rng)
+        self._init_run_dir(split)
+        field = self._init_field(rng)
+        self.field = field
+        loss_fn = load_loss()
+        d = cfg.downsample
+        gt_fit = self.data.pas(split["fit"], d=d)
+        gt_val = self.data.pas(split["val"], d=d)
+        fit = split["fit"]
+        probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
+
+        opt = Adam(lr=1e-3)
+        for k, v in field.trainable().items():
+            opt[self.prefix + k] = v
+        strategy = DensityStrategy(cfg.density, prefix=self.prefix)
+
+        meta = self._load_checkpoint(field, opt, strategy, rng)
+        start = meta["step"] if meta else 0
+        train_time = meta["train_time_s"] if meta else 0.0
+        val_hist = meta["val_history"] if meta else []
+        self._trim_log(start)
+        self._pull(field, opt)
+
+        def probe_opacity():
+            with dr.suspend_grad():
+                s = field.splats(self.data.antenna_pos[probe])
+                op = np.asarray(s.opacities.numpy(), dtype=np.float32).reshape(len(probe), -1)
+            return op.max(axis=0)
+
+        from .progress import bar
+
+        pbar = bar(total=cfg.iterations, desc=f"train {self.run_dir.name}", unit="step", quiet=self.quiet,
+                   initial=start)
+        log_loss, log_n = 0.0, 0
+        last_val = val_hist[-1]["val_ssim"] if val_hist else float("nan")
+        stopped = "iterations"
+        step = start
+        t_last = time.perf_counter()
+        try:
+            while step < cfg.iterations:
+                if stop_at is not None and step >= stop_at:
+                    stopped = "stop_at"
+                    break
+                if cfg.time_limit_s and train_time >= cfg.time_limit_s:
+                    stopped = "time_limit"
+                    break
+                lrs = self._lrs(step)
+                for k in list(opt.keys()):
+                    short = k[len(self.prefix):]
+                    opt.set_learning_rate({k: lrs["net"] if short.startswith("net.") else lrs[short]})
+                pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
+                idx = fit[pick]
+                pred = self.render(field, idx)
+                gt = B.TensorXf(gt_fit[pick])
+                loss = loss_fn(pred, gt)
+                dr.backward(loss)
+                strategy.after_backward(field)
+                opt.step()
+                self._pull(field, opt)
+                lv = float(np.asarray(loss.numpy()).ravel()[0])
+                if not math.isfinite(lv):
+                    raise RunError(f"loss became {lv} at step {step + 1}; lower the learning rates "
+                                   f"(checkpoint of step {start} kept)")
+                step += 1
+                changed = strategy.step_end(step, field, opt, rng=rng, probe_opacity=probe_opacity)
+                if changed:
+                    self._pull(field, opt)
+                log_loss += lv
+                log_n += 1
+                now = time.perf_counter()
+                train_time += now - t_last
+                t_last = now
+                row = None
+                if step % cfg.val_every == 0 or step == cfg.iterations:
+                    last_val = self.validate(field, split["val"], gt_val)
+                    strategy.on_validation(step, last_val)
+                    val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_gaussians,
+                                     "time_s": train_time})
+                    row = {"val_ssim": last_val}
+                    t_last = time.perf_counter()  # validation is not training time
+                if step % cfg.log_every == 0 or row is not None:
+                    self._log({"step": step, "loss": log_loss / max(log_n, 1), "n_gaussians": field.num_gaussians,
+                               "time_s": round(train_time, 3), **(row or {})})
+                    log_loss, log_n = 0.0, 0
+                pbar.update(1)
+                pbar.set_postfix(loss=f"{lv:.4f}", val_ssim=f"{last_val:.3f}", n=field.num_gaussians)
+                if step % cfg.checkpoint_every == 0:
+                    self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
+                    t_last = time.perf_counter()
+        finally:
+            pbar.close()
+        if stopped == "stop_at":
+            return {"stopped": "stop_at", "step": step}
+        if step % cfg.checkpoint_every != 0:
+            self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
+        return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
+
+    def _pull(self, field: GaussianField, opt) -> None:
+        vals = {k[len(self.prefix):]: opt[k] for k in opt.keys() if k.startswith(self.prefix)}
+        if vals:
+            field.assign(vals)
+
+    def _log(self, row: dict) -> None:
+        with open(self.run_dir / "log.jsonl", "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+    def _trim_log(self, step: int) -> None:
+        """Drop log rows after ``step`` (written by an interrupted run after its last checkpoint)."""
+        p = self.run_dir / "log.jsonl"
+        if not p.is_file():
+            return
+        rows = [ln for ln in p.read_text().splitlines() if ln.strip() and json.loads(ln)["step"] <= step]
+        tmp = p.with_name(p.name + ".tmp")
+        tmp.write_text("".join(r + "\n" for r in rows))
+        tmp.replace(p)
+
+    def _finish(self, field, split, step, train_time, val_hist, stopped, strategy) -> dict:
+        import drjit as dr
+
+        fd = self.run_dir / "final"
+        fd.mkdir(exist_ok=True)
+        field.save(fd / "field.npz")
+        probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
+        with dr.suspend_grad():
+            s = field.splats(self.data.antenna_pos[probe])
+            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
+        write_ply(fd / "gaussians.ply", field, signal=sig)
+        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if k.startswith("net.") or k == "box"})
+        summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time,
+                   "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
+                   "network_parameters": field.net.num_parameters,
+                   "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
+                   "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
+                   "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
+                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve())}
+        _write_json(fd / "summary.json", summary)
+        return summary
+
+
+def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
+    """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``.
+
+    Returns the summary dict (also in ``out/final/summary.json``)."""
+    cfg = cfg or TrainConfig()
+    data = TrainData.open(dataset, state=cfg.state)
+    return Trainer(cfg, data, out, quiet=quiet).run()
+
+
+def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField, Trainer]:
+    """Open a finished run: (config, data, trained field, a Trainer for rendering)."""
+    rd = Path(run_dir)
+    if not (rd / "config.toml").is_file() or not (rd / "run.json").is_file():
+        raise RunError(f"{rd} is not a run folder (no config.toml / run.json)")
+    cfg = C.load(TrainConfig, rd / "config.toml")
+    info = json.loads((rd / "run.json").read_text())
+    data = TrainData.open(info["dataset"], state=cfg.state)
+    fpath = rd / "final" / "field.npz"
+    if not fpath.is_file():
+        raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")
+    field = GaussianField.load(fpath)
+    tr = Trainer.__new__(Trainer)
+    tr.cfg, tr.data, tr.run_dir, tr.frozen, tr.quiet, tr.name, tr.prefix = cfg, data, rd, [], True, field.name, field.name + "."
+    tr.h, tr.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+    tr.field = field
+    return cfg, data, field, tr

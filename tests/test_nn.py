@@ -1,0 +1,152 @@
+"""Tests of rfmitsuba.nn: encodings, packed MLPs and the EM-feature network."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _mlp_numpy(w, sizes, x):
+    """Reference forward pass: packed layout = per layer, row-major W [out, in] then b [out];
+    LeakyReLU(0.01) between layers."""
+    off = 0
+    h = x
+    for li, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        W = w[off:off + n_in * n_out].reshape(n_out, n_in)
+        off += n_in * n_out
+        b = w[off:off + n_out]
+        off += n_out
+        h = h @ W.T + b
+        if li < len(sizes) - 2:
+            h = np.where(h > 0, h, 0.01 * h)
+    assert off == len(w)
+    return h
+
+
+def test_sin_encoding_matches_numpy(variant):
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import encode
+
+    x = np.array([0.0, 0.1, 0.37, 0.5], np.float32)
+    out = encode([B.Float(x)], octaves=3, kind="sin")
+    assert len(out) == 1 + 2 * 3
+    np.testing.assert_allclose(out[0].numpy(), x)
+    for k in range(3):
+        np.testing.assert_allclose(out[1 + 2 * k].numpy(), np.sin(2 * np.pi * 2 ** k * x), atol=2e-5)
+        np.testing.assert_allclose(out[2 + 2 * k].numpy(), np.cos(2 * np.pi * 2 ** k * x), atol=2e-5)
+
+
+def test_mlp_forward_matches_numpy(variant):
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import MLP
+
+    m = MLP(3, 2, width=8, layers=2, seed=3)
+    w = np.random.default_rng(1).normal(0, 0.5, m.num_parameters).astype(np.float32)
+    m.set_weights(w)
+    x = np.random.default_rng(0).random((7, 3)).astype(np.float32)
+    out = np.stack([o.numpy() for o in m([B.Float(x[:, k]) for k in range(3)])], 1)
+    np.testing.assert_allclose(out, _mlp_numpy(w, [3, 8, 8, 2], x), rtol=1e-5, atol=1e-5)
+
+
+def test_mlp_seed_determines_weights(variant):
+    from rfmitsuba.nn import MLP
+
+    a = MLP(4, 3, width=16, layers=1, seed=5).weights.numpy()
+    b = MLP(4, 3, width=16, layers=1, seed=5).weights.numpy()
+    c = MLP(4, 3, width=16, layers=1, seed=6).weights.numpy()
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+
+
+def test_mlp_wrong_weight_shape_is_an_error(variant):
+    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.nn import MLP
+
+    m = MLP(3, 2, width=4, layers=1, seed=0)
+    with pytest.raises(ConfigError, match="expected shape"):
+        m.set_weights(np.zeros(m.num_parameters + 1, np.float32))
+
+
+def test_em_network_is_view_major_and_factorised(variant):
+    """Output b*N+i equals the network evaluated for view b and Gaussian i alone."""
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import EMNetwork, NetConfig
+
+    net = EMNetwork(NetConfig(width=16, gaussian_octaves=2, antenna_octaves=2), seed=1)
+    rng = np.random.default_rng(0)
+    pos = rng.random((5, 3)).astype(np.float32)
+    ant = rng.random((3, 3)).astype(np.float32)
+    outs = net([B.Float(pos[:, k]) for k in range(3)], [B.Float(ant[:, k]) for k in range(3)])
+    assert len(outs) == 3 and all(o.numpy().shape == (15,) for o in outs)
+    for b in range(3):
+        for i in range(5):
+            one = net([B.Float(pos[i:i + 1, k]) for k in range(3)], [B.Float(ant[b:b + 1, k]) for k in range(3)])
+            for o, o1 in zip(outs, one):
+                assert abs(o.numpy()[b * 5 + i] - o1.numpy()[0]) < 1e-5
+
+
+def test_em_network_extra_inputs_are_checked(variant):
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import EMNetwork, NetConfig
+
+    net = EMNetwork(NetConfig(width=8), extra_inputs=3, seed=0)
+    p = [B.Float([0.5])] * 3
+    with pytest.raises(ValueError, match="3 extra inputs"):
+        net(p, p, None)
+    s, a, d = net(p, p, [B.Float([0.2])] * 3)
+    assert np.isfinite(s.numpy()).all()
+
+
+def test_em_network_gradient_matches_finite_differences(variant):
+    """Reverse-mode gradient of a loss (through a gather of the outputs, as the trainer does)
+    w.r.t. the head weights equals central finite differences."""
+    import drjit as dr
+
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import EMNetwork, NetConfig
+
+    net = EMNetwork(NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1, signal_bias=0.0), seed=2)
+    rng = np.random.default_rng(3)
+    pos = [B.Float(rng.random(4).astype(np.float32)) for _ in range(3)]
+    ant = [B.Float(rng.random(2).astype(np.float32)) for _ in range(3)]
+    w0 = np.array(net.head.weights.numpy(), np.float64)
+
+    def loss_of(w):
+        net.head.set_weights(w)
+        s, a, _ = net(pos, ant)
+        g = dr.gather(B.Float, s, B.UInt32([0, 3, 5, 5, 7]))  # backward is a scatter
+        return dr.sum(dr.square(g)) + dr.sum(a * 0.5)
+
+    w = B.Float(w0.astype(np.float32))
+    dr.enable_grad(w)
+    loss = loss_of(w)
+    dr.backward(loss)
+    grad = np.array(dr.grad(w).numpy(), np.float64)
+    eps = 1e-2
+    for j in [0, 5, len(w0) - 3, len(w0) - 1]:
+        wp, wm = w0.copy(), w0.copy()
+        wp[j] += eps
+        wm[j] -= eps
+        fd = (loss_of(wp.astype(np.float32)).numpy()[0] - loss_of(wm.astype(np.float32)).numpy()[0]) / (2 * eps)
+        assert abs(fd - grad[j]) < 2e-3 + 2e-2 * abs(fd), (j, fd, grad[j])
+
+
+def test_hashgrid_network_runs_and_has_parameters(variant):
+    from rfmitsuba import backend as B
+    from rfmitsuba.nn import EMNetwork, NetConfig
+
+    cfg = NetConfig(encoding="hashgrid", width=8, hash_levels=2, hash_log2_size=8)
+    net = EMNetwork(cfg, seed=0)
+    assert "hash" in net.modules() and net.modules()["hash"].num_parameters > 0
+    p = [B.Float([0.1, 0.9])] * 3
+    s, a, d = net(p, [B.Float([0.5])] * 3)
+    assert s.numpy().shape == (2,)
+
+
+def test_bad_config_is_an_error():
+    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.nn import NetConfig
+
+    with pytest.raises(ConfigError, match="width"):
+        NetConfig(width=0)
+    with pytest.raises(ConfigError, match="gaussian_octaves"):
+        NetConfig(gaussian_octaves=-1)

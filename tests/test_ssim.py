@@ -1,0 +1,95 @@
+"""Tests of rfmitsuba.ssim: parity with skimage, finite-difference gradients, the loss."""
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+import pytest
+from skimage.metrics import structural_similarity
+
+from rfmitsuba import backend as B
+from rfmitsuba import ssim as S
+
+
+def smooth_images(rng, b, h, w):
+    """PAS-like images: a few Gaussian blobs plus a little noise, in [0, 1]."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    out = np.zeros((b, h, w))
+    for k in range(b):
+        for _ in range(4):
+            cy, cx, s = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(3, 15)
+            out[k] += rng.uniform(0.2, 1) * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * s * s))
+    out += 0.01 * rng.normal(size=out.shape)
+    return np.clip(out / out.max(), 0, 1)
+
+
+def test_matches_skimage_on_random_and_smooth_images(variant):
+    rng = np.random.default_rng(0)
+    cases = [
+        (rng.random((3, 90, 360)), rng.random((3, 90, 360))),
+        (smooth_images(rng, 3, 90, 360), smooth_images(rng, 3, 90, 360)),
+        (smooth_images(rng, 2, 18, 72), None),  # vs a noisy copy of itself
+        (rng.random((1, 7, 9)), rng.random((1, 7, 9))),  # one window row
+    ]
+    for pred, gt in cases:
+        if gt is None:
+            gt = np.clip(pred + 0.05 * rng.normal(size=pred.shape), 0, 1)
+        pred, gt = pred.astype(np.float32), gt.astype(np.float32)
+        ours = S.ssim(B.TensorXf(pred), B.TensorXf(gt)).numpy()
+        theirs = [structural_similarity(p.astype(np.float64), g.astype(np.float64), data_range=1.0)
+                  for p, g in zip(pred, gt)]
+        assert np.abs(ours - theirs).max() < 1e-4, (ours, theirs)
+        assert np.allclose(S.ssim_np(pred, gt), theirs)
+
+
+def test_identical_images_and_2d_input(variant):
+    rng = np.random.default_rng(1)
+    x = rng.random((20, 30)).astype(np.float32)
+    assert S.ssim(B.TensorXf(x), B.TensorXf(x)).numpy() == pytest.approx([1.0], abs=1e-6)
+    assert S.ssim_np(x, x) == pytest.approx(1.0)
+
+
+def test_gradient_matches_finite_differences_of_skimage(variant):
+    # Reference: central differences of skimage's float64 SSIM on a 9x11 image.
+    rng = np.random.default_rng(2)
+    pred = rng.random((9, 11))
+    gt = rng.random((9, 11))
+    x = B.TensorXf(np.float32(pred))
+    dr.enable_grad(x)
+    value = S.ssim(x, B.TensorXf(np.float32(gt)))
+    dr.backward(value)
+    grad = dr.grad(x).numpy()
+    fd = np.zeros_like(pred)
+    eps = 1e-6
+    for idx in np.ndindex(pred.shape):
+        p1, p2 = pred.copy(), pred.copy()
+        p1[idx] += eps
+        p2[idx] -= eps
+        fd[idx] = (structural_similarity(p1, gt, data_range=1.0)
+                   - structural_similarity(p2, gt, data_range=1.0)) / (2 * eps)
+    assert np.abs(grad - fd).max() < 1e-3 * np.abs(fd).max()
+
+
+def test_loss_is_weighted_l1_and_ssim(variant):
+    rng = np.random.default_rng(3)
+    pred = rng.random((2, 12, 20)).astype(np.float32)
+    gt = rng.random((2, 12, 20)).astype(np.float32)
+    expected = 0.8 * np.abs(pred - gt).mean() + 0.2 * (1 - np.mean(S.ssim_np(pred, gt)))
+    x = B.TensorXf(pred)
+    dr.enable_grad(x)
+    value = S.loss(x, B.TensorXf(gt))
+    assert value.numpy()[0] == pytest.approx(expected, abs=1e-5)
+    dr.backward(value)
+    assert np.all(np.isfinite(dr.grad(x).numpy()))
+    assert S.loss(B.TensorXf(gt), B.TensorXf(gt)).numpy()[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_bad_shapes(variant):
+    a = B.TensorXf(np.zeros((2, 10, 10), np.float32))
+    with pytest.raises(S.ImageError, match="differ in shape"):
+        S.ssim(a, B.TensorXf(np.zeros((2, 10, 11), np.float32)))
+    with pytest.raises(S.ImageError, match="at least 7x7"):
+        S.ssim(B.TensorXf(np.zeros((1, 6, 10), np.float32)), B.TensorXf(np.zeros((1, 6, 10), np.float32)))
+    with pytest.raises(S.ImageError, match="\\[B, H, W\\]"):
+        S.loss(B.TensorXf(np.zeros(10, np.float32)), B.TensorXf(np.zeros(10, np.float32)))
+    with pytest.raises(S.ImageError):
+        S.ssim_np(np.zeros((10, 10)), np.zeros((10, 11)))

@@ -1,0 +1,174 @@
+"""Tests of rfmitsuba.train: configs, learning, resuming, run folders and bad input."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from stage1_data import make_dataset
+
+
+@pytest.fixture(scope="module")
+def tiny_ds(tmp_path_factory, variant):
+    """60 positions (48 train, 12 test) rendered from a known 30-Gaussian field."""
+    return make_dataset(tmp_path_factory.mktemp("tiny") / "ds", num_antennas=60)
+
+
+def tiny_cfg(**over):
+    from rfmitsuba import config as C
+    from rfmitsuba.train import TrainConfig
+
+    cfg = TrainConfig()
+    sets = ["iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
+            "val_fraction=0.1", "field.init=\"random\"", "field.num_gaussians=150", "field.net.width=16",
+            "field.net.gaussian_octaves=2", "field.net.antenna_octaves=2", "density.start=10",
+            "density.every=20", "density.reset_every=30", "density.max_gaussians=400",
+            "density.grad_threshold=1e-5", "optim.lr_net=5e-3"]
+    return C.override(cfg, sets + [f"{k}={v}" for k, v in over.items()])
+
+
+def _rows(run):
+    return [json.loads(ln) for ln in (run / "log.jsonl").read_text().splitlines()]
+
+
+def test_config_round_trip_and_unknown_option():
+    from rfmitsuba import config as C
+    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.train import TrainConfig, quick_config
+
+    cfg = quick_config(tiny_cfg(seed=3))
+    assert C.from_toml(TrainConfig, C.to_toml(cfg)) == cfg
+    assert C.from_json(TrainConfig, C.to_json(cfg)) == cfg
+    with pytest.raises(ConfigError, match="nope"):
+        C.override(cfg, ["field.nope=1"])
+    with pytest.raises(ConfigError, match="downsample"):
+        C.override(cfg, ["downsample=7"])
+    with pytest.raises(ConfigError, match="unknown option"):
+        C.from_toml(TrainConfig, "iterationz = 3")
+
+
+def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
+    from rfmitsuba.field import GaussianField, read_ply
+    from rfmitsuba.train import TrainData, Trainer
+
+    run = tmp_path / "run"
+    s = Trainer(tiny_cfg(iterations=60), TrainData.open(tiny_ds), run, quiet=True).run()
+    rows = _rows(run)
+    first, last = rows[0]["loss"], np.mean([r["loss"] for r in rows[-2:]])
+    assert last < 0.8 * first, (first, last)
+    assert s["steps"] == 60 and s["num_gaussians"] > 0
+    assert s["num_parameters"] == s["num_gaussians"] * 11 + s["network_parameters"]
+    for f in ["config.toml", "run.json", "split.json", "final/field.npz", "final/gaussians.ply",
+              "final/network.npz", "final/summary.json", "checkpoint/state.npz"]:
+        assert (run / f).is_file(), f
+    split = json.loads((run / "split.json").read_text())
+    assert not set(split["test"]) & set(split["train"])
+    assert set(split["val"]) <= set(split["train"]) and not set(split["val"]) & set(split["fit"])
+    f = GaussianField.load(run / "final" / "field.npz")
+    assert len(read_ply(run / "final" / "gaussians.ply")["x"]) == f.num_gaussians == s["num_gaussians"]
+
+
+def test_killed_run_resumes_to_the_same_result(tiny_ds, tmp_path):
+    """A run stopped after step 25 (last checkpoint: step 20) and started again ends where an
+    uninterrupted run ends: same Gaussians (count and values within float tolerance), same log."""
+    from rfmitsuba.train import TrainData, Trainer
+
+    data = TrainData.open(tiny_ds)
+    cfg = tiny_cfg()
+    a, b = tmp_path / "a", tmp_path / "b"
+    Trainer(cfg, data, a, quiet=True).run()
+    r = Trainer(cfg, data, b, quiet=True).run(stop_at=25)
+    assert r["stopped"] == "stop_at"
+    assert not (b / "final").exists()
+    assert json.loads((b / "checkpoint" / "meta.json").read_text())["step"] == 20
+    Trainer(cfg, data, b, quiet=True).run()
+    with np.load(a / "final" / "field.npz") as za, np.load(b / "final" / "field.npz") as zb:
+        assert za["means"].shape == zb["means"].shape
+        for k in ["means", "log_scales", "rotations", "opacity_logits", "net.head", "net.gaussian"]:
+            np.testing.assert_allclose(za[k], zb[k], rtol=1e-3, atol=1e-4, err_msg=k)
+    ra, rb = _rows(a), _rows(b)
+    assert [x["step"] for x in ra] == [x["step"] for x in rb]
+    np.testing.assert_allclose([x["loss"] for x in ra], [x["loss"] for x in rb], rtol=1e-3)
+
+
+def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
+    from rfmitsuba.errors import RunError
+    from rfmitsuba.train import TrainData, Trainer
+
+    data = TrainData.open(tiny_ds)
+    run = tmp_path / "run"
+    Trainer(tiny_cfg(iterations=10), data, run, quiet=True).run()
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    with pytest.raises(RunError, match="field.num_gaussians"):
+        Trainer(tiny_cfg(iterations=10, **{"field.num_gaussians": 99}), data, run, quiet=True)
+    after = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    assert before == after
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(RunError, match="not a run folder"):
+        Trainer(tiny_cfg(), data, other, quiet=True)
+    assert (other / "notes.txt").read_text() == "mine"
+
+
+def test_bad_datasets_are_clear_errors(tiny_ds, tmp_path):
+    from rfmitsuba.errors import DatasetError
+    from rfmitsuba.train import TrainData
+
+    with pytest.raises(DatasetError, match="does not exist"):
+        TrainData.open(tmp_path / "missing")
+    d1 = tmp_path / "no_pos"
+    shutil.copytree(tiny_ds, d1)
+    (d1 / "antenna_pos.npy").unlink()
+    with pytest.raises(DatasetError, match="antenna_pos"):
+        TrainData.open(d1)
+    d2 = tmp_path / "bad_shape"
+    shutil.copytree(tiny_ds, d2)
+    np.save(d2 / "antenna_pos.npy", np.zeros((7, 3), np.float32))
+    with pytest.raises(DatasetError, match="shape"):
+        TrainData.open(d2)
+
+
+def test_nan_in_pas_names_the_position(tmp_path, variant):
+    from rfmitsuba.dataset import write_dataset
+    from rfmitsuba.errors import DatasetError
+    from rfmitsuba.train import TrainData, Trainer
+
+    pas = np.random.default_rng(0).random((1, 10, 90, 360)).astype(np.float32)
+    pas[0, 3, 5, 5] = np.nan
+    ap = np.random.default_rng(1).uniform(0.5, 2.5, (10, 3))
+    write_dataset(tmp_path / "ds", pas=pas, antenna_pos=ap, human_pos=np.full((1, 3), np.nan), meta={"task": "rx"})
+    data = TrainData.open(tmp_path / "ds")
+    with pytest.raises(DatasetError, match="antenna position 3"):
+        data.pas(np.arange(10))
+    with pytest.raises(DatasetError, match="NaN"):
+        Trainer(tiny_cfg(**{"val_fraction": 0.0}), data, tmp_path / "run", quiet=True).run()
+
+
+def test_cli_train_and_unknown_option(tiny_ds, tmp_path, capsys):
+    from rfmitsuba.cli import main
+
+    run = tmp_path / "run"
+    cfg = tmp_path / "c.toml"
+    from rfmitsuba import config as C
+
+    C.save(tiny_cfg(iterations=10), cfg)
+    assert main(["train", str(tiny_ds), "--out", str(run), "--config", str(cfg), "--quiet"]) == 0
+    assert "10 steps" in capsys.readouterr().out
+    assert main(["train", str(tiny_ds), "--out", str(tmp_path / "r2"), "--config", str(cfg),
+                 "--set", "field.colour=1"]) == 2
+    assert "colour" in capsys.readouterr().err
+    assert not (tmp_path / "r2").exists()
+
+
+def test_moving_tx_task_trains(tmp_path, variant):
+    """Moving TX: the view is the fixed array, the network input the transmitter position."""
+    from rfmitsuba.train import TrainData, Trainer
+
+    ds = make_dataset(tmp_path / "tx", num_antennas=30, task="tx")
+    data = TrainData.open(ds)
+    assert data.task == "tx" and np.allclose(data.view_pos, data.view_pos[0])
+    s = Trainer(tiny_cfg(iterations=10), data, tmp_path / "run", quiet=True).run()
+    assert s["task"] == "tx" and s["steps"] == 10
