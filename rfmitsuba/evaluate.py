@@ -15,6 +15,7 @@ nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -134,6 +135,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "network_parameters": field.net.num_parameters,
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
+        "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),
     }
     out = rd / "eval"
     out.mkdir(exist_ok=True)
@@ -151,8 +153,9 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
 
 def summary_markdown(m: dict) -> str:
     """The Markdown report of :func:`evaluate_run`'s metrics."""
-    verdict = ("beats" if m["beats_nearest_neighbour"] else "does NOT beat (it has learned nothing useful "
-               "beyond a lookup)")
+    verdict = ("The model beats the nearest-neighbour floor (mean SSIM)." if m["beats_nearest_neighbour"] else
+               "The model does NOT beat the nearest-neighbour floor (mean SSIM): on average it has learned "
+               "nothing more useful than a lookup of the closest training PAS.")
     rows = [("model", m["model"]), ("nearest neighbour", m["nearest_neighbour"]), ("mean image", m["mean_image"])]
     lines = [
         f"# Evaluation of `{m['run']}`", "",
@@ -162,12 +165,13 @@ def summary_markdown(m: dict) -> str:
         "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
     ]
     lines += [f"| {name} | {s['mean']:.4f} | {s['median']:.4f} | {s['p10']:.4f} | {s['min']:.4f} |" for name, s in rows]
-    lines += ["", f"The model {verdict} the nearest-neighbour floor.", "",
+    lines += ["", verdict, "",
               f"- Gaussians: {m['num_gaussians']}; parameters: {m['num_parameters']} "
               f"(network {m['network_parameters']})",
               f"- training: {m['train_steps']} steps, {m['train_time_s']:.1f} s wall time",
               f"- rendering: {m['render_time_s']:.2f} s for {m['test_positions']} images "
-              f"({m['render_ms_per_image']:.1f} ms per image)", "",
+              f"({m['render_ms_per_image']:.1f} ms per image); machine: {m['cpu_count']} cores, "
+              f"1-minute load average {m['load_average_1min']:.1f} at evaluation (shared machines time slower)", "",
               "Plots: `grid.png` (ground truth / prediction / nearest neighbour), `ssim_cdf.png`, "
               "`ssim_vs_time.png`.", ""]
     return "\n".join(lines)

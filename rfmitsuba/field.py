@@ -49,8 +49,8 @@ class FieldConfig:
     init_scale: initial isotropic scale in metres (radians with scale_mode "angular"); 0 = mean
         distance to the 3 nearest initial neighbours (3DGS rule), clipped to [min_scale,
         max_init_scale] (0.15 rad with scale_mode "angular").
-    source_points: extra Gaussians placed within 0.1 m of the fixed transmitter (moving-RX
-        task only; the direct path starts there).
+    source_points: how many of the num_gaussians are placed within 0.1 m of the fixed
+        transmitter (moving-RX task only; the direct path starts there).
     box_margin: margin (metres) added around the scene bounds for the normalisation box.
     scale_mode: "metric" (log_scales are log metres, as 3DGS) or "angular" (log_scales are the log
         of the angular size in radians: each view's metric scale is that times the Gaussian's
@@ -307,10 +307,12 @@ class GaussianField:
             bounds: (lo [3], hi [3]) metres; default: the meshes' bounds.
             source: float [3] metres or None; cfg.source_points extra Gaussians near it.
         """
+        n_src = min(cfg.source_points, cfg.num_gaussians - 1) if source is not None else 0
+        n_main = cfg.num_gaussians - n_src
         if cfg.init == "mesh":
             if not meshes:
                 raise ConfigError("FieldConfig.init = 'mesh' needs scene meshes; use init = 'random' without a scene")
-            pts = sample_surface(meshes, cfg.num_gaussians, rng=rng)
+            pts = sample_surface(meshes, n_main, rng=rng)
             if bounds is None:
                 allv = np.concatenate([v for v, _ in meshes])
                 bounds = (allv.min(0), allv.max(0))
@@ -318,9 +320,9 @@ class GaussianField:
             if bounds is None:
                 raise ConfigError("FieldConfig.init = 'random' needs scene bounds")
             lo, hi = (np.asarray(x, dtype=np.float64) for x in bounds)
-            pts = lo + rng.random((cfg.num_gaussians, 3)) * (hi - lo)
-        if source is not None and cfg.source_points > 0:
-            src = np.asarray(source, dtype=np.float64) + rng.normal(0, 0.05, (cfg.source_points, 3))
+            pts = lo + rng.random((n_main, 3)) * (hi - lo)
+        if n_src > 0:
+            src = np.asarray(source, dtype=np.float64) + rng.normal(0, 0.05, (n_src, 3))
             pts = np.concatenate([pts, src])
         lo, hi = (np.asarray(x, dtype=np.float64) for x in bounds)
         box = np.stack([np.minimum(lo, pts.min(0)) - cfg.box_margin, np.maximum(hi, pts.max(0)) + cfg.box_margin])

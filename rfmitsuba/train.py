@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import time
 from dataclasses import dataclass, field as dc_field
@@ -324,16 +325,20 @@ class Trainer:
             and is then resumed from its checkpoint).
         frozen: already trained fields rendered together with the trained one (their
             parameters are not optimised), e.g. a frozen background in Stage 2.
-        extra_inputs: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
-            for the trained field (Stage 2: human position), or None.
+        extra: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
+            of the trained field (Stage 2: the human position, scaled to about [0, 1]), or None.
+        extra_inputs: E, the number of those inputs (the trained field's network takes them).
         quiet: no progress bar.
+        name: the trained field's name (its optimizer keys are ``name + "." + key``).
 
     Use :meth:`run`; afterwards :attr:`field` is the trained field.
     """
 
     def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
-                 quiet: bool = False, name: str = "bg"):
+                 extra=None, extra_inputs: int = 0, quiet: bool = False, name: str = "bg"):
         self.cfg = cfg
+        self.extra = extra
+        self.extra_inputs = int(extra_inputs)
         self.data = data
         self.run_dir = Path(run_dir)
         self.frozen = list(frozen or [])
@@ -408,7 +413,7 @@ class Trainer:
             pad = 0.5
             bounds = (bounds[0] - pad, bounds[1] + pad)
         return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
-                                        seed=self.cfg.seed, name=self.name)
+                                        extra_inputs=self.extra_inputs, seed=self.cfg.seed, name=self.name)
 
     def _lrs(self, step: int) -> dict:
         o = self.cfg.optim
@@ -424,8 +429,8 @@ class Trainer:
         from .field import Splats
 
         render = load_render()
-        ap, vp = self.data.antenna_pos[idx], self.data.view_pos[idx]
-        sets = [f.splats(ap, view_pos=vp) for f in self.frozen] + [field.splats(ap, view_pos=vp)]
+        vp = self.data.view_pos[idx]
+        sets = [self._splats(f, idx) for f in self.frozen] + [self._splats(field, idx)]
         s = Splats.concat(sets)
         h, w = h or self.h, w or self.w
         if field.cfg.readout == "bartlett":
@@ -437,6 +442,11 @@ class Trainer:
             return BartlettReadout(ha, wa, h, w)(arr)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
                       rx_to_world=self.data.rx_to_world, height=h, width=w)
+
+    def _splats(self, field: GaussianField, idx: np.ndarray):
+        """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
+        ex = self.extra(idx) if (self.extra is not None and field.extra_inputs) else None
+        return field.splats(self.data.antenna_pos[idx], view_pos=self.data.view_pos[idx], extra=ex)
 
     def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
@@ -555,7 +565,7 @@ class Trainer:
 
         def probe_opacity():
             with dr.suspend_grad():
-                s = field.splats(self.data.antenna_pos[probe])
+                s = self._splats(field, probe)
                 op = np.asarray(s.opacities.numpy(), dtype=np.float32).reshape(len(probe), -1)
             return op.max(axis=0)
 
@@ -654,7 +664,7 @@ class Trainer:
         field.save(fd / "field.npz")
         probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
         with dr.suspend_grad():
-            s = field.splats(self.data.antenna_pos[probe])
+            s = self._splats(field, probe)
             sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
         write_ply(fd / "gaussians.ply", field, signal=sig)
         np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if k.startswith("net.") or k == "box"})
@@ -664,7 +674,8 @@ class Trainer:
                    "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
-                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve())}
+                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
+                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
         _write_json(fd / "summary.json", summary)
         return summary
 
@@ -692,6 +703,7 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField
     field = GaussianField.load(fpath)
     tr = Trainer.__new__(Trainer)
     tr.cfg, tr.data, tr.run_dir, tr.frozen, tr.quiet, tr.name, tr.prefix = cfg, data, rd, [], True, field.name, field.name + "."
+    tr.extra = None
     tr.h, tr.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
     tr.field = field
     return cfg, data, field, tr

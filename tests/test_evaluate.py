@@ -93,3 +93,22 @@ def test_evaluate_run_writes_report(tmp_path, variant):
         assert z["model"].shape == (6,)
         assert m["model"]["mean"] == pytest.approx(float(z["model"].mean()))
     assert main(["eval", str(run)]) == 0
+
+
+def test_motivation_table_and_parsimony_on_a_tiny_dataset(tmp_path, variant):
+    """Two rows each; the table files exist and rows carry model and floor numbers."""
+    from stage1_data import make_dataset
+    from test_train import tiny_cfg
+
+    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.experiments import motivation_table, parsimony_curve
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=40)
+    cfg = tiny_cfg(iterations=5, val_every=5, checkpoint_every=5)
+    rows = motivation_table(ds, tmp_path / "mot", counts=(10, 30), cfg=cfg, quiet=True)
+    assert [r["positions"] for r in rows] == [10, 30] and [r["train_positions"] for r in rows] == [8, 24]
+    assert (tmp_path / "mot" / "table.md").is_file() and (tmp_path / "mot" / "motivation.png").is_file()
+    with pytest.raises(ConfigError, match="needs 80 training positions"):
+        motivation_table(ds, tmp_path / "mot2", counts=(100,), cfg=cfg, quiet=True)
+    rows = parsimony_curve(ds, tmp_path / "par", caps=(50, 100), cfg=cfg, quiet=True)
+    assert all(r["num_gaussians"] <= r["cap"] for r in rows)
