@@ -176,6 +176,22 @@ def _sigmoid(x):
     return dr.rcp(1 + dr.exp(-x))
 
 
+def columns(x: np.ndarray) -> list:
+    """Columns of a host array float [M, D] as D ``Float`` [M] read from one device buffer.
+
+    Creating D small arrays separately made Dr.Jit 1.5 (LLVM) bake their values into the kernels
+    of the networks that read them (a recompilation at every step for D of about 8 or more);
+    gathering from one buffer keeps the kernels value-independent.
+    """
+    import drjit as dr
+
+    x = np.ascontiguousarray(np.asarray(x, dtype=np.float32))
+    m, d = x.shape
+    buf = B.Float(x.ravel())
+    i = dr.arange(B.UInt32, m) * d
+    return [dr.gather(B.Float, buf, i + k) for k in range(d)]
+
+
 def _logit(p):
     p = np.clip(p, 1e-6, 1 - 1e-6)
     return np.log(p / (1 - p))
@@ -429,13 +445,13 @@ class GaussianField:
         ext = (self.box[1] - self.box[0]).astype(np.float32)
         pos01 = [(means[k] - float(lo[k])) / float(ext[k]) for k in range(3)]
         a01 = self.normalize(ant)
-        ant01 = [B.Float(a01[:, k]) for k in range(3)]
+        ant01 = columns(a01)
         ex = None
         if self.extra_inputs:
             if extra is None:
                 raise ValueError(f"field {self.name!r} needs {self.extra_inputs} extra inputs per view")
             e = np.asarray(extra, dtype=np.float32).reshape(nb, self.extra_inputs)
-            ex = [B.Float(e[:, k]) for k in range(self.extra_inputs)]
+            ex = columns(e)
         sig_logit, att, dscale = self.net(pos01, ant01, ex)
         idx = dr.arange(B.UInt32, n * nb) % dr.opaque(B.UInt32, n)
         op_logit = dr.gather(B.Float, self.params["opacity_logits"], idx) + att

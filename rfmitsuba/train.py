@@ -330,18 +330,25 @@ class Trainer:
         extra_inputs: E, the number of those inputs (the trained field's network takes them).
         quiet: no progress bar.
         name: the trained field's name (its optimizer keys are ``name + "." + key``).
+        field_factory: callable (trainer, rng) -> the field to train (default
+            :meth:`init_field`: Stage-1 initialisation from the scene), e.g. Stage 2's human field.
+
+    Keys of a field's parameters that contain a dot (``net.<module>``, ``deform.<module>``) are
+    network weights and get the network learning rate.
 
     Use :meth:`run`; afterwards :attr:`field` is the trained field.
     """
 
     def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
-                 extra=None, extra_inputs: int = 0, quiet: bool = False, name: str = "bg"):
+                 extra=None, extra_inputs: int = 0, quiet: bool = False, name: str = "bg",
+                 field_factory=None):
         self.cfg = cfg
         self.extra = extra
         self.extra_inputs = int(extra_inputs)
         self.data = data
         self.run_dir = Path(run_dir)
         self.frozen = list(frozen or [])
+        self.field_factory = field_factory
         self.quiet = quiet
         self.name = name
         self.prefix = name + "."
@@ -400,6 +407,13 @@ class Trainer:
         return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
 
     def _init_field(self, rng: np.random.Generator) -> GaussianField:
+        if self.field_factory is not None:
+            return self.field_factory(self, rng)
+        return self.init_field(rng)
+
+    def init_field(self, rng: np.random.Generator) -> GaussianField:
+        """The Stage-1 initial field (scene mesh points or random in the bounds), taking
+        ``extra_inputs`` extra per-view network inputs."""
         fc = self.cfg.field
         meshes = self.data.meshes() if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
@@ -438,10 +452,10 @@ class Trainer:
 
             ha, wa = field.cfg.arrival_grid
             arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
-                         rx_to_world=self.data.rx_to_world, height=ha, width=wa)
+                         rx_to_world=self.data.rx_to_world, height=ha, width=wa, num_gaussians=s.n)
             return BartlettReadout(ha, wa, h, w)(arr)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
-                      rx_to_world=self.data.rx_to_world, height=h, width=w)
+                      rx_to_world=self.data.rx_to_world, height=h, width=w, num_gaussians=s.n)
 
     def _splats(self, field: GaussianField, idx: np.ndarray):
         """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
@@ -589,7 +603,7 @@ class Trainer:
                 lrs = self._lrs(step)
                 for k in list(opt.keys()):
                     short = k[len(self.prefix):]
-                    opt.set_learning_rate({k: lrs["net"] if short.startswith("net.") else lrs[short]})
+                    opt.set_learning_rate({k: lrs["net"] if "." in short else lrs[short]})
                 pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
                 idx = fit[pick]
                 pred = self.render(field, idx)
@@ -667,7 +681,7 @@ class Trainer:
             s = self._splats(field, probe)
             sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
         write_ply(fd / "gaussians.ply", field, signal=sig)
-        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if k.startswith("net.") or k == "box"})
+        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
         summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time,
                    "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
                    "network_parameters": field.net.num_parameters,

@@ -86,3 +86,14 @@ def quick_dataset(tmp_path_factory, variant):
 
     out = tmp_path_factory.mktemp("quick_bedroom") / "ds"
     return dataset.generate(out, dataset.quick_config("bedroom", task="rx", seed=0), quiet=True)
+
+
+@pytest.fixture(scope="session")
+def synthetic_ds(tmp_path_factory, variant):
+    """A synthetic dynamic dataset (30 antennas x (1 + 6) states) rendered from known background and
+    human Gaussians (rfmitsuba.synthetic.make_dataset, seed 0); no Sionna."""
+    from rfmitsuba import synthetic
+
+    out = tmp_path_factory.mktemp("synthetic") / "ds"
+    synthetic.make_dataset(out, antennas=30, humans=6, seed=0)
+    return out

@@ -14,7 +14,8 @@ import sys
 from ..errors import RfmError
 
 #: Sub-command modules, in help order.
-COMMANDS = ["info", "train", "eval", "experiment"]
+
+COMMANDS = ["info", "train", "eval", "experiment", "reproduce", "demo"]
 
 
 def build_parser() -> argparse.ArgumentParser:

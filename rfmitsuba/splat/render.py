@@ -77,7 +77,7 @@ def _check_values(means, log_scales, rotations, opacities, signals) -> None:
 
 def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
            rx_to_world=None, height: int = 90, width: int = 360, near: float = 0.05,
-           check: bool = True):
+           check: bool = True, num_gaussians: int | None = None):
     """Render power angular spectra of Gaussians seen from one or more receivers.
 
     Args:
@@ -94,6 +94,8 @@ def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
         near: Gaussians closer than this to the receiver are culled, metres.
         check: validate values (one fused reduction and a synchronisation);
             the trainer may pass ``False``. Sizes are always checked.
+        num_gaussians: N, the number of Gaussians per view. Needed when every array is per
+            view (size B*N; otherwise N is taken as the smallest array size).
 
     Per-Gaussian arrays of size N are shared by every view; of size B*N
     they are per view, index b*N + i.
@@ -135,7 +137,7 @@ def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
         "signals": _to_array(signals, "Float", "signals"),
     }
     sizes = {k: dr.width(v) for k, v in arrays.items()}
-    n = min(sizes.values())
+    n = min(sizes.values()) if num_gaussians is None else int(num_gaussians)
     if any(s not in (n, views * n) for s in sizes.values()):
         raise GaussianError(
             f"per-Gaussian arrays must all have size N or B*N (B = {views} views); got sizes {sizes}")

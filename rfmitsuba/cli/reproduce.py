@@ -1,0 +1,40 @@
+"""``rfmitsuba reproduce [--quick] --out DIR``: the paper's tables on our data, resumable."""
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("reproduce", help="generate data, train every method, write the paper's tables (resumable)")
+    p.add_argument("--out", required=True, help="output folder (report.md, jobs/, data/); a killed run resumes")
+    p.add_argument("--quick", action="store_true", help="the quick size (minutes on 2 cores)")
+    p.add_argument("--size", choices=["tiny", "quick", "full"], default=None,
+                   help="experiment size (default full; --quick = quick; tiny = synthetic data, seconds)")
+    p.add_argument("--config", default=None, help="ExperimentConfig TOML file (instead of a size)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set seeds=[0,1,2,3] --set train.stage2_iterations=500")
+    p.add_argument("--data", default=None, help="dataset folder to reuse/generate into (default OUT/data)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def build_config(args):
+    """The ExperimentConfig of the command line: --config file or size, then --set overrides."""
+    from .. import config as C
+    from ..errors import ConfigError
+    from ..reproduce import ExperimentConfig, size_config
+
+    if args.config and (args.quick or args.size):
+        raise ConfigError("give either --config or --quick/--size, not both")
+    if args.config:
+        cfg = C.load(ExperimentConfig, args.config)
+    else:
+        cfg = size_config(args.size or ("quick" if args.quick else "full"))
+    return C.override(cfg, list(args.set)) if args.set else cfg
+
+
+def run(args) -> int:
+    from ..reproduce import reproduce
+
+    cfg = build_config(args)
+    path = reproduce(args.out, cfg, data_dir=args.data, quiet=args.quiet)
+    print(f"report: {path}")
+    return 0

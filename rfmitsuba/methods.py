@@ -1,0 +1,324 @@
+"""The compared methods (a registry), how each trains, and the two evaluations.
+
+Methods (:data:`METHODS`; budgets in optimizer steps, ``n1`` = Stage-1 steps, ``n2`` =
+Stage-2 steps of :class:`MethodConfig`):
+
+==================  ================================================================  ===========
+name                what it trains                                                    steps
+==================  ================================================================  ===========
+baseline            one field on the empty-room data                                  n1
+continued           the baseline trained longer (same data)                           n1 + n2
+duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
+baseline_human      one field on empty + human-present data, no human position        n1 + n2
+end_to_end          one field on empty + human-present data, human position as input  n1 + n2
+ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
+                    Gaussians (:mod:`rfmitsuba.human_field`) on the human-present data
+==================  ================================================================  ===========
+
+So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
+stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
+human-present data at training antenna and training human positions).
+
+Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
+
+* **dynamic** - unseen antenna positions x unseen human positions, against the human-present
+  ground truth; nearest neighbour over (antenna, human) position among the human-present
+  training samples. Methods without a human input render the same image for every human.
+* **static** - the background alone (human Gaussians off; end-to-end with "no human" input)
+  at unseen antenna positions, against the empty-room ground truth; nearest neighbour over
+  the antenna position among empty-room training samples.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from . import config as C
+from .errors import ConfigError, RunError
+from .field import GaussianField, Splats
+from .human_field import HumanConfig, HumanField
+from .samples import SampleData, num_human_features
+from .train import OptimConfig, TrainConfig, Trainer, minmax
+
+
+@dataclass(frozen=True)
+class Method:
+    """One compared method (see the module table)."""
+
+    name: str
+    label: str
+    description: str
+    states: str
+    human_input: bool = False
+    two_stage: bool = False
+    duplicate: bool = False
+    long_budget: bool = True
+
+
+METHODS: dict[str, Method] = {m.name: m for m in [
+    Method("baseline", "Baseline", "trained on empty-room data", "empty", long_budget=False),
+    Method("continued", "Continued baseline", "baseline trained longer on empty-room data", "empty"),
+    Method("duplicated", "Baseline (duplicated)", "trained on duplicated empty-room data", "empty", duplicate=True),
+    Method("baseline_human", "Baseline (human)", "trained on human-present data, no human position", "all"),
+    Method("end_to_end", "End-to-End", "one model on human-present data with the human position as input", "all",
+           human_input=True),
+    Method("ours", "Ours (two-stage)", "frozen background + human Gaussians", "human", human_input=True,
+           two_stage=True),
+]}
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name`` (ConfigError listing the known ones)."""
+    if name not in METHODS:
+        raise ConfigError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    return METHODS[name]
+
+
+@dataclass
+class MethodConfig:
+    """Training sizes shared by all methods.
+
+    stage1: the background training configuration (its ``iterations`` is n1); stage2_iterations:
+    n2; human: the Stage-2 human Gaussians; stage2_optim: Stage-2 learning rates;
+    human_octaves: encoding octaves of the human position for the end-to-end model.
+    """
+
+    stage1: TrainConfig = dc_field(default_factory=TrainConfig)
+    stage2_iterations: int = 1000
+    human: HumanConfig = dc_field(default_factory=HumanConfig)
+    stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
+        lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
+        lr_net=1e-2, lr_net_final=1e-3))
+
+    def __post_init__(self) -> None:
+        if self.stage2_iterations < 1:
+            raise ConfigError(f"MethodConfig.stage2_iterations must be >= 1, got {self.stage2_iterations}")
+
+
+def stage1_config(mcfg: MethodConfig, method: Method, *, seed: int) -> TrainConfig:
+    """The single-field training configuration of ``method`` (budget and seed applied)."""
+    it = mcfg.stage1.iterations + (mcfg.stage2_iterations if method.long_budget else 0)
+    return dataclasses.replace(mcfg.stage1, iterations=it, seed=seed, state=0, max_train_positions=0)
+
+
+def stage2_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
+    """Stage-2 training configuration: n2 steps, no density control, Stage-2 learning rates."""
+    s1 = mcfg.stage1
+    dens = dataclasses.replace(s1.density, enabled=False)
+    return dataclasses.replace(s1, iterations=mcfg.stage2_iterations, seed=seed, state=0, max_train_positions=0,
+                               density=dens, optim=mcfg.stage2_optim)
+
+
+def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None = None, train_antennas: int = 0,
+              seed: int = 0) -> SampleData:
+    """The samples ``method`` trains on (noise seed = ``seed``; antenna subset seed fixed to 0 so
+    that every method sees the same positions)."""
+    dup = 1
+    if method.duplicate:
+        from .dataset import open_dataset
+
+        dup = 1 + len(open_dataset(dataset).split.human_train)
+    return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,
+                                   noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
+
+
+def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
+                 noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+                 quiet: bool = True) -> dict:
+    """Train method ``name`` on ``dataset`` into folder ``out`` (resumable).
+
+    Args:
+        name: a key of :data:`METHODS`.
+        dataset: dataset folder.
+        out: job folder; single-field methods train into ``out/train``, Ours into
+            ``out/stage2`` on top of ``stage1_dir`` (default: trains its own ``out/stage1``).
+        mcfg: sizes; seed: training (and noise) seed; noise_snr_db: noise on the training data;
+        train_antennas: number of training antenna positions (0 = all).
+        quiet: no progress bars.
+
+    Returns:
+        {"train_time_s": total training wall time (Stage 1 included for Ours), "steps": total
+        steps, "val_ssim": final validation SSIM of the last stage, "runs": [run folders]}.
+    """
+    m = get_method(name)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not m.two_stage:
+        data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+        cfg = stage1_config(mcfg, m, seed=seed)
+        kw = {}
+        if m.human_input:
+            nf = num_human_features(mcfg.human.human_octaves)
+            kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves), "extra_inputs": nf}
+        s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()
+        return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
+                "runs": [str(out / "train")]}
+    if stage1_dir is None:
+        stage1_dir = out / "stage1"
+        train_method("baseline", dataset, out / "stage1_job", mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                     train_antennas=train_antennas, quiet=quiet)
+        stage1_dir = out / "stage1_job" / "train"
+    stage1_dir = Path(stage1_dir)
+    s1 = json.loads((stage1_dir / "final" / "summary.json").read_text()) \
+        if (stage1_dir / "final" / "summary.json").is_file() else None
+    if s1 is None:
+        raise RunError(f"Stage 1 run {stage1_dir} has not finished (no final/summary.json)")
+    bg = GaussianField.load(stage1_dir / "final" / "field.npz")
+    bg.freeze()
+    data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+    cfg2 = stage2_config(mcfg, seed=seed)
+    oct_ = mcfg.human.human_octaves
+    walk = np.unique(data.human_pos[data.train], axis=0)
+
+    def factory(tr, rng):
+        return HumanField.near_walk(walk, hcfg=mcfg.human, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed,
+                                    name="human")
+
+    tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
+                 extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
+                 extra_inputs=num_human_features(oct_), field_factory=factory)
+    _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    s2 = tr.run()
+    return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
+            "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
+            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")]}
+
+
+# =========================================================================== the model
+
+@dataclass
+class Model:
+    """Trained fields rendered together. ``fields``: list of GaussianField (a
+    :class:`HumanField` is rendered only where a human is present); ``octaves``: human
+    encoding octaves of fields with extra inputs."""
+
+    fields: list
+    octaves: int = 3
+
+    @classmethod
+    def load(cls, name: str, job_dir: str | Path, *, octaves: int = 3) -> "Model":
+        """The trained model of method ``name`` in job folder ``job_dir``."""
+        m = get_method(name)
+        jd = Path(job_dir)
+        if not m.two_stage:
+            return cls([GaussianField.load(jd / "train" / "final" / "field.npz")], octaves=octaves)
+        info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
+        if info is None:
+            raise RunError(f"{jd}: no stage1.json; the two-stage job has not run")
+        bg = GaussianField.load(Path(info["stage1_dir"]) / "final" / "field.npz")
+        bg.freeze()
+        hf = HumanField.load(jd / "stage2" / "final" / "field.npz")
+        hf.freeze()
+        return cls([bg, hf], octaves=octaves)
+
+    @property
+    def num_gaussians(self) -> int:
+        return sum(f.num_gaussians for f in self.fields)
+
+    def render(self, data: SampleData, idx: np.ndarray, *, batch: int = 8, h: int = 90, w: int = 360) -> np.ndarray:
+        """Raw predicted PAS at samples ``idx`` of ``data``: float32 [K, h, w].
+
+        Human fields are left out for empty-room samples (state 0); fields with extra inputs get
+        :meth:`SampleData.features` (all zeros for the empty room)."""
+        import drjit as dr
+
+        from .splat import render
+
+        idx = np.asarray(idx, np.int64)
+        out = np.zeros((len(idx), h, w), np.float32)
+        empty = data.states[idx] == 0
+        for group in (np.flatnonzero(empty), np.flatnonzero(~empty)):
+            for i in range(0, len(group), batch):
+                sel = group[i:i + batch]
+                k = idx[sel]
+                ap, vp = data.antenna_pos[k], data.view_pos[k]
+                sets = []
+                for f in self.fields:
+                    if isinstance(f, HumanField) and empty[sel[0]]:
+                        continue
+                    kw = {"extra": data.features(k, octaves=self.octaves, raw=isinstance(f, HumanField))} \
+                        if f.extra_inputs else {}
+                    sets.append(f.splats(ap, view_pos=vp, **kw))
+                s = Splats.concat(sets)
+                with dr.suspend_grad():
+                    img = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                                 rx_to_world=data.rx_to_world, height=h, width=w, num_gaussians=s.n)
+                out[sel] = np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
+        return out
+
+
+# =========================================================================== evaluation
+
+def test_sets(data: SampleData) -> dict:
+    """Sample indices (into ``data`` opened with states="all") of both evaluations:
+    ``dynamic_test``, ``dynamic_train`` (human-present training samples), ``static_test``,
+    ``static_train``."""
+    sp = data.split
+    a_test = np.isin(data.antennas, sp.antenna_test)
+    a_train = np.isin(data.antennas, sp.antenna_train)
+    h_test = np.isin(data.states, np.asarray(sp.human_test) + 1)
+    h_train = np.isin(data.states, np.asarray(sp.human_train) + 1)
+    st0 = data.states == 0
+    return {"dynamic_test": np.flatnonzero(a_test & h_test), "dynamic_train": np.flatnonzero(a_train & h_train),
+            "static_test": np.flatnonzero(a_test & st0), "static_train": np.flatnonzero(a_train & st0)}
+
+
+def evaluate(model: Model, dataset: str | Path, *, batch: int = 8, keep: bool = False) -> dict:
+    """Both evaluations of ``model`` on ``dataset`` (SPEC protocol, full 90 x 360).
+
+    Returns:
+        {"dynamic": part, "static": part, "render_ms_per_pas": float, "num_gaussians": int}, each
+        part {"model", "nearest_neighbour", "mean_image": stats dicts (mean, median, p10, min, n),
+        "beats_nearest_neighbour": bool}; with ``keep`` also the per-image arrays
+        (``*_ssim``) and images (``pred``, ``gt``).
+    """
+    from .evaluate import floors, ssim_images, stats
+
+    data = SampleData.open_samples(dataset, states="all")
+    sets = test_sets(data)
+    out = {"num_gaussians": model.num_gaussians}
+    t_render, n_render = 0.0, 0
+    for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
+                                                 ("static", "static_test", "static_train", False)):
+        test, train = sets[test_key], sets[train_key]
+        if len(test) == 0 or len(train) == 0:
+            out[part] = None
+            continue
+        gt = data.pas(test)
+        t0 = time.perf_counter()
+        pred = minmax(model.render(data, test, batch=batch))
+        t_render += time.perf_counter() - t0
+        n_render += len(test)
+        if not np.isfinite(pred).all():
+            raise RunError(f"the model renders non-finite values ({part} evaluation of {dataset})")
+        s_model = ssim_images(pred, gt)
+        fl = floors(data.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test],
+                    train_human=data.human_pos[train] if use_human else None,
+                    test_human=data.human_pos[test] if use_human else None)
+        res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
+               "mean_image": stats(fl["mean_image"]),
+               "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
+               "test_samples": int(len(test)), "train_samples": int(len(train))}
+        if keep:
+            res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
+                        "nn": data.pas(train)[fl["nearest_index"]]})
+        out[part] = res
+    out["render_ms_per_pas"] = 1000 * t_render / max(n_render, 1)
+    return out
+
+
+def _write_json(path: Path, obj) -> None:
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True))
+    tmp.replace(path)
+
+
+def config_dict(mcfg: MethodConfig) -> dict:
+    """Plain dict of a :class:`MethodConfig`."""
+    return C.to_dict(mcfg)

@@ -1,0 +1,25 @@
+"""Synthetic dynamic datasets: valid format, and the human changes the PAS."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def test_human_perturbs_the_pas(synthetic_ds):
+    from rfmitsuba.dataset import open_dataset
+    from rfmitsuba.ssim import ssim_np
+    from rfmitsuba.train import minmax
+
+    ds = open_dataset(synthetic_ds)
+    assert ds.num_states == 7 and ds.num_antennas == 30
+    empty, human = minmax(np.asarray(ds.pas(0))), minmax(np.asarray(ds.pas(3)))
+    s = ssim_np(human, empty)
+    assert 0.3 < s.mean() < 0.99  # a visible but not overwhelming perturbation
+
+
+def test_bad_sizes(tmp_path):
+    from rfmitsuba import synthetic
+    from rfmitsuba.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="antennas"):
+        synthetic.make_dataset(tmp_path / "x", antennas=2, humans=3)
