@@ -71,8 +71,11 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
                              seed=cfg.seed, solver=SolverConfig(samples_per_src=cfg.samples_per_src))
         D.generate(dataset, g, quiet=quiet)
     t_data = time.perf_counter() - t0
+    from .train import TrainData
+
+    init = "mesh" if TrainData.open(dataset).scene_xml is not None else "random"
     s1 = TrainConfig(iterations=cfg.stage1_iterations, downsample=cfg.downsample, val_every=100,
-                     checkpoint_every=100, field=FieldConfig(num_gaussians=cfg.num_gaussians),
+                     checkpoint_every=100, field=FieldConfig(init=init, num_gaussians=cfg.num_gaussians),
                      density=DensityConfig(start=cfg.stage1_iterations // 4, every=max(1, cfg.stage1_iterations // 8),
                                            max_gaussians=3 * cfg.num_gaussians))
     mcfg = MethodConfig(stage1=s1, stage2_iterations=cfg.stage2_iterations,

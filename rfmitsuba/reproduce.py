@@ -254,9 +254,33 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
 
     solver = SolverConfig(samples_per_src=d.samples_per_src) if d.samples_per_src else None
     gcfg = D.GenerateConfig(scene=spec.scene, task=spec.task, positions=d.positions, human_positions=d.human_positions,
-                            material=spec.material, seed=0, solver=solver)
+                            material=spec.material, seed=data_seed(spec.scene, d.human_positions), solver=solver)
     D.generate(path, gcfg, quiet=quiet)
     return path
+
+
+def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
+    """The first seed in 0..tries-1 for which :func:`rfmitsuba.human.walk` finds a clear walk of
+    ``human_positions`` steps in ``scene`` (the walk sampler gives up on some seeds in small rooms).
+
+    Raises:
+        PlacementError: no seed works.
+    """
+    from . import human
+    from .dataset import resolve_scene
+    from .errors import PlacementError, RfmError
+    from .geometry import RoomGeometry
+
+    if human_positions < 1:
+        return 0
+    geom = RoomGeometry.from_xml(resolve_scene(scene))
+    for s in range(tries):
+        try:
+            human.walk(geom, n=human_positions, seed=s)
+            return s
+        except RfmError:
+            continue
+    raise PlacementError(f"no clear walk of {human_positions} positions in {scene} for seeds 0..{tries - 1}")
 
 
 # =========================================================================== running

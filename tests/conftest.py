@@ -97,3 +97,20 @@ def synthetic_ds(tmp_path_factory, variant):
     out = tmp_path_factory.mktemp("synthetic") / "ds"
     synthetic.make_dataset(out, antennas=30, humans=6, seed=0)
     return out
+
+
+@pytest.fixture(scope="session")
+def tiny_reproduction(tmp_path_factory, variant):
+    """``reproduce`` at the tiny size, killed after 4 jobs (Stopped) and resumed to the end.
+
+    Returns (out folder, config, report path, {DONE marker: mtime_ns} of the jobs finished
+    before the stop)."""
+    from rfmitsuba.reproduce import Stopped, reproduce, size_config
+
+    out = tmp_path_factory.mktemp("tiny_reproduce") / "out"
+    cfg = size_config("tiny")
+    with pytest.raises(Stopped):
+        reproduce(out, cfg, stop_after=4, quiet=True)
+    done = {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/metrics.json")}
+    report = reproduce(out, cfg, quiet=True)
+    return out, cfg, report, done

@@ -1,0 +1,83 @@
+"""reproduce: tiny end to end, kill and resume, other configurations refused, config round trip."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rfmitsuba.errors import RunError
+
+
+def test_report_has_every_table(tiny_reproduction):
+    out, cfg, report, _ = tiny_reproduction
+    text = report.read_text()
+    for heading in ("Main table", "Two-stage ablation", "Role of perturbation data", "Number of training positions",
+                    "Measurement noise", "Speed against accuracy", "Where methods break", "Paper claims"):
+        assert heading in text, heading
+    assert "0.927 / 0.967" in text  # the paper's Ours figure for scene 1, moving RX, beside ours
+    assert " ± " in text and ("**holds**" in text or "**does not hold**" in text)
+    png = out / "speed_accuracy.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    res = json.loads((out / "results.json").read_text())
+    assert {r["job"]["seed"] for r in res.values()} == set(cfg.seeds)
+    r = next(iter(res.values()))
+    assert r["eval"]["dynamic"]["model"]["n"] > 0 and r["eval"]["static"]["model"]["n"] > 0
+
+
+def test_resume_skips_finished_jobs(tiny_reproduction):
+    from rfmitsuba.reproduce import all_jobs
+
+    out, cfg, _, before = tiny_reproduction
+    assert len(before) == 4
+    for p, t in before.items():
+        assert p.stat().st_mtime_ns == t  # not recomputed
+    assert len(list(out.glob("jobs/*/*/DONE"))) == len(all_jobs(cfg))
+
+
+def test_other_configuration_is_refused(tiny_reproduction):
+    from rfmitsuba import config as C
+    from rfmitsuba.reproduce import reproduce
+
+    out, cfg, _, _ = tiny_reproduction
+    before = (out / "experiment.toml").read_text()
+    with pytest.raises(RunError, match=r"seeds \(run has \[0, 1, 2\], requested \[0, 1, 7\]\)"):
+        reproduce(out, C.override(cfg, ["seeds=[0, 1, 7]"]), quiet=True)
+    with pytest.raises(RunError, match="train.stage2_iterations"):
+        reproduce(out, C.override(cfg, ["train.stage2_iterations=31"]), quiet=True)
+    assert (out / "experiment.toml").read_text() == before
+
+
+def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
+    from rfmitsuba.reproduce import DatasetSpec, Job, run_job
+
+    out, cfg, _, _ = tiny_reproduction
+    job = Job(DatasetSpec("bedroom", "rx"), "baseline", 0)
+    jd = job.folder(tmp_path)
+    jd.mkdir(parents=True)
+    rec = json.loads((job.folder(out) / "job.json").read_text())
+    rec["job"]["seed"] = 99
+    (jd / "job.json").write_text(json.dumps(rec))
+    with pytest.raises(RunError, match="job.seed"):
+        run_job(job, tmp_path, cfg, out / "data")
+
+
+def test_config_round_trip_and_jobs():
+    from rfmitsuba import config as C
+    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.reproduce import SIZES, ExperimentConfig, all_jobs, size_config
+
+    for name in SIZES:
+        cfg = size_config(name)
+        assert C.from_toml(ExperimentConfig, C.to_toml(cfg)) == cfg
+        jobs = all_jobs(cfg)
+        keys = [f"{j.dataset.key}/{j.key}" for j in jobs]
+        assert len(keys) == len(set(keys))
+        for i, j in enumerate(jobs):
+            if j.method == "ours":  # its Stage 1 (the Baseline job) runs first
+                b = j.stage1_job()
+                assert keys.index(f"{b.dataset.key}/{b.key}") < i
+        assert len(cfg.seeds) >= 3
+    with pytest.raises(ConfigError, match="unknown size"):
+        size_config("huge")
+    with pytest.raises(ConfigError, match="tables"):
+        ExperimentConfig(tables=["everything"])
