@@ -104,10 +104,21 @@ def _xyz(el: ET.Element, default: float, where: str) -> np.ndarray:
 
 
 def _rotation(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    n = np.linalg.norm(axis)
-    if n == 0:
+    """4x4 matrix of Mitsuba's ``<rotate>``: Rodrigues' formula with the axis used as written.
+
+    Mitsuba's ``Transform4f.rotate`` does not normalise the axis, so ``<rotate value="1, 1, 0" .../>``
+    is not a pure rotation there; we build the same matrix so that our geometry is what the ray
+    tracer loads.
+    """
+    if not np.any(axis):
         raise SceneError("rotate: zero axis")
-    return trimesh.transformations.rotation_matrix(math.radians(angle_deg), axis / n)
+    a = np.asarray(axis, dtype=np.float64)
+    t = math.radians(angle_deg)
+    s, c = math.sin(t), math.cos(t)
+    cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    m = np.eye(4)
+    m[:3, :3] = c * np.eye(3) + (1.0 - c) * np.outer(a, a) + s * cross
+    return m
 
 
 def _to_world(el: ET.Element, where: str) -> np.ndarray:

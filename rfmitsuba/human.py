@@ -11,10 +11,13 @@ bounding-box centre).
 
 :func:`walk` gives a casual walk through the free floor: a person strolling
 at 0.5-1 m/s whose heading wanders smoothly and who turns away from walls and
-furniture, sampled at ``n`` evenly spaced instants over ``duration_s``. Every
-sampled position keeps ``clearance`` (the body's radius) from walls and from
-furniture footprints, and the straight step between consecutive positions is
-clear too (:meth:`RoomGeometry.segment_clear` with the body's height).
+furniture, sampled at ``n`` evenly spaced instants over ``duration_s``. The walk is
+simulated in steps of at most :data:`MAX_STEP_S` (1.76 s, the paper's 35
+positions a minute); every simulated position keeps ``clearance`` (the body's
+radius) from walls and from furniture footprints, and every simulated step is
+a clear straight line (:meth:`RoomGeometry.segment_clear` with the body's
+height). With the default 35 positions the sampled positions are those steps;
+fewer positions are instants of the same finer walk.
 
 Adding the person to a Sionna scene::
 
@@ -214,6 +217,10 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     within it (it drops below the minimum only where a step must be shortened to stay clear).
     The heading wanders smoothly; each step keeps as close to the wanted heading as the room
     allows, preferring directions with free floor ahead.
+    The person is simulated in steps of at most :data:`MAX_STEP_S` seconds (the default 35
+    positions over 60 s are exactly such steps); when fewer positions are asked for, they are
+    taken at evenly spaced times of that finer walk, so a short sample of a walk is a real walk,
+    not a few metre-long jumps across the room.
     Returns a :class:`Walk` (positions float64 [n, 3], headings [n], times [n]); unpack as
     ``positions, headings, times = walk(...)``. Raises :class:`PlacementError` if no clear walk
     is found (room too cluttered for the clearance).
@@ -221,15 +228,20 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     if n < 1 or not (duration_s > 0) or not (0 < speed[0] <= speed[1]):
         raise PlacementError(f"walk needs n >= 1, duration_s > 0 and 0 < speed min <= max; got n={n}, "
                              f"duration_s={duration_s}, speed={speed}")
+    n_fine = max(n, math.ceil(duration_s / MAX_STEP_S - 1e-9) + 1)
+    pick = np.round(np.linspace(0, n_fine - 1, n)).astype(int)
     ss = np.random.SeedSequence(seed)
     for child in ss.spawn(max_attempts):
-        w = _simulate(geometry, np.random.default_rng(child), n=n, duration_s=duration_s, clearance=clearance,
-                      height=height, speed=speed)
+        w = _simulate(geometry, np.random.default_rng(child), n=n_fine, duration_s=duration_s,
+                      clearance=clearance, height=height, speed=speed)
         if w is not None:
-            return w
+            return Walk(w.positions[pick], w.headings[pick], w.times[pick])
     raise PlacementError(f"no clear walk found in {max_attempts} attempts (clearance {clearance} m); "
                          f"the free floor of {geometry.path} is too small or fragmented")
 
+
+#: Longest simulated step of :func:`walk`, seconds (60 s / 34 steps: the paper's 35 positions a minute).
+MAX_STEP_S = 60.0 / 34
 
 _OFFSETS = np.deg2rad(np.r_[0, np.repeat(np.arange(15, 181, 15), 2) * np.tile([1, -1], 12)])
 
