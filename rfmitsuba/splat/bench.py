@@ -78,14 +78,20 @@ def _reset_peak() -> None:
         pass
 
 
-def _times_ms(fn, repeats: int, *, warmup: int = 2) -> list[float]:
+def _times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None) -> list[float]:
+    """Wall times (ms) of ``repeats`` calls; with ``cpu``, also appends the process
+    CPU time (all threads, ms) of each call -- a figure that other load on the
+    cores does not inflate."""
     for _ in range(warmup):  # compilation, allocator
         fn()
     times = []
     for _ in range(repeats):
+        c0 = time.process_time()
         t0 = time.perf_counter()
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
+        if cpu is not None:
+            cpu.append((time.process_time() - c0) * 1e3)
     return times
 
 
@@ -98,11 +104,12 @@ def _figures(forward, forward_backward, iteration, repeats: int) -> dict:
     The best-of figures are the ones least disturbed by other load on shared cores."""
     f = _times_ms(forward, repeats)
     fb = _times_ms(forward_backward, repeats)
-    it = _times_ms(iteration, repeats)
+    cpu: list[float] = []
+    it = _times_ms(iteration, repeats, cpu=cpu)
     med = statistics.median
     return {"forward_ms": med(f), "backward_ms": max(med(fb) - med(f), 0.0), "iteration_ms": med(it),
             "forward_min_ms": min(f), "backward_min_ms": max(min(fb) - min(f), 0.0),
-            "iteration_min_ms": min(it)}
+            "iteration_min_ms": min(it), "iteration_cpu_ms": med(cpu)}
 
 
 # --------------------------------------------------------------------------- Dr.Jit
@@ -311,6 +318,15 @@ def format_report(result: dict) -> str:
                 line += (f" | torch fwd {t['forward_min_ms']:.1f}  bwd {t['backward_min_ms']:.1f}  "
                          f"iter {t['iteration_min_ms']:.1f} | speed-up iter "
                          f"{t['iteration_min_ms'] / d['iteration_min_ms']:.1f}x")
+            lines.append(line)
+        lines.append("CPU time per iteration (all threads, median; not inflated by other load), ms:")
+        for row in result["rows"]:
+            d = row["drjit"]
+            line = f"{row['n']:>7} | Dr.Jit {d['iteration_cpu_ms']:.1f}"
+            if result["torch"]:
+                t = row["torch"]
+                line += (f" | torch {t['iteration_cpu_ms']:.1f} | ratio "
+                         f"{t['iteration_cpu_ms'] / max(d['iteration_cpu_ms'], 1e-3):.1f}x")
             lines.append(line)
     lines.append("mem: Dr.Jit = peak of the JIT allocator (arrays alive) during the timed runs; "
                  "torch = growth of the peak resident set")
