@@ -104,10 +104,16 @@ def _xyz(el: ET.Element, default: float, where: str) -> np.ndarray:
 
 
 def _rotation(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    n = np.linalg.norm(axis)
-    if n == 0:
+    """Mitsuba's ``rotate``: Rodrigues' formula with the axis as given (Mitsuba does not normalise
+    it, so a non-unit axis also scales; we follow the loader, since that is what Sionna traces)."""
+    if not np.any(axis):
         raise SceneError("rotate: zero axis")
-    return trimesh.transformations.rotation_matrix(math.radians(angle_deg), axis / n)
+    th = math.radians(angle_deg)
+    c, s = math.cos(th), math.sin(th)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    m = np.eye(4)
+    m[:3, :3] = c * np.eye(3) + s * k + (1.0 - c) * np.outer(axis, axis)
+    return m
 
 
 def _to_world(el: ET.Element, where: str) -> np.ndarray:
