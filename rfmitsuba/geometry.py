@@ -104,20 +104,15 @@ def _xyz(el: ET.Element, default: float, where: str) -> np.ndarray:
 
 
 def _rotation(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    """4x4 matrix of Mitsuba's ``<rotate>``: Rodrigues' formula with the axis used as written.
-
-    Mitsuba's ``Transform4f.rotate`` does not normalise the axis, so ``<rotate value="1, 1, 0" .../>``
-    is not a pure rotation there; we build the same matrix so that our geometry is what the ray
-    tracer loads.
-    """
+    """Mitsuba's ``rotate``: Rodrigues' formula with the axis as given (Mitsuba does not normalise
+    it, so a non-unit axis also scales; we follow the loader, since that is what Sionna traces)."""
     if not np.any(axis):
         raise SceneError("rotate: zero axis")
-    a = np.asarray(axis, dtype=np.float64)
-    t = math.radians(angle_deg)
-    s, c = math.sin(t), math.cos(t)
-    cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    th = math.radians(angle_deg)
+    c, s = math.cos(th), math.sin(th)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     m = np.eye(4)
-    m[:3, :3] = c * np.eye(3) + (1.0 - c) * np.outer(a, a) + s * cross
+    m[:3, :3] = c * np.eye(3) + s * k + (1.0 - c) * np.outer(axis, axis)
     return m
 
 

@@ -191,15 +191,14 @@ def test_sample_free_is_fast():
     assert time.perf_counter() - t < 2.0          # about 0.1 s measured on the 2-core dev machine
 
 
-def test_sample_free_impossible_requests(bedroom, monkeypatch):
+def test_sample_free_impossible_requests(bedroom):
     with pytest.raises(PlacementError, match="no free space"):
         bedroom.sample_free(10, rng=0, clearance=2.0)
     with pytest.raises(PlacementError, match="z_range"):
         bedroom.sample_free(10, rng=0, z_range=(2.0, 1.0))
-    # A room whose every candidate point is occupied: the sampler gives up after max_tries batches.
-    monkeypatch.setattr(bedroom, "free_mask", lambda c, clearance=0.0: np.zeros(len(c), bool))
+    # a 1.3 m clearance leaves a small box above the bed, and the bed's own clearance fills it
     with pytest.raises(PlacementError, match="found only 0 of 10"):
-        bedroom.sample_free(10, rng=0, max_tries=3)
+        bedroom.sample_free(10, rng=0, clearance=1.3, max_tries=5)
 
 
 # ---------------------------------------------------------------- segments

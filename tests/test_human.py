@@ -1,13 +1,16 @@
-"""Tests of rfmitsuba.human: the body mesh, seeded walks and their checks."""
+"""Tests of rfmitsuba.human: body mesh, seeded walks that stay clear, walk checks, Sionna object."""
+from __future__ import annotations
+
 import math
 
 import numpy as np
 import pytest
-import trimesh
 
-from rfmitsuba import human, scenes
+from rfmitsuba import human
 from rfmitsuba.errors import PlacementError
 from rfmitsuba.geometry import RoomGeometry
+from rfmitsuba import scenes
+import trimesh
 
 
 @pytest.fixture(scope="module")
@@ -15,19 +18,79 @@ def bedroom() -> RoomGeometry:
     return RoomGeometry.from_scene("bedroom")
 
 
-def test_body_size_and_parts():
-    m = human.human_mesh((1.0, 2.0, 0.0), 0.0)
+def test_mesh_size_and_shape():
+    m = human.human_mesh([1.0, 2.0, 0.0], 0.0)
     lo, hi = m.bounds
-    assert hi[2] - lo[2] == pytest.approx(human.HEIGHT, abs=0.02)
-    assert lo[2] == pytest.approx(0.0, abs=1e-6)                      # feet on the floor
-    width = max(hi[0] - lo[0], hi[1] - lo[1])
-    assert width == pytest.approx(human.WIDTH, abs=0.03)
+    assert hi[2] - lo[2] == pytest.approx(1.7) and lo[2] == pytest.approx(0.0)
+    assert hi[1] - lo[1] == pytest.approx(0.45, abs=0.01)        # shoulders along y at heading 0
+    np.testing.assert_allclose(0.5 * (lo + hi)[:2], [1.0, 2.0], atol=1e-9)   # feet under the bbox centre
     parts = m.split(only_watertight=False)
-    assert len(parts) >= 6                                            # legs, torso, arms, neck, head
-    # the bounding-box centre is above the feet whatever the heading (what place() relies on)
-    for h in np.linspace(-math.pi, math.pi, 7):
-        c = human.human_mesh((1.0, 2.0, 0.0), h).bounds.mean(axis=0)
-        np.testing.assert_allclose(c[:2], [1.0, 2.0], atol=1e-6)
+    assert len(parts) == 7 and all(p.is_watertight for p in parts)        # legs, torso, arms, neck, head
+    assert m.volume < 0.5 * np.prod(hi - lo)                              # not one box
+    turned = human.human_mesh([0, 0, 0], math.pi / 2)
+    assert turned.extents[0] == pytest.approx(0.45, abs=0.01)
+    with pytest.raises(PlacementError, match="finite"):
+        human.human_mesh([np.nan, 0, 0], 0.0)
+
+
+@pytest.mark.parametrize("name", ["bedroom", "dining_room", "large_room"])
+def test_walk_is_seeded_and_clear(name):
+    g = RoomGeometry.from_scene(name)
+    pos, head, t = human.walk(g, n=35, duration_s=60.0, seed=3)
+    assert pos.shape == (35, 3) and pos.dtype == np.float64 and head.shape == (35,)
+    assert np.all(pos[:, 2] == g.floor_z)
+    np.testing.assert_array_equal(pos, human.walk(g, seed=3).positions)
+    assert not np.array_equal(pos, human.walk(g, seed=4).positions)
+    assert np.all(g.free_mask(pos, clearance=0.25, body_height=1.7))
+    for a, b in zip(pos[:-1], pos[1:]):
+        assert g.segment_clear(a, b, clearance=0.25, body_height=1.7)
+    speed = np.linalg.norm(np.diff(pos, axis=0), axis=1) / np.diff(t)
+    assert np.all(speed <= 1.0 + 1e-9) and np.median(speed) >= 0.5
+    human.check_walk(g, pos, clearance=0.25)
+
+
+def test_check_walk_rejects_walls_furniture_and_nan(bedroom):
+    ok = human.walk(bedroom, seed=0).positions
+    through_wall = ok.copy()
+    through_wall[5] = [5.0, 1.0, 0.0]
+    with pytest.raises(PlacementError, match="human 5 at .* is outside the room"):
+        human.check_walk(bedroom, through_wall)
+    bed_lo, bed_hi = bedroom.furniture_bounds()["bed"]
+    y = 0.5 * (bed_lo[1] + bed_hi[1])
+    across_bed = np.array([[1.5, y, 0.0], [bed_hi[0] + 0.5, y, 0.0]])
+    across_bed[1, 0] = min(across_bed[1, 0], bedroom.hi[0] - 0.01)
+    with pytest.raises(PlacementError):
+        human.check_walk(bedroom, across_bed)
+    nan = ok.copy()
+    nan[2, 1] = np.nan
+    with pytest.raises(PlacementError, match="human 2 .* not finite"):
+        human.check_walk(bedroom, nan)
+
+
+def test_perturber_materials_and_snippet():
+    assert set(human.PERTURBER_MATERIALS) == {"tissue", "metal", "concrete"}
+    assert human.PERTURBER_MATERIALS["tissue"][0] == "human-tissue"
+    assert 'type="human-tissue"' in human.xml_snippet()
+    with pytest.raises(PlacementError, match="unknown perturber kind 'wood'"):
+        human.xml_snippet(kind="wood")
+
+
+def test_scene_object_moves_in_sionna(variant, tmp_path):
+    from rfmitsuba import plugins, scenes
+
+    plugins.register()
+    import sionna.rt as rt
+
+    scene = rt.load_scene(str(scenes.path("bedroom")), merge_shapes=False)
+    obj = human.scene_object(tmp_path, kind="tissue")
+    scene.edit(add=obj)
+    assert type(scene.get("human").radio_material).__name__ == "HumanTissueMaterial"
+    human.place(obj, [2.0, 1.9, 0.0], 0.7)
+    bb = obj.mi_mesh.bbox()
+    np.testing.assert_allclose(0.5 * (np.array(bb.min) + np.array(bb.max))[:2], [2.0, 1.9], atol=1e-4)
+    assert float(bb.min[2]) == pytest.approx(0.0, abs=1e-4) and float(bb.max[2]) == pytest.approx(1.7, abs=1e-4)
+    metal = human.radio_material("metal", name="statue_metal")
+    assert metal.itu_type == "metal"
 
 
 def test_heading_turns_the_shoulders():
@@ -35,18 +98,6 @@ def test_heading_turns_the_shoulders():
     b = human.human_mesh((0, 0, 0), math.pi / 2).bounds
     ext_a, ext_b = a[1] - a[0], b[1] - b[0]
     np.testing.assert_allclose(ext_a[[1, 0]], ext_b[[0, 1]], atol=1e-6)   # x and y extents swap
-
-
-def test_walk_is_seeded_and_clear(bedroom):
-    w1 = human.walk(bedroom, seed=3)
-    w2 = human.walk(bedroom, seed=3)
-    np.testing.assert_array_equal(w1.positions, w2.positions)
-    assert w1.positions.shape == (35, 3) and w1.times[-1] == pytest.approx(60.0)
-    assert not np.array_equal(w1.positions, human.walk(bedroom, seed=4).positions)
-    human.check_walk(bedroom, w1.positions, clearance=0.25)            # raises if not clear
-    steps = np.linalg.norm(np.diff(w1.positions[:, :2], axis=0), axis=1)
-    dt = np.diff(w1.times)
-    assert np.all(steps / dt <= 1.0 + 1e-9)                            # never faster than 1 m/s
 
 
 @pytest.mark.parametrize("name", scenes.available())
@@ -60,32 +111,11 @@ def test_short_walk_samples_the_full_walk(name):
     assert np.all(g.free_mask(short.positions, clearance=0.25, body_height=human.HEIGHT))
 
 
-def test_walk_through_a_wall_is_rejected(bedroom):
-    lo, hi = bedroom.lo, bedroom.hi
-    inside = np.array([lo[0] + 1.0, lo[1] + 1.0, lo[2]])
-    outside = np.array([hi[0] + 1.0, lo[1] + 1.0, lo[2]])
-    with pytest.raises(PlacementError, match="human 1"):
-        human.check_walk(bedroom, [inside, outside])
-
-
-def test_walk_with_nan_is_rejected(bedroom):
-    p = human.walk(bedroom, n=5, seed=0).positions.copy()
-    p[2, 0] = np.nan
-    with pytest.raises(PlacementError, match="not finite"):
-        human.check_walk(bedroom, p)
-
-
 def test_bad_walk_arguments(bedroom):
     with pytest.raises(PlacementError, match="n >= 1"):
         human.walk(bedroom, n=0)
     with pytest.raises(PlacementError, match="no clear walk"):
         human.walk(bedroom, clearance=1.6, max_attempts=2)
-
-
-def test_perturber_materials():
-    assert set(human.PERTURBER_MATERIALS) == {"tissue", "metal", "concrete"}
-    with pytest.raises(ValueError, match="wood"):
-        human.radio_material("wood")
 
 
 def test_written_ply_is_the_body(tmp_path):
