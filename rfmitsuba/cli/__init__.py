@@ -14,7 +14,7 @@ import sys
 from ..errors import RfmError
 
 #: Sub-command modules, in help order.
-COMMANDS = ["info"]
+COMMANDS = ["info", "generate", "show"]
 
 
 def build_parser() -> argparse.ArgumentParser:
