@@ -547,14 +547,7 @@ class RoomGeometry:
             if s.kind in ("floor", "ceiling"):
                 continue
             for comp in s.mesh.split(only_watertight=False):
-                v = np.asarray(comp.vertices)[:, :2]
-                from scipy.spatial import ConvexHull
-
-                try:
-                    hull = v[ConvexHull(np.unique(np.round(v, 9), axis=0)).vertices] \
-                        if len(np.unique(np.round(v, 9), axis=0)) >= 3 else v
-                except Exception:  # noqa: BLE001 - degenerate (flat) footprint
-                    hull = v
+                hull = _footprint(np.asarray(comp.vertices)[:, :2])
                 if s.kind == "furniture":
                     ax.add_patch(Polygon(hull, closed=True, facecolor="#f4d9a6", edgecolor="#8b5a2b", lw=0.8,
                                          alpha=0.8))
@@ -571,6 +564,18 @@ class RoomGeometry:
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         return ax
+
+
+def _footprint(xy: np.ndarray) -> np.ndarray:
+    """Corners [K, 2] of the convex hull of 2-D points (their bounding rectangle if degenerate)."""
+    from scipy.spatial import ConvexHull
+
+    pts = np.unique(np.round(xy, 9), axis=0)
+    try:
+        return pts[ConvexHull(pts).vertices]
+    except Exception:  # noqa: BLE001 - collinear points (a panel seen edge-on)
+        lo, hi = pts.min(0), pts.max(0)
+        return np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
 
 
 def _fmt_point(p) -> str:

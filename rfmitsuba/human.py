@@ -205,12 +205,15 @@ class Walk(NamedTuple):
 
 def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed: int = 0,
          clearance: float = 0.25, height: float = HEIGHT, speed: tuple[float, float] = (0.5, 1.0),
-         dt: float = 0.05, max_attempts: int = 50) -> Walk:
+         max_attempts: int = 50) -> Walk:
     """A seeded casual walk through the free floor (see the module docstring).
 
-    geometry: the room. n: number of sampled positions; duration_s: walk length, seconds.
-    clearance: the body's radius, metres, kept from walls and furniture footprints.
-    speed: (min, max) walking speed, m/s. dt: simulation step, seconds.
+    geometry: the room. n: number of sampled positions, evenly spaced in time over
+    ``duration_s`` seconds. clearance: the body's radius, metres, kept from walls and
+    furniture footprints. speed: (min, max) walking speed, m/s; the speed drifts smoothly
+    within it (it drops below the minimum only where a step must be shortened to stay clear).
+    The heading wanders smoothly; each step keeps as close to the wanted heading as the room
+    allows, preferring directions with free floor ahead.
     Returns a :class:`Walk` (positions float64 [n, 3], headings [n], times [n]); unpack as
     ``positions, headings, times = walk(...)``. Raises :class:`PlacementError` if no clear walk
     is found (room too cluttered for the clearance).
@@ -221,73 +224,87 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     ss = np.random.SeedSequence(seed)
     for child in ss.spawn(max_attempts):
         w = _simulate(geometry, np.random.default_rng(child), n=n, duration_s=duration_s, clearance=clearance,
-                      height=height, speed=speed, dt=dt)
+                      height=height, speed=speed)
         if w is not None:
             return w
     raise PlacementError(f"no clear walk found in {max_attempts} attempts (clearance {clearance} m); "
                          f"the free floor of {geometry.path} is too small or fragmented")
 
 
-def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed, dt):
+_OFFSETS = np.deg2rad(np.r_[0, np.repeat(np.arange(15, 181, 15), 2) * np.tile([1, -1], 12)])
+
+
+def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed):
     z = g.floor_z
-    start = g.sample_free(1, rng=rng, z_range=(0.0, 0.0), clearance=0.0, max_tries=50)[0]
-    start[2] = z
-    if not g.free_mask(start, clearance=clearance, body_height=height)[0]:
-        # draw feet positions directly on the floor
-        for _ in range(200):
-            c = np.r_[g.lo[:2] + (g.hi[:2] - g.lo[:2]) * rng.random(2), z]
-            if g.free_mask(c, clearance=clearance, body_height=height)[0]:
-                start = c
-                break
-        else:
-            return None
-    steps = int(math.ceil(duration_s / dt))
-    pos = np.empty((steps + 1, 3))
-    head = np.empty(steps + 1)
+
+    def free_spot():
+        c = np.c_[g.lo[:2] + (g.hi[:2] - g.lo[:2]) * rng.random((256, 2)), np.full(256, z)]
+        ok = np.flatnonzero(g.free_mask(c, clearance=clearance, body_height=height))
+        return c[ok[0]] if len(ok) else None
+
+    start = free_spot()
+    if start is None:
+        return None
+    t = np.linspace(0.0, duration_s, n)
+    dt = duration_s / max(n - 1, 1)
+    pos = np.empty((n, 3))
+    head = np.empty(n)
     pos[0] = start
     h = rng.uniform(-math.pi, math.pi)
-    turn = 0.0                                   # rad/s, an Ornstein-Uhlenbeck process
-    v_mid = 0.5 * (speed[0] + speed[1])
-    v_amp = 0.5 * (speed[1] - speed[0])
+    turn = 0.0                                     # rad per step, a smoothed random walk
+    v_mid, v_amp = 0.5 * (speed[0] + speed[1]), 0.5 * (speed[1] - speed[0])
     v_phase, v_period = rng.uniform(0, 2 * math.pi), rng.uniform(8.0, 16.0)
-    look = 0.6                                   # m, look-ahead
-    deltas = np.deg2rad(np.arange(15, 181, 15))
-    for k in range(steps):
-        turn = turn * math.exp(-dt / 2.0) + 0.6 * math.sqrt(dt) * rng.standard_normal()
-        h += turn * dt
-        p = pos[k]
-        d = np.array([math.cos(h), math.sin(h), 0.0])
-        if not g.segment_clear(p, p + look * d, clearance=clearance, body_height=height):
-            side = 1.0 if turn >= 0 else -1.0
-            for delta in deltas:
-                found = False
-                for sgn in (side, -side):
-                    hh = h + sgn * delta
-                    dd = np.array([math.cos(hh), math.sin(hh), 0.0])
-                    if g.segment_clear(p, p + look * dd, clearance=clearance, body_height=height):
-                        h, d, found = hh, dd, True
-                        turn = sgn * abs(turn)
-                        break
-                if found:
+    goal, goal_age = None, 0                       # a spot the person strolls towards
+
+    def clear(p, hh, length):
+        q = p + length * np.array([math.cos(hh), math.sin(hh), 0.0])
+        return g.segment_clear(p, q, clearance=clearance, body_height=height), q
+
+    for i in range(n - 1):
+        if goal is None or goal_age > 8 or np.hypot(*(goal - pos[i])[:2]) < 1.0:
+            goal = free_spot()
+            if goal is None:
+                return None
+            goal_age = 0
+        goal_age += 1
+        turn = 0.6 * turn + 0.3 * rng.standard_normal()
+        to_goal = math.atan2(goal[1] - pos[i][1], goal[0] - pos[i][0])
+        # steer towards the goal, at most 60 degrees per step, plus the wander
+        steer = float(np.clip(np.angle(np.exp(1j * (to_goal - h))), -math.pi / 3, math.pi / 3))
+        want = h + steer + turn
+        v = v_mid + v_amp * math.sin(2 * math.pi * t[i] / v_period + v_phase)
+        p = pos[i]
+        chosen = None
+        for scale in (1.0, 0.7, 0.5):
+            length = v * dt * scale
+            fallback = None
+            sign = 1.0 if rng.random() < 0.5 else -1.0   # which way to try first when blocked
+            for off in _OFFSETS * sign:
+                ok, q = clear(p, want + off, length)
+                if not ok:
+                    continue
+                if clear(p, want + off, 2.0 * length)[0]:   # free floor ahead: take it
+                    chosen = (want + off, q)
                     break
-        v = v_mid + v_amp * math.sin(2 * math.pi * k * dt / v_period + v_phase)
-        q = p + v * dt * d
-        if not g.segment_clear(p, q, clearance=clearance, body_height=height):
-            q = p.copy()                          # boxed in for a moment: stand and turn
-            h += math.pi / 4
-        pos[k + 1] = q
-        head[k] = h
-    head[steps] = h
-    t = np.linspace(0.0, duration_s, n)
-    idx = np.minimum(np.round(t / dt).astype(int), steps)
-    positions = pos[idx].copy()
-    positions[:, 2] = z
-    headings = np.angle(np.exp(1j * head[idx]))
+                if fallback is None:
+                    fallback = (want + off, q)
+            chosen = chosen or fallback
+            if chosen is not None:
+                break
+        if chosen is None:
+            return None
+        new_h, q = chosen
+        h = new_h
+        head[i] = h
+        pos[i + 1] = q
+    head[n - 1] = h
+    pos[:, 2] = z
+    headings = np.angle(np.exp(1j * head))
     try:
-        check_walk(g, positions, clearance=clearance, height=height)
+        check_walk(g, pos, clearance=clearance, height=height)
     except PlacementError:
         return None
-    return Walk(positions, headings, t)
+    return Walk(pos, headings, t)
 
 
 def check_walk(geometry: RoomGeometry, positions, *, clearance: float = 0.0, height: float = HEIGHT) -> None:

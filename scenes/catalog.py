@@ -43,12 +43,13 @@ def bedroom() -> RoomDescription:
                     material="window_glass", panel_thickness=0.01),
         ],
         furniture=[
-            bed("bed", "furniture_wood", "soft_textile", origin=(2.4, G), size=(1.6, 2.0)),
-            block("nightstand", "furniture_wood", origin=(1.9, G), size=(0.45, 0.4, 0.55)),
-            block("wardrobe", "furniture_wood", origin=(G, 1.5), size=(0.6, 1.2, 2.1)),
-            table("desk", "furniture_wood", origin=(1.0, ly - G - 0.6), size=(1.2, 0.6, 0.75)),
-            chair("chair", "furniture_wood", origin=(1.85, ly - G - 0.7), yaw_deg=180.0),
-            block("radiator", "appliance_metal", origin=(lx - G - 0.1, 2.3), size=(0.1, 1.0, 0.6), z=0.15),
+            # bed with its headboard against the east wall
+            bed("bed", "furniture_wood", "soft_textile", origin=(lx - G, G), size=(1.6, 2.0), yaw_deg=90.0),
+            block("nightstand", "furniture_wood", origin=(lx - G - 0.4, 1.65), size=(0.4, 0.45, 0.55)),
+            block("wardrobe", "furniture_wood", origin=(G, 0.9), size=(0.6, 1.2, 2.1)),
+            table("desk", "furniture_wood", origin=(0.8, ly - G - 0.6), size=(1.2, 0.6, 0.75)),
+            chair("chair", "furniture_wood", origin=(1.65, ly - G - 0.7), yaw_deg=180.0),
+            block("radiator", "appliance_metal", origin=(lx - G - 0.1, 2.35), size=(0.1, 1.0, 0.6), z=0.15),
         ],
     )
 
