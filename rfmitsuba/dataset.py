@@ -522,7 +522,9 @@ def quick_config(scene: str = "bedroom", **overrides) -> GenerateConfig:
     """The ``--quick`` configuration: 36 positions x (1 + 4) states at 2e4 samples per source."""
     from .simulate import SolverConfig
 
+    # the walk keeps the full walk's step (60 s / 35 positions), so its straight steps stay short
     kw = {"scene": scene, "positions": QUICK["positions"], "human_positions": QUICK["human_positions"],
+          "walk_duration_s": 60.0 * QUICK["human_positions"] / 35,
           "solver": SolverConfig(samples_per_src=QUICK["samples_per_src"])}
     kw.update(overrides)
     return GenerateConfig(**kw)
