@@ -217,3 +217,17 @@ def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
         np.testing.assert_array_equal(before[k], after[k])
     img = tr.render(tr.field, data.train[:2])
     assert img.shape == (2, 18, 72)
+
+
+def test_shipped_configs_load():
+    """Every TOML under configs/ is a valid TrainConfig (the README points users at them)."""
+    from pathlib import Path
+
+    from rfmitsuba import config
+    from rfmitsuba.train import TrainConfig
+
+    files = sorted((Path(__file__).parent.parent / "configs").glob("*.toml"))
+    assert files
+    for f in files:
+        cfg = config.load(TrainConfig, f)
+        assert config.from_toml(TrainConfig, config.to_toml(cfg)) == cfg
