@@ -50,7 +50,6 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
     """
     from . import config as C
     from .density import DensityConfig
-    from .evaluate import plot_cdf
     from .field import FieldConfig
     from .human_field import HumanConfig
     from .methods import MethodConfig, Model, evaluate, train_method

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
 from typing import Literal
@@ -89,48 +88,22 @@ class FieldConfig:
 # --------------------------------------------------------------------------- geometry input
 
 def scene_meshes(xml_path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Triangle meshes of a Mitsuba scene XML.
+    """Triangle meshes of a Mitsuba scene XML, in world coordinates.
 
     Args:
-        xml_path: path of the scene XML; ``<shape type="ply">`` / ``"obj"`` entries with a
-            ``filename`` relative to the XML are read (with trimesh); an optional
-            ``<transform><matrix value="16 numbers"/></transform>`` is applied.
+        xml_path: path of the scene XML; read by :func:`rfmitsuba.geometry.read_shapes`
+            (ply/obj shapes, ``to_world`` transforms, ``$name`` defaults).
 
     Returns:
         list of (vertices float64 [V, 3] metres, faces int64 [F, 3]).
 
     Raises:
-        SceneError: missing file, malformed XML, or no mesh.
+        SceneError: missing file, malformed XML, missing mesh file, or no mesh.
     """
-    import trimesh
+    from .geometry import read_shapes
 
-    xml_path = Path(xml_path)
-    if not xml_path.is_file():
-        raise SceneError(f"scene file {xml_path} does not exist")
-    try:
-        root = ET.parse(xml_path).getroot()
-    except ET.ParseError as e:
-        raise SceneError(f"scene file {xml_path} is malformed XML: {e}") from None
-    meshes = []
-    for shape in root.iter("shape"):
-        if shape.get("type") not in ("ply", "obj"):
-            continue
-        fn = next((s.get("value") for s in shape.findall("string") if s.get("name") == "filename"), None)
-        if fn is None:
-            raise SceneError(f"{xml_path}: shape {shape.get('id')!r} has no filename")
-        path = xml_path.parent / fn
-        if not path.is_file():
-            raise SceneError(f"{xml_path}: mesh file {path} of shape {shape.get('id')!r} does not exist")
-        m = trimesh.load(path, force="mesh", process=False)
-        v = np.asarray(m.vertices, dtype=np.float64)
-        tr = shape.find("transform")
-        if tr is not None:
-            mat = tr.find("matrix")
-            if mat is None:
-                raise SceneError(f"{xml_path}: shape {shape.get('id')!r}: only <matrix> transforms are supported")
-            M = np.array([float(x) for x in mat.get("value").replace(",", " ").split()]).reshape(4, 4)
-            v = v @ M[:3, :3].T + M[:3, 3]
-        meshes.append((v, np.asarray(m.faces, dtype=np.int64)))
+    meshes = [(np.asarray(s.mesh.vertices, dtype=np.float64), np.asarray(s.mesh.faces, dtype=np.int64))
+              for s in read_shapes(xml_path)]
     if not meshes:
         raise SceneError(f"{xml_path}: no mesh shapes found")
     return meshes

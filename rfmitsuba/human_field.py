@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field as dc_field
-from pathlib import Path
 
 import numpy as np
 
@@ -275,11 +274,3 @@ class HumanField(GaussianField):
             f.freeze()
         return f
 
-    @classmethod
-    def load(cls, path: str | Path) -> "HumanField":
-        path = Path(path)
-        if not path.is_file():
-            raise RunError(f"human field file {path} does not exist")
-        with np.load(path, allow_pickle=False) as z:
-            state = {k: z[k] for k in z.files}
-        return cls.from_state_dict(state)

@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from . import config as C
-from . import paper
 from .errors import ConfigError, RunError
 
 TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise")

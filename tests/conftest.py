@@ -6,6 +6,7 @@ take it and run on the LLVM backend (or on CUDA with ``RFMITSUBA_VARIANT=cuda``)
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -35,7 +36,7 @@ def _quad_ply(path, corners) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def write_quads_scene(folder, quads: dict, *, material: str = "concrete") -> "Path":
+def write_quads_scene(folder, quads: dict, *, material: str = "concrete") -> Path:
     """A Sionna scene of named planar quads (id -> 4 corners [4, 3], metres), one ITU material.
 
     Returns the XML path. Used by the physics tests (free space, one plate, a closed box).
