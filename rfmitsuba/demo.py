@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import plots
 from .errors import ConfigError
 
 
@@ -124,11 +125,6 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
 
 
 def _plots(out: Path, res: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from .evaluate import plot_cdf
 
     plot_cdf(out / "ssim_cdf.png", {f"{m} dynamic": r["eval"]["dynamic"]["model_ssim"] for m, r in res.items()})
@@ -137,7 +133,7 @@ def _plots(out: Path, res: dict) -> None:
     pick = np.linspace(0, len(gt) - 1, k).astype(int)
     cols = [("ground truth", gt)] + [(m, r["eval"]["dynamic"]["pred"]) for m, r in res.items()] + \
         [("nearest neighbour", res["ours"]["eval"]["dynamic"]["nn"])]
-    fig, axes = plt.subplots(k, len(cols), figsize=(3 * len(cols), 1.4 * k + 0.5), squeeze=False)
+    fig, axes = plots.subplots(k, len(cols), figsize=(3 * len(cols), 1.4 * k + 0.5), squeeze=False)
     for r_i, i in enumerate(pick):
         for c_i, (name, imgs) in enumerate(cols):
             ax = axes[r_i, c_i]
@@ -145,6 +141,4 @@ def _plots(out: Path, res: dict) -> None:
             if r_i == 0:
                 ax.set_title(name, fontsize=8)
             ax.tick_params(labelsize=5)
-    fig.tight_layout()
-    fig.savefig(out / "dynamic_grid.png", dpi=100)
-    plt.close(fig)
+    plots.save(fig, out / "dynamic_grid.png", dpi=100)

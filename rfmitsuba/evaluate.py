@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import plots
 from .errors import RunError
 from .train import minmax
 
@@ -179,23 +180,13 @@ def summary_markdown(m: dict) -> str:
 
 # --------------------------------------------------------------------------- plots
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_grid(path: Path, gt: np.ndarray, pred: np.ndarray, nn: np.ndarray, s_model: np.ndarray,
               s_nn: np.ndarray, *, count: int = 6) -> None:
     """Ground truth, prediction and nearest neighbour at ``count`` test positions spread from the
     worst to the best model SSIM."""
-    plt = _plt()
     order = np.argsort(s_model)
     pick = order[np.linspace(0, len(order) - 1, min(count, len(order))).astype(int)]
-    fig, axes = plt.subplots(len(pick), 3, figsize=(12, 1.6 * len(pick) + 0.6), squeeze=False)
+    fig, axes = plots.subplots(len(pick), 3, figsize=(12, 1.6 * len(pick) + 0.6), squeeze=False)
     for r, i in enumerate(pick):
         for c, (img, title) in enumerate([(gt[i], "ground truth"), (pred[i], f"model SSIM {s_model[i]:.3f}"),
                                           (nn[i], f"nearest neighbour SSIM {s_nn[i]:.3f}")]):
@@ -207,41 +198,27 @@ def plot_grid(path: Path, gt: np.ndarray, pred: np.ndarray, nn: np.ndarray, s_mo
                 ax.set_ylabel("elevation (deg)", fontsize=7)
             if r == len(pick) - 1:
                 ax.set_xlabel("azimuth (deg)", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.save(fig, path, dpi=110)
 
 
 def plot_cdf(path: Path, series: dict) -> None:
     """Empirical CDF of per-image SSIM for each named series."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plots.subplots(figsize=(5, 3.5))
     for name, x in series.items():
         x = np.sort(np.asarray(x))
         ax.plot(x, np.arange(1, len(x) + 1) / len(x), label=f"{name} (mean {x.mean():.3f})")
-    ax.set_xlabel("SSIM")
-    ax.set_ylabel("fraction of test images")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.label(ax, xlabel="SSIM", ylabel="fraction of test images", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)
 
 
 def plot_time(path: Path, log_file: Path, *, final: tuple | None = None) -> None:
     """Validation SSIM against training wall time (from ``log.jsonl``), with the final test mean."""
-    plt = _plt()
     rows = [json.loads(ln) for ln in log_file.read_text().splitlines() if ln.strip()] if log_file.is_file() else []
     rows = [r for r in rows if "val_ssim" in r]
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plots.subplots(figsize=(5, 3.5))
     if rows:
         ax.plot([r["time_s"] for r in rows], [r["val_ssim"] for r in rows], "o-", ms=3, label="validation SSIM")
     if final and final[0] is not None:
         ax.plot([final[0]], [final[1]], "r*", ms=10, label="test mean SSIM")
-    ax.set_xlabel("training wall time (s)")
-    ax.set_ylabel("mean SSIM")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.label(ax, xlabel="training wall time (s)", ylabel="mean SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)

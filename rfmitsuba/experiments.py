@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 
 from . import config as C
+from . import plots
 from .errors import ConfigError
 from .train import TrainConfig, TrainData, Trainer
 
@@ -105,19 +106,11 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
 
 
 def _plot(path: Path, rows: list[dict], key: str, label: str) -> None:
-    from .evaluate import _plt
-
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plots.subplots(figsize=(5, 3.5))
     x = [r[key] for r in rows]
     ax.plot(x, [r["mean"] for r in rows], "o-", label="model mean")
     ax.plot(x, [r["median"] for r in rows], "s--", label="model median")
     ax.plot(x, [r["nn_mean"] for r in rows], "^:", label="nearest neighbour mean")
     ax.set_xscale("log")
-    ax.set_xlabel(label)
-    ax.set_ylabel("test SSIM")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.label(ax, xlabel=label, ylabel="test SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)

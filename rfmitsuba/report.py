@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import paper
+from . import paper, plots
 from .methods import METHODS
 
 LABEL = {k: m.label for k, m in METHODS.items()}
@@ -314,12 +314,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
 
 def plot_speed(path: Path, results: dict) -> Path:
     """Scatter of dynamic test mean SSIM against training wall time, one colour per method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plots.subplots(figsize=(6, 4))
     for i, m in enumerate(METHODS):
         rs = [r for r in results.values() if r["job"]["method"] == m]
         x = [_get(r, "train.train_time_s") for r in rs]
@@ -327,11 +322,6 @@ def plot_speed(path: Path, results: dict) -> Path:
         pts = [(a, b) for a, b in zip(x, y) if a is not None and b is not None]
         if pts:
             ax.scatter(*zip(*pts), s=18, label=LABEL[m], color=f"C{i}", alpha=0.8)
-    ax.set_xlabel("training wall time (s)")
-    ax.set_ylabel("dynamic test mean SSIM")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.label(ax, xlabel="training wall time (s)", ylabel="dynamic test mean SSIM", legend_fontsize=7)
+    plots.save(fig, path, dpi=110)
     return Path(path)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import plots
+
 
 def register(sub) -> None:
     p = sub.add_parser("show", help="write PNGs of a dataset: PAS grid, top view, SSIM empty vs human",
@@ -36,11 +38,6 @@ def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
 
 
 def run(args) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from ..dataset import open_dataset
     from ..pas import normalize
 
@@ -57,15 +54,13 @@ def run(args) -> int:
         ss = ssim_empty_vs_human(ds)
         summary.update({"ssim_mean": float(ss.mean()), "ssim_median": float(np.median(ss)),
                         "share_below_0.9": float((ss < 0.9).mean())})
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = plots.subplots(figsize=(6, 4))
         ax.hist(ss.ravel(), bins=50, range=(min(0.0, float(ss.min())), 1.0), color="#4477aa")
         ax.axvline(0.9, color="k", ls="--", lw=1)
         ax.set_xlabel("SSIM(empty PAS, human-present PAS)")
         ax.set_ylabel("images")
         ax.set_title(f"mean {ss.mean():.3f}, {100 * (ss < 0.9).mean():.1f}% below 0.9")
-        fig.tight_layout()
-        fig.savefig(out / "ssim_hist.png", dpi=120)
-        plt.close(fig)
+        plots.save(fig, out / "ssim_hist.png", dpi=120)
         written.append("ssim_hist.png")
 
     # 2) PAS grid: the antenna positions the human changes most (or the first ones)
@@ -76,7 +71,7 @@ def run(args) -> int:
     else:
         picks = [(int(a), None) for a in np.linspace(0, ds.num_antennas - 1, rows).astype(int)]
     cols = 3 if ss is not None else 1
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 1.4 * rows + 0.6), squeeze=False)
+    fig, axes = plots.subplots(rows, cols, figsize=(4.2 * cols, 1.4 * rows + 0.6), squeeze=False)
     for r, (a, s) in enumerate(picks):
         empty = normalize(np.asarray(ds.pas(0)[a]))
         imgs = [(empty, f"antenna {a}: empty room", "viridis", (0, 1))]
@@ -92,13 +87,11 @@ def run(args) -> int:
             ax.set_xlabel("azimuth (deg)", fontsize=7)
             ax.set_ylabel("elevation (deg)", fontsize=7)
             ax.tick_params(labelsize=6)
-    fig.tight_layout()
-    fig.savefig(out / "pas_grid.png", dpi=110)
-    plt.close(fig)
+    plots.save(fig, out / "pas_grid.png", dpi=110)
     written.append("pas_grid.png")
 
     # 3) top view of the room
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig, ax = plots.subplots(figsize=(7, 6))
     scene_file = ds.meta.get("scene", {}).get("file") if isinstance(ds.meta.get("scene"), dict) else None
     if scene_file and Path(scene_file).is_file():
         from ..geometry import RoomGeometry
@@ -121,9 +114,7 @@ def run(args) -> int:
     ax.set_title(f"{Path(str(ds.path)).name}: {ds.num_antennas} positions, task {ds.task}")
     if not (scene_file and Path(scene_file).is_file()):
         ax.set_aspect("equal")
-    fig.tight_layout()
-    fig.savefig(out / "top_view.png", dpi=120)
-    plt.close(fig)
+    plots.save(fig, out / "top_view.png", dpi=120)
     written.append("top_view.png")
 
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")

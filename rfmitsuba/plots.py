@@ -1,0 +1,34 @@
+"""Figures for reports and the ``show`` command, drawn without :mod:`matplotlib.pyplot`.
+
+Figures are plain :class:`matplotlib.figure.Figure` objects saved straight to PNG, so
+nothing here switches matplotlib's backend or registers figures with pyplot: a notebook
+that calls the report functions keeps its inline plots, and no figure is left open.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **kw):
+    """A new figure and its axes (``Figure.subplots`` arguments: ``squeeze``, ``sharex`` ...)."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
+def label(ax, *, xlabel: str, ylabel: str, legend_fontsize: float | None = 8) -> None:
+    """Axis labels, a light grid and (unless ``legend_fontsize`` is None) a legend."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    if legend_fontsize is not None:
+        ax.legend(fontsize=legend_fontsize)
+
+
+def save(fig: Figure, path: str | Path, *, dpi: int = 110, tight: bool = True) -> Path:
+    """Lay out and write ``fig`` as an image file (format from the suffix); returns the path."""
+    if tight:
+        fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    return Path(path)
