@@ -36,9 +36,11 @@ import numpy as np
 
 from . import backend as B
 from . import config as C
+from .atomic import write_json
 from .density import DensityConfig, DensityStrategy
 from .errors import ConfigError, DatasetError, RunError
 from .field import FieldConfig, GaussianField, scene_meshes, write_ply
+from .pas import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
 
 PAS_SHAPE = (90, 360)
 
@@ -128,15 +130,6 @@ def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
 
 
 # =========================================================================== data
-
-def minmax(x: np.ndarray) -> np.ndarray:
-    """Per-image min-max normalisation to [0, 1]: float [..., H, W] -> float32, same shape
-    (a constant image becomes 0)."""
-    x = np.asarray(x, dtype=np.float32)
-    lo = x.min(axis=(-2, -1), keepdims=True)
-    hi = x.max(axis=(-2, -1), keepdims=True)
-    return ((x - lo) / np.maximum(hi - lo, 1e-30)).astype(np.float32)
-
 
 def downsample(x: np.ndarray, d: int) -> np.ndarray:
     """Block means of d x d pixels: float [K, H, W] -> [K, H/d, W/d]."""
@@ -296,9 +289,7 @@ def _versions() -> dict:
 
 
 def _write_json(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True))
-    tmp.replace(path)
+    write_json(path, obj, allow_nan=True)
 
 
 def load_loss():
