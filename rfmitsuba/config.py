@@ -29,6 +29,7 @@ from typing import Any, TypeVar
 
 import tomli_w
 
+from .atomic import write_text
 from .errors import ConfigError
 
 T = TypeVar("T")
@@ -185,10 +186,7 @@ def load(cls: type[T], path: str | Path) -> T:
 def save(cfg: Any, path: str | Path) -> None:
     """Write a config to ``.toml`` or ``.json`` atomically (write, then rename)."""
     path = Path(path)
-    text = to_json(cfg) if path.suffix == ".json" else to_toml(cfg)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    write_text(path, to_json(cfg) if path.suffix == ".json" else to_toml(cfg))
 
 
 def override(cfg: T, assignments: list[str]) -> T:

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import write_json
 from .errors import DatasetError, PlacementError
 
 FORMAT = "rfmitsuba-dataset/1"
@@ -125,9 +126,7 @@ def _sha256(path: Path) -> str:
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    write_json(path, obj, sort_keys=True, allow_nan=False, end="\n")
 
 
 def _jsonable(v: Any) -> Any:

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from . import config as C
+from .atomic import write_json
 from .errors import ConfigError, RunError
 from .field import GaussianField, Splats
 from .human_field import HumanConfig, HumanField
@@ -313,10 +314,7 @@ def evaluate(model: Model, dataset: str | Path, *, batch: int = 8, keep: bool = 
 
 
 def _write_json(path: Path, obj) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True))
-    tmp.replace(path)
+    write_json(path, obj, allow_nan=True)
 
 
 def config_dict(mcfg: MethodConfig) -> dict:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import paper, plots
+from .atomic import write_text
 from .methods import METHODS
 
 LABEL = {k: m.label for k, m in METHODS.items()}
@@ -305,11 +306,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
     L += claims.rows or ["| (no table run) | | | |"]
     L += ["", "Numbers of the paper are copied from its LaTeX tables (`rfmitsuba/paper.py`); ours come from "
           "`results.json` in this folder.", ""]
-    path = out / "report.md"
-    tmp = path.with_name("report.md.tmp")
-    tmp.write_text("\n".join(L))
-    tmp.replace(path)
-    return path
+    return write_text(out / "report.md", "\n".join(L))
 
 
 def plot_speed(path: Path, results: dict) -> Path:

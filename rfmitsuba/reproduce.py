@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import config as C
+from .atomic import write_json
 from .errors import ConfigError, RunError
 
 TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise")
@@ -387,10 +388,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 
 
 def _write_json(path: Path, obj) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True, default=_json_default))
-    tmp.replace(path)
+    write_json(path, obj, allow_nan=True, default=_json_default)
 
 
 def _json_default(o):

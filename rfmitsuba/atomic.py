@@ -1,0 +1,23 @@
+"""Atomic file writes: write a temporary file beside the target, then rename it over the target.
+
+A reader (or a resumed run) sees either the old file or the new one, never half of one.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically; returns the path."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
+def write_json(path: str | Path, obj: Any, *, indent: int = 1, end: str = "", **dumps_kw) -> Path:
+    """Write ``obj`` as JSON atomically (``json.dumps`` options pass through; ``end`` is appended)."""
+    return write_text(path, json.dumps(obj, indent=indent, **dumps_kw) + end)
