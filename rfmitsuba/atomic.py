@@ -21,3 +21,14 @@ def write_text(path: str | Path, text: str) -> Path:
 def write_json(path: str | Path, obj: Any, *, indent: int = 1, end: str = "", **dumps_kw) -> Path:
     """Write ``obj`` as JSON atomically (``json.dumps`` options pass through; ``end`` is appended)."""
     return write_text(path, json.dumps(obj, indent=indent, **dumps_kw) + end)
+
+
+def write_npz(path: str | Path, arrays: dict) -> Path:
+    """Write NumPy ``arrays`` (name -> array; no object arrays) as an ``.npz`` atomically."""
+    import numpy as np
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+    return path

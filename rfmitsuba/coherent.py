@@ -59,7 +59,7 @@ class CoherentConfig:
     init_reflection: initial amplitude of an image is ``init_reflection ** order``.
     """
 
-    room_order: int = 2
+    room_order: int = 3
     furniture_order: int = 2
     min_face_area: float = 0.05
     width: int = 32
@@ -101,42 +101,116 @@ def geometry_factors(maps: ImageMaps, x: np.ndarray, y: np.ndarray, *, frequency
     return G.astype(np.complex64), u.astype(np.float32)
 
 
+
+FORMAT = "rfmitsuba-coherent-field/1"
+HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
+
+
+def _leaky(x):
+    import drjit as dr
+
+    return dr.maximum(x, 0) + 0.01 * dr.minimum(x, 0)
+
+
+def _columns(a: np.ndarray) -> list:
+    """float [K, C] -> list of C ``Float`` [K]."""
+    a = np.asarray(a, np.float32)
+    return [B.Float(np.ascontiguousarray(a[:, c])) for c in range(a.shape[1])]
+
+
+def _pair_hidden(view: list, embed, nb: int, n: int, width: int) -> list:
+    """``act(view_b + embed_i)`` for every (view b, item i), view-major ``b*n + i``:
+    ``width`` ``Float`` [nb*n] (the first layer of an MLP on [view features, one-hot item])."""
+    import drjit as dr
+
+    lane = dr.arange(B.UInt32, nb * n)
+    n_op = dr.opaque(B.UInt32, n)
+    i, b = lane % n_op, lane // n_op
+    return [_leaky(dr.gather(B.Float, view[c], b) + dr.gather(B.Float, embed, i * width + c)) for c in range(width)]
+
+
+def _extra_columns(extra, nb: int, n: int) -> list:
+    """The first ``n`` columns of the per-view extra inputs (float [nb, >= n]) as ``Float`` [nb]."""
+    if n == 0:
+        return []
+    if extra is None:
+        raise ConfigError(f"this field needs {n} extra inputs per view (human-position features), got none")
+    e = np.asarray(extra, np.float32).reshape(nb, -1)
+    if e.shape[1] < n or not np.isfinite(e[:, :n]).all():
+        raise ConfigError(f"extra inputs must be finite [B, >= {n}], got shape {e.shape}")
+    return _columns(e[:, :n])
+
+
+def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tuple:
+    """Channel at the 16 elements from T plane-wave terms per view.
+
+    ``h_{b,m} = sum_t w_{b,t} exp(+j k r_m . u_{b,t})``
+
+    Args:
+        wr, wi: ``Float`` [nb*t], complex term weights (view-major); ur: 3 ``Float`` [nb*t], unit
+            arrival directions (world frame = array frame).
+    Returns:
+        (re, im) ``Float`` [nb*16].
+    """
+    import drjit as dr
+
+    M = 16
+    k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
+    e = antenna.element_positions(frequency_hz)
+    lane = dr.arange(B.UInt32, nb * M * t)
+    t_op = dr.opaque(B.UInt32, t)
+    ti = lane % t_op
+    bm = lane // t_op
+    m = bm % M
+    b = bm // M
+    src = b * t_op + ti
+    ex = dr.gather(B.Float, B.Float(e[:, 0].astype(np.float32)), m)
+    ey = dr.gather(B.Float, B.Float(e[:, 1].astype(np.float32)), m)
+    ez = dr.gather(B.Float, B.Float(e[:, 2].astype(np.float32)), m)
+    ph = k * (ex * dr.gather(B.Float, ur[0], src) + ey * dr.gather(B.Float, ur[1], src)
+              + ez * dr.gather(B.Float, ur[2], src))
+    c, s = dr.cos(ph), dr.sin(ph)
+    a, bb = dr.gather(B.Float, wr, src), dr.gather(B.Float, wi, src)
+    return dr.block_sum(a * c - bb * s, t), dr.block_sum(a * s + bb * c, t)
+
+
 class CoherentField:
-    """Image sources with learned complex gains (see the module docstring).
+    """Image sources with learned complex gains: the static (background) field. See the module
+    docstring.
 
     Args:
         maps: the image maps (:func:`rfmitsuba.images.scene_image_maps`).
         box: float [2, 3] metres, box that maps moving positions into [0, 1] for the encoding.
         cfg: :class:`CoherentConfig`.
         frequency_hz: carrier, Hz.
-        seed: weight initialisation.
+        seed: weight initialisation; name: the optimizer key prefix of this field.
+        params: stored parameters (name -> float32 array) instead of the initial ones.
     """
 
     def __init__(self, maps: ImageMaps, *, box: np.ndarray, cfg: CoherentConfig | None = None,
-                 frequency_hz: float = 2.4e9, seed: int = 0, params: dict | None = None):
+                 frequency_hz: float = 2.4e9, seed: int = 0, name: str = "bg", params: dict | None = None,
+                 extra_inputs: int = 0):
         from .nn import MLP
 
         B.ensure()
         self.maps = maps
         self.cfg = cfg or CoherentConfig()
         self.frequency_hz = float(frequency_hz)
+        antenna.wavelength(self.frequency_hz)
         self.box = np.asarray(box, np.float64).reshape(2, 3)
-        self.seed = int(seed)
+        if not np.all(self.box[1] > self.box[0]):
+            raise ConfigError(f"CoherentField: box must have hi > lo, got {self.box.tolist()}")
+        self.seed, self.name = int(seed), name
+        self.extra_inputs = int(extra_inputs)
         S, W = len(maps), self.cfg.width
-        n_in = 3 * (1 + 2 * self.cfg.octaves)
-        self.view = MLP(n_in, W, width=W, layers=1, seed=seed + 11)
+        self.view = MLP(3 * (1 + 2 * self.cfg.octaves) + self.extra_inputs, W, width=W, layers=1, seed=seed + 11)
         self.head = MLP(W + 3, 2, width=W, layers=1, seed=seed + 12, out_bias=[0.0, 0.0])
-        rng = np.random.default_rng(seed)
         if params is None:
             a = self.cfg.init_reflection ** maps.order.astype(np.float64)
-            amp = np.stack([a, np.zeros_like(a)], 1).astype(np.float32)
-            embed = (0.1 * rng.standard_normal((S, W))).astype(np.float32)
-            params = {"amp": amp.ravel(), "embed": embed.ravel()}
-        self.params = {"amp": B.Float(np.asarray(params["amp"], np.float32).ravel()),
-                       "embed": B.Float(np.asarray(params["embed"], np.float32).ravel())}
-        if "net.view" in params:
-            self.view.set_weights(np.asarray(params["net.view"], np.float32))
-            self.head.set_weights(np.asarray(params["net.head"], np.float32))
+            params = {"amp": np.stack([a, np.zeros_like(a)], 1).ravel(),
+                      "embed": 0.1 * np.random.default_rng(seed).standard_normal(S * W)}
+        self.params = {}
+        self.load_state_dict(params)
         self.frozen = False
 
     # ---- parameters ------------------------------------------------------------------------
@@ -144,88 +218,103 @@ class CoherentField:
     def num_sources(self) -> int:
         return len(self.maps)
 
+    #: sources take the place of Gaussians in tables and logs
+    num_gaussians = num_sources
+
+    @property
+    def network_parameters(self) -> int:
+        return self.num_sources * self.cfg.width + self.view.num_parameters + self.head.num_parameters
+
     @property
     def num_parameters(self) -> int:
-        return 2 * self.num_sources + self.num_sources * self.cfg.width + self.view.num_parameters \
-            + self.head.num_parameters
+        return 2 * self.num_sources + self.network_parameters
+
+    def _modules(self) -> dict:
+        return {"net.view": self.view, "net.head": self.head}
 
     def parameters(self) -> dict:
-        """Name -> Dr.Jit ``Float`` of every parameter."""
-        return {"amp": self.params["amp"], "embed": self.params["embed"],
-                "net.view": self.view.weights, "net.head": self.head.weights}
+        """Name -> Dr.Jit ``Float`` of every parameter (``amp``, ``embed``, ``net.*``)."""
+        return {**self.params, **{k: m.weights for k, m in self._modules().items()}}
 
     def trainable(self) -> dict:
         return {} if self.frozen else self.parameters()
 
     def assign(self, values: dict) -> None:
         """Set parameters from ``values`` (name -> ``Float``), e.g. the optimizer's copies."""
+        mods = self._modules()
         for k, v in values.items():
-            if k in ("amp", "embed"):
+            if k in mods:
+                mods[k].set_weights(v)
+            elif k in self.params:
                 self.params[k] = v
-            elif k == "net.view":
-                self.view.set_weights(v)
-            elif k == "net.head":
-                self.head.set_weights(v)
             else:
-                raise ConfigError(f"CoherentField has no parameter {k!r}")
+                raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
 
     def freeze(self) -> None:
         self.frozen = True
 
+    def _sizes(self) -> dict:
+        return {"amp": 2 * self.num_sources, "embed": self.num_sources * self.cfg.width}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
+        for k, n in self._sizes().items():
+            if k not in state:
+                raise RunError(f"{type(self).__name__} state lacks {k!r}")
+            v = np.asarray(state[k], np.float32).ravel()
+            if v.shape != (n,) or not np.isfinite(v).all():
+                raise RunError(f"{type(self).__name__} state {k!r}: expected {n} finite values, got {v.shape}")
+            self.params[k] = B.Float(v)
+        for k, m in self._modules().items():
+            if k in state:
+                w = np.asarray(state[k], np.float32).ravel()
+                if w.shape != (m.num_parameters,):
+                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.num_parameters} weights, "
+                                   f"got {w.shape[0]}")
+                m.set_weights(w)
+
     # ---- evaluation ------------------------------------------------------------------------
-    def gains(self, q: np.ndarray, u: np.ndarray) -> tuple:
-        """Complex gain of every (view, image): two ``Float`` [B*S] (view-major ``b*S + i``).
-
-        Args:
-            q: float [B, 3] metres, moving device positions; u: float [B, S, 3] unit directions.
-        """
-        import drjit as dr
-
+    def _enc(self, q: np.ndarray) -> list:
         from .nn import encode
 
-        S, W = self.num_sources, self.cfg.width
         q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
-        nb = len(q01)
-        cols = [B.Float(np.ascontiguousarray(q01[:, c] * 0.5, np.float32)) for c in range(3)]
-        a = self.view(encode(cols, octaves=self.cfg.octaves))          # W x Float [B]
-        lane = dr.arange(B.UInt32, nb * S)
-        s_op = dr.opaque(B.UInt32, S)
-        i = lane % s_op
-        b = lane // s_op
-        hid = []
-        for c in range(W):
-            z = dr.gather(B.Float, a[c], b) + dr.gather(B.Float, self.params["embed"], i * W + c)
-            hid.append(dr.maximum(z, 0) + 0.01 * dr.minimum(z, 0))
-        uu = np.asarray(u, np.float32).reshape(nb * S, 3)
-        hid += [B.Float(np.ascontiguousarray(uu[:, c])) for c in range(3)]
-        o = self.head(hid)
-        s = self.cfg.modulation
-        ar = dr.gather(B.Float, self.params["amp"], 2 * i)
-        ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
-        mr, mi = 1.0 + s * o[0], s * o[1]
-        return ar * mr - ai * mi, ar * mi + ai * mr
+        return encode(_columns(0.5 * q01), octaves=self.cfg.octaves)
 
-    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray) -> tuple:
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None) -> tuple:
         """Channels at the 16 elements: (re, im) ``Float`` [B*16], differentiable in the parameters.
 
         Args:
             x: float [B, 3] array centres; y: float [B, 3] transmitters; q: float [B, 3] the
-                moving device (x or y), all metres.
+                moving device (x or y); all metres.
+            extra: float [B, extra_inputs] more inputs of the gain network (the End-to-End
+                model's human-position features), or None for a field without them.
         """
         import drjit as dr
 
-        G, u = geometry_factors(self.maps, x, y, frequency_hz=self.frequency_hz)
-        nb, M, S = G.shape
-        gr, gi = self.gains(q, u)
-        lane = dr.arange(B.UInt32, nb * M * S)
-        s_op = dr.opaque(B.UInt32, S)
-        i = lane % s_op
-        b = lane // dr.opaque(B.UInt32, M * S)
-        Gr = B.Float(np.ascontiguousarray(G.real.ravel()))
-        Gi = B.Float(np.ascontiguousarray(G.imag.ravel()))
-        wr = dr.gather(B.Float, gr, b * s_op + i)
-        wi = dr.gather(B.Float, gi, b * s_op + i)
-        return dr.block_sum(Gr * wr - Gi * wi, S), dr.block_sum(Gr * wi + Gi * wr, S)
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        nb, S = len(x), self.num_sources
+        if x.shape != y.shape or np.shape(q) != x.shape or not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise ConfigError(f"positions must be finite [B, 3] arrays of one size, got {x.shape}, {y.shape}, "
+                              f"{np.shape(q)}")
+        k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
+        d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
+        L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
+        u = (d / L[..., None]).reshape(-1, 3)
+        prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
+        hid = _pair_hidden(self.view(self._enc(q) + _extra_columns(extra, nb, self.extra_inputs)),
+                           self.params["embed"], nb, S, self.cfg.width)
+        ucols = _columns(u)
+        o = self.head(hid + ucols)
+        lane = dr.arange(B.UInt32, nb * S)
+        i = lane % dr.opaque(B.UInt32, S)
+        ar = dr.gather(B.Float, self.params["amp"], 2 * i)
+        ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
+        sc = self.cfg.modulation
+        mr, mi = 1.0 + sc * o[0], sc * o[1]
+        gr, gi = ar * mr - ai * mi, ar * mi + ai * mr
+        pr, pi = B.Float(prop.real.astype(np.float32)), B.Float(prop.imag.astype(np.float32))
+        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, ucols, nb, S, frequency_hz=self.frequency_hz)
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
@@ -235,17 +324,40 @@ class CoherentField:
         hr, hi = self.channels(x, y, q)
         return pas(hr, hi, frequency_hz=self.frequency_hz, height=height, width=width, normalize=normalize)
 
-    # ---- state -----------------------------------------------------------------------------
-    def state_dict(self) -> dict:
-        """NumPy arrays of everything needed to rebuild the field (``meta`` is a JSON string)."""
+    # ---- export and state ------------------------------------------------------------------
+    def source_points(self, *, x: np.ndarray, y: np.ndarray, task: str) -> np.ndarray:
+        """Where the sources are, float64 [S, 3] metres: the images of the transmitter ``y``
+        (task "rx"), or, by reciprocity, the images of the fixed array ``x`` (task "tx")."""
+        if task == "rx":
+            return self.maps.apply(np.asarray(y, np.float64))
+        Ainv = np.transpose(self.maps.A, (0, 2, 1))
+        return np.einsum("sij,sj->si", Ainv, np.asarray(x, np.float64)[None] - self.maps.b)
+
+    def write_ply(self, path: str | Path, *, x: np.ndarray, y: np.ndarray, task: str) -> Path:
+        """The sources as small isotropic Gaussians in the 3DGS PLY layout (opacity = |amp| relative
+        to the largest, signal = the same), so a splat viewer shows the virtual sources."""
+        from .field import write_ply_arrays
+
+        pts = self.source_points(x=x, y=y, task=task)
+        a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(-1, 2)
+        mag = np.hypot(a[:, 0], a[:, 1])
+        rel = np.clip(mag / max(mag.max(), 1e-30), 1e-6, 1 - 1e-6)
+        n = len(pts)
+        return write_ply_arrays(path, pts, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
+                                np.log(rel / (1 - rel)), signal=rel)
+
+    def _meta(self) -> dict:
         from .config import to_dict
 
-        out = {k: np.asarray(v.numpy() if hasattr(v, "numpy") else v, np.float32)
-               for k, v in self.parameters().items()}
+        return {"format": FORMAT, "config": to_dict(self.cfg), "seed": self.seed, "name": self.name,
+                "frequency_hz": self.frequency_hz, "frozen": self.frozen, "extra_inputs": self.extra_inputs}
+
+    def state_dict(self) -> dict:
+        """NumPy arrays of everything needed to rebuild the field (``meta`` is a JSON string)."""
+        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
         out.update({f"maps.{k}": v for k, v in self.maps.to_arrays().items()})
-        out["box"] = self.box
-        out["meta"] = np.asarray(json.dumps({"kind": "coherent", "config": to_dict(self.cfg), "seed": self.seed,
-                                             "frequency_hz": self.frequency_hz, "frozen": self.frozen}))
+        out["box"] = self.box.copy()
+        out["meta"] = np.asarray(json.dumps(self._meta()))
         return out
 
     @classmethod
@@ -254,10 +366,12 @@ class CoherentField:
 
         try:
             meta = json.loads(str(state["meta"]))
+            if meta.get("format") != FORMAT:
+                raise RunError(f"not a coherent field (format {meta.get('format')!r})")
             maps = ImageMaps.from_arrays({k[5:]: state[k] for k in state if k.startswith("maps.")})
             f = cls(maps, box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
-                    frequency_hz=meta["frequency_hz"], seed=meta["seed"],
-                    params={k: state[k] for k in ("amp", "embed", "net.view", "net.head")})
+                    frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,
+                    extra_inputs=meta.get("extra_inputs", 0))
         except KeyError as e:
             raise RunError(f"coherent field state lacks {e}") from None
         if meta.get("frozen"):
@@ -265,20 +379,284 @@ class CoherentField:
         return f
 
     def save(self, path: str | Path) -> Path:
+        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
         from .atomic import write_npz
 
         return write_npz(Path(path), self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> "CoherentField":
-        p = Path(path)
+        from .field import load_field
+
+        f = load_field(path)
+        if not isinstance(f, cls):
+            raise RunError(f"{path} holds a {type(f).__name__}, not a {cls.__name__}")
+        return f
+
+
+# ============================================================================ Stage 2
+
+
+@dataclass
+class CoherentHumanConfig:
+    """The Stage-2 human scatterers of a coherent model (:class:`CoherentHumanField`).
+
+    num_points: scattering points that move with the person; init_radius / init_height: their
+    initial horizontal radius and (lo, hi) height, metres, around the feet position;
+    human_octaves: octaves of the human-position features (:func:`rfmitsuba.samples.human_features`);
+    octaves: octaves of the moving device's position encoding; width: network width;
+    max_offset: bound of the deformation network's position offset, metres;
+    init_amplitude: initial |amplitude| of each (point, path) term, relative to the
+    background's direct path; modulation: scale of the gain network's output;
+    scatter_order: most wall reflections on the path before and after the person (0 or 1).
+    """
+
+    num_points: int = 24
+    init_radius: float = 0.2
+    init_height: tuple[float, float] = (0.2, 1.6)
+    human_octaves: int = 3
+    octaves: int = 3
+    width: int = 32
+    max_offset: float = 0.15
+    init_amplitude: float = 0.03
+    modulation: float = 0.3
+    scatter_order: int = 1
+
+    def __post_init__(self) -> None:
+        if self.num_points < 1 or self.width < 1 or self.octaves < 0 or self.human_octaves < 0:
+            raise ConfigError("CoherentHumanConfig: num_points, width >= 1 and octaves >= 0 required")
+        if self.scatter_order not in (0, 1):
+            raise ConfigError(f"CoherentHumanConfig.scatter_order must be 0 or 1, got {self.scatter_order}")
+        if self.init_radius < 0 or self.max_offset < 0 or not self.init_amplitude > 0:
+            raise ConfigError("CoherentHumanConfig: init_radius, max_offset >= 0 and init_amplitude > 0 required")
+
+
+def scatter_paths(maps: ImageMaps, order: int) -> dict:
+    """The path families through a scattering point ``s`` between ``y`` and ``x``.
+
+    "in" families reflect before the person: length ``|s - M_i(y)| + |s - x|``; "out" families
+    reflect after it: ``|s - y| + |M_j(s) - x|``, for every map of ``maps`` with at most
+    ``order`` reflections (the direct family once). Returns float64 arrays ``pre_A`` [C, 3, 3],
+    ``pre_b`` [C, 3] (applied to y) and ``post_A``, ``post_b`` (applied to s).
+    """
+    keep = np.flatnonzero(maps.order <= order)
+    eye, zero = np.eye(3), np.zeros(3)
+    pre_A, pre_b, post_A, post_b = [], [], [], []
+    for i in keep:
+        pre_A.append(maps.A[i]), pre_b.append(maps.b[i]), post_A.append(eye), post_b.append(zero)
+    for i in keep:
+        if maps.order[i] == 0:
+            continue
+        pre_A.append(eye), pre_b.append(zero), post_A.append(maps.A[i]), post_b.append(maps.b[i])
+    return {k: np.asarray(v, np.float64) for k, v in
+            (("pre_A", pre_A), ("pre_b", pre_b), ("post_A", post_A), ("post_b", post_b))}
+
+
+class CoherentHumanField:
+    """Stage 2 of the coherent model: scattering points that move with the person.
+
+    Each of K points sits at ``s = h + o_k + D(h)_k`` (feet position ``h``, learned offset
+    ``o_k``, deformation network ``D`` conditioned on the human position, bounded by
+    ``max_offset``) and adds, for every path family ``c`` of :func:`scatter_paths`, a term
+
+        g_kc(q, h) * exp(-j k (L1 + L2)) / (L1 L2) * exp(+j k r_m . u)
+
+    (bistatic point scattering: ``L1`` from the transmitter's image to ``s``, ``L2`` from ``s``
+    or its image to the array, ``u`` the arrival direction). A term whose point lies on a
+    background path has that path's length: with a negative gain it is the person's shadow. The
+    complex gain ``g_kc = a_kc (1 + s * head(act(V(enc(q), f(h)) + e_k), u))`` is learned like the
+    background's. The channels add to the frozen background's (linear superposition of the
+    fields), then one Bartlett readout makes the PAS.
+
+    Args:
+        paths: :func:`scatter_paths` arrays; box: float [2, 3] metres (encoding box);
+        cfg: :class:`CoherentHumanConfig`; frequency_hz: carrier; reference_amplitude: |amp| of
+        the background's direct path (scales the initial amplitudes); seed; name;
+        params: stored parameters instead of the initial ones.
+
+    Per-view input ``extra``: float [B, F + 3], the human features (F =
+    ``num_human_features(human_octaves)``) followed by the feet position in metres, as
+    :meth:`rfmitsuba.samples.SampleData.features` with ``raw=True`` gives them.
+    """
+
+    def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentHumanConfig | None = None,
+                 frequency_hz: float = 2.4e9, reference_amplitude: float = 1.0, seed: int = 0,
+                 name: str = "human", params: dict | None = None):
+        from .nn import MLP
+        from .samples import num_human_features
+
+        B.ensure()
+        self.cfg = cfg or CoherentHumanConfig()
+        self.paths = {k: np.asarray(v, np.float64) for k, v in paths.items()}
+        self.frequency_hz = float(frequency_hz)
+        self.box = np.asarray(box, np.float64).reshape(2, 3)
+        self.reference_amplitude = float(reference_amplitude)
+        self.seed, self.name = int(seed), name
+        c, W = self.cfg, self.cfg.width
+        self.num_features = num_human_features(c.human_octaves)
+        self.extra_inputs = self.num_features + 3
+        self.view = MLP(3 * (1 + 2 * c.octaves) + self.num_features, W, width=W, layers=1, seed=seed + 21)
+        self.head = MLP(W + 3, 2, width=W, layers=1, seed=seed + 22, out_bias=[0.0, 0.0])
+        self.deform = MLP(self.num_features, W, width=W, layers=1, seed=seed + 23)
+        self.deform_head = MLP(W, 3, width=W, layers=0, seed=seed + 24, out_bias=[0.0, 0.0, 0.0])
+        if params is None:
+            rng = np.random.default_rng([seed, 5])
+            K, C = c.num_points, self.num_paths
+            r = c.init_radius * np.sqrt(rng.uniform(0, 1, K))
+            phi = rng.uniform(0, 2 * np.pi, K)
+            z = rng.uniform(*c.init_height, K)
+            ph = rng.uniform(0, 2 * np.pi, K * C)
+            a = c.init_amplitude * self.reference_amplitude
+            params = {"offsets": np.stack([r * np.cos(phi), r * np.sin(phi), z], 1).ravel(),
+                      "amp": np.stack([a * np.cos(ph), a * np.sin(ph)], 1).ravel(),
+                      "embed": 0.1 * rng.standard_normal(K * W)}
+        self.params = {}
+        self.load_state_dict(params)
+        self.frozen = False
+
+    num_paths = property(lambda self: len(self.paths["pre_b"]))
+    num_gaussians = property(lambda self: self.cfg.num_points)
+    network_parameters = property(lambda self: self.cfg.num_points * self.cfg.width
+                                  + sum(m.num_parameters for m in self._modules().values()))
+    num_parameters = property(lambda self: self.cfg.num_points * (3 + 2 * self.num_paths) + self.network_parameters)
+
+    def _modules(self) -> dict:
+        return {"net.view": self.view, "net.head": self.head, "deform.view": self.deform,
+                "deform.head": self.deform_head}
+
+    def _sizes(self) -> dict:
+        K = self.cfg.num_points
+        return {"offsets": 3 * K, "amp": 2 * K * self.num_paths, "embed": K * self.cfg.width}
+
+    parameters = CoherentField.parameters
+    trainable = CoherentField.trainable
+    assign = CoherentField.assign
+    freeze = CoherentField.freeze
+    load_state_dict = CoherentField.load_state_dict
+    save = CoherentField.save
+
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None) -> tuple:
+        """Channels the person adds at the 16 elements: (re, im) ``Float`` [B*16].
+
+        Args:
+            x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
+            extra: float [B, F + 3]: human features, then the feet position in metres.
+        """
+        import drjit as dr
+
+        from .nn import encode
+
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        nb, K, C, W, F = len(x), self.cfg.num_points, self.num_paths, self.cfg.width, self.num_features
+        if extra is None:
+            raise ConfigError("the human field needs the human features and position of every view (extra)")
+        e = np.asarray(extra, np.float64).reshape(nb, -1)
+        if e.shape[1] != F + 3 or not np.isfinite(e).all():
+            raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
+        feats, hpos = e[:, :F], e[:, F:]
+        k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
+        # per (view, point): position s = h + o_k + D(h)_k
+        q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
+        fcols = _columns(feats)
+        hid = _pair_hidden(self.view(encode(_columns(0.5 * q01), octaves=self.cfg.octaves) + fcols),
+                           self.params["embed"], nb, K, W)
+        dh = _pair_hidden(self.deform(fcols), self.params["embed"], nb, K, W)
+        off = [self.cfg.max_offset * dr.tanh(v) for v in self.deform_head(dh)]
+        lane = dr.arange(B.UInt32, nb * K)
+        ki, bi = lane % dr.opaque(B.UInt32, K), lane // dr.opaque(B.UInt32, K)
+        hp = _columns(hpos)
+        s = [dr.gather(B.Float, hp[c], bi) + dr.gather(B.Float, self.params["offsets"], 3 * ki + c) + off[c]
+             for c in range(3)]
+        # per (view, point, path family) lanes: t = (b*K + k)*C + c
+        T = K * C
+        lane = dr.arange(B.UInt32, nb * T)
+        ci = lane % dr.opaque(B.UInt32, C)
+        bk = lane // dr.opaque(B.UInt32, C)
+        bi = bk // dr.opaque(B.UInt32, K)
+        ki = bk % dr.opaque(B.UInt32, K)
+        P = np.einsum("cij,bj->bci", self.paths["pre_A"], y) + self.paths["pre_b"]  # [B, C, 3]
+        Pc = _columns(P.reshape(-1, 3))
+        Ac = _columns(self.paths["post_A"].reshape(C, 9))
+        bc = _columns(self.paths["post_b"])
+        xc = _columns(x)
+        bcx = bi * dr.opaque(B.UInt32, C) + ci
+        st = [dr.gather(B.Float, s[c], bk) for c in range(3)]
+        d1 = [st[c] - dr.gather(B.Float, Pc[c], bcx) for c in range(3)]
+        sp = [sum(dr.gather(B.Float, Ac[3 * r + j], ci) * st[j] for j in range(3)) + dr.gather(B.Float, bc[r], ci)
+              for r in range(3)]
+        d2 = [sp[c] - dr.gather(B.Float, xc[c], bi) for c in range(3)]
+        L1 = dr.maximum(dr.sqrt(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2), 0.05)
+        L2 = dr.maximum(dr.sqrt(d2[0] ** 2 + d2[1] ** 2 + d2[2] ** 2), 0.05)
+        u = [d / L2 for d in d2]
+        o = self.head([dr.gather(B.Float, h_, bk) for h_ in hid] + u)
+        ar = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci))
+        ai = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci) + 1)
+        sc = self.cfg.modulation
+        mr, mi = 1.0 + sc * o[0], sc * o[1]
+        gr, gi = ar * mr - ai * mi, ar * mi + ai * mr
+        ph = -k * (L1 + L2)
+        inv = 1.0 / (L1 * L2)
+        pr, pi = dr.cos(ph) * inv, dr.sin(ph) * inv
+        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, u, nb, T, frequency_hz=self.frequency_hz)
+
+    def write_ply(self, path: str | Path, **_) -> Path:
+        """The scattering points as small Gaussians in the 3DGS PLY layout, at their learned
+        offsets from the person's feet (metres; the deformation is left out), opacity and signal
+        from the mean |amplitude| of each point relative to the largest."""
+        from .field import write_ply_arrays
+
+        off = np.asarray(self.params["offsets"].numpy(), np.float64).reshape(-1, 3)
+        a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(len(off), -1, 2)
+        mag = np.hypot(a[..., 0], a[..., 1]).mean(axis=1)
+        rel = np.clip(mag / max(mag.max(), 1e-30), 1e-6, 1 - 1e-6)
+        n = len(off)
+        return write_ply_arrays(path, off, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
+                                np.log(rel / (1 - rel)), signal=rel)
+
+    def state_dict(self) -> dict:
+        from .config import to_dict
+
+        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
+        out.update({f"paths.{k}": v for k, v in self.paths.items()})
+        out["box"] = self.box.copy()
+        out["meta"] = np.asarray(json.dumps({
+            "format": HUMAN_FORMAT, "config": to_dict(self.cfg), "seed": self.seed, "name": self.name,
+            "frequency_hz": self.frequency_hz, "frozen": self.frozen,
+            "reference_amplitude": self.reference_amplitude}))
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> "CoherentHumanField":
+        from .config import from_dict
+
         try:
-            with np.load(p, allow_pickle=False) as z:
-                state = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as e:
-            raise RunError(f"{p}: not a readable field file ({e})") from None
-        return cls.from_state_dict(state)
+            meta = json.loads(str(state["meta"]))
+            if meta.get("format") != HUMAN_FORMAT:
+                raise RunError(f"not a coherent human field (format {meta.get('format')!r})")
+            paths = {k[6:]: state[k] for k in state if k.startswith("paths.")}
+            f = cls(paths, box=state["box"], cfg=from_dict(CoherentHumanConfig, meta["config"]),
+                    frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
+                    seed=meta["seed"], name=meta.get("name", "human"), params=state)
+        except KeyError as e:
+            raise RunError(f"coherent human field state lacks {e}") from None
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+
+    @classmethod
+    def for_background(cls, bg: CoherentField, *, cfg: CoherentHumanConfig | None = None, seed: int = 0,
+                       name: str = "human") -> "CoherentHumanField":
+        """A fresh human field on a trained background: its image maps, box and frequency, and
+        initial amplitudes relative to its direct path."""
+        cfg = cfg or CoherentHumanConfig()
+        a = np.asarray(bg.params["amp"].numpy(), np.float64).reshape(-1, 2)
+        direct = int(np.flatnonzero(bg.maps.order == 0)[0]) if (bg.maps.order == 0).any() else int(np.argmax(
+            np.hypot(a[:, 0], a[:, 1])))
+        ref = float(np.hypot(*a[direct]))
+        return cls(scatter_paths(bg.maps, cfg.scatter_order), box=bg.box, cfg=cfg, frequency_hz=bg.frequency_hz,
+                   reference_amplitude=max(ref, 1e-12), seed=seed, name=name)
 
 
-def is_finite(x) -> bool:
-    return bool(np.isfinite(np.asarray(x)).all()) and not math.isnan(float(np.sum(np.asarray(x))))
+#: the coherent field classes (rendered by adding channels, then one Bartlett readout)
+COHERENT_FIELDS = (CoherentField, CoherentHumanField)

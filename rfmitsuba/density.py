@@ -278,3 +278,28 @@ class DensityStrategy:
             self.count = B.Float(np.asarray(state["count"], np.float32))
         else:
             self.grad_sum = self.count = None
+
+
+class NoDensity:
+    """The density-control hooks for a model without adaptive density (the coherent field:
+    its sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
+
+    growth_stopped = False
+
+    def __init__(self) -> None:
+        self.history: list[dict] = []
+
+    def after_backward(self, field) -> None:
+        return None
+
+    def on_validation(self, step: int, val_ssim: float) -> None:
+        return None
+
+    def step_end(self, step: int, field, opt, *, rng=None, probe_opacity=None) -> bool:
+        return False
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        return None

@@ -133,7 +133,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "mean_image": stats(fl["mean_image"]),
         "beats_nearest_neighbour": bool(model_ssim.mean() > fl["nearest_neighbour"].mean()),
         "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
-        "network_parameters": field.net.num_parameters,
+        "network_parameters": field.network_parameters,
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
         "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),

@@ -325,6 +325,11 @@ class GaussianField:
         return dr.width(self.params["opacity_logits"])
 
     @property
+    def network_parameters(self) -> int:
+        """Weights of the EM-feature network."""
+        return self.net.num_parameters
+
+    @property
     def num_parameters(self) -> int:
         """Trainable scalars: per-Gaussian ones (11 per Gaussian) plus network weights."""
         return self.num_gaussians * sum(GAUSSIAN_KEYS.values()) + self.net.num_parameters
@@ -504,11 +509,9 @@ class GaussianField:
 
     def save(self, path: str | Path) -> Path:
         """Write :meth:`state_dict` to an ``.npz`` file atomically."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **self.state_dict())
-        tmp.replace(path)
-        return path
+        from .atomic import write_npz
+
+        return write_npz(path, self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> "GaussianField":
@@ -519,6 +522,35 @@ class GaussianField:
         with np.load(path, allow_pickle=False) as z:
             state = {k: z[k] for k in z.files}
         return cls.from_state_dict(state)
+
+
+def load_field(path: str | Path):
+    """Read any saved field: a :class:`GaussianField` (or its Stage-2 subclass
+    :class:`~rfmitsuba.human_field.HumanField`) or a :class:`~rfmitsuba.coherent.CoherentField`
+    (or :class:`~rfmitsuba.coherent.CoherentHumanField`), by the ``format`` in its metadata."""
+    path = Path(path)
+    if not path.is_file():
+        raise RunError(f"field file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            state = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError) as e:
+        raise RunError(f"{path}: not a readable field file ({e})") from None
+    if "meta" not in state:
+        raise RunError(f"{path}: field file has no 'meta' entry")
+    fmt = json.loads(str(state["meta"])).get("format")
+    if fmt == "rfmitsuba-field/1":
+        return GaussianField.from_state_dict(state)
+    if fmt == "rfmitsuba-human-field/1":
+        from .human_field import HumanField
+
+        return HumanField.from_state_dict(state)
+    from . import coherent
+
+    classes = {coherent.FORMAT: coherent.CoherentField, coherent.HUMAN_FORMAT: coherent.CoherentHumanField}
+    if fmt not in classes:
+        raise RunError(f"{path}: unknown field format {fmt!r}")
+    return classes[fmt].from_state_dict(state)
 
 
 def _missing(state: dict):
@@ -532,11 +564,7 @@ _C0 = 0.28209479177387814  # SH degree-0 constant used by 3DGS viewers
 
 
 def write_ply(path: str | Path, field: GaussianField, *, signal: np.ndarray | None = None) -> Path:
-    """Export the Gaussians in the 3D Gaussian Splatting PLY layout (binary little endian).
-
-    Properties: x, y, z (metres), nx, ny, nz (0), f_dc_0..2 (grey level from ``signal`` so
-    viewers show it), opacity (logit of the view-independent attenuation delta),
-    scale_0..2 (log metres), rot_0..3 (w, x, y, z), and the extra property ``signal``.
+    """Export a field's Gaussians in the 3D Gaussian Splatting PLY layout (see :func:`write_ply_arrays`).
 
     Args:
         path: output ``.ply``.
@@ -545,20 +573,36 @@ def write_ply(path: str | Path, field: GaussianField, *, signal: np.ndarray | No
             training views); zeros when None.
     """
     g = field.gaussians_numpy()
-    n = len(g["opacity_logits"])
+    return write_ply_arrays(path, g["means"], g["log_scales"], g["rotations"], g["opacity_logits"], signal=signal)
+
+
+def write_ply_arrays(path: str | Path, means: np.ndarray, log_scales: np.ndarray, rotations: np.ndarray,
+                     opacity_logits: np.ndarray, *, signal: np.ndarray | None = None) -> Path:
+    """Write N Gaussians in the 3D Gaussian Splatting PLY layout (binary little endian), atomically.
+
+    Properties: x, y, z (metres), nx, ny, nz (0), f_dc_0..2 (grey level from ``signal`` so
+    viewers show it), opacity (logit), scale_0..2 (log metres), rot_0..3 (w, x, y, z), and the
+    extra property ``signal``.
+
+    Args:
+        means: float [N, 3] metres; log_scales: float [N, 3]; rotations: float [N, 4] (w, x, y, z);
+        opacity_logits: float [N]; signal: float [N] in [0, 1] or None (zeros).
+    """
+    n = len(opacity_logits)
     sig = np.zeros(n, np.float32) if signal is None else np.asarray(signal, np.float32).reshape(n)
     names = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
              + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)] + ["signal"])
     data = np.zeros(n, dtype=[(k, "<f4") for k in names])
+    means, log_scales, rotations = (np.asarray(a, np.float32).reshape(n, -1) for a in (means, log_scales, rotations))
     for i, k in enumerate("xyz"):
-        data[k] = g["means"][:, i]
+        data[k] = means[:, i]
     dc = (sig - 0.5) / _C0
     for i in range(3):
         data[f"f_dc_{i}"] = dc
-        data[f"scale_{i}"] = g["log_scales"][:, i]
+        data[f"scale_{i}"] = log_scales[:, i]
     for i in range(4):
-        data[f"rot_{i}"] = g["rotations"][:, i]
-    data["opacity"] = g["opacity_logits"]
+        data[f"rot_{i}"] = rotations[:, i]
+    data["opacity"] = np.asarray(opacity_logits, np.float32).reshape(n)
     data["signal"] = sig
     header = "ply\nformat binary_little_endian 1.0\n" + f"element vertex {n}\n"
     header += "".join(f"property float {k}\n" for k in names) + "end_header\n"

@@ -41,7 +41,8 @@ import numpy as np
 from . import config as C
 from .atomic import write_json
 from .errors import ConfigError, RunError
-from .field import GaussianField, Splats
+from .coherent import CoherentField, CoherentHumanConfig, CoherentHumanField
+from .field import GaussianField, Splats, load_field
 from .human_field import HumanConfig, HumanField
 from .samples import SampleData, num_human_features
 from .train import OptimConfig, TrainConfig, Trainer, minmax
@@ -84,14 +85,17 @@ def get_method(name: str) -> Method:
 class MethodConfig:
     """Training sizes shared by all methods.
 
-    stage1: the background training configuration (its ``iterations`` is n1); stage2_iterations:
-    n2; human: the Stage-2 human Gaussians; stage2_optim: Stage-2 learning rates;
-    human_octaves: encoding octaves of the human position for the end-to-end model.
+    stage1: the background training configuration (its ``iterations`` is n1; its ``model``,
+    "splat" or "coherent", is the model family of every method); stage2_iterations: n2;
+    human: the Stage-2 human Gaussians (model "splat"); coherent_human: the Stage-2 human
+    scatterers (model "coherent"); stage2_optim: Stage-2 learning rates. ``human.human_octaves``
+    are the encoding octaves of the human position for the end-to-end model.
     """
 
     stage1: TrainConfig = dc_field(default_factory=TrainConfig)
     stage2_iterations: int = 1000
     human: HumanConfig = dc_field(default_factory=HumanConfig)
+    coherent_human: CoherentHumanConfig = dc_field(default_factory=CoherentHumanConfig)
     stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
         lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
         lr_net=1e-2, lr_net_final=1e-3))
@@ -169,20 +173,26 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         if (stage1_dir / "final" / "summary.json").is_file() else None
     if s1 is None:
         raise RunError(f"Stage 1 run {stage1_dir} has not finished (no final/summary.json)")
-    bg = GaussianField.load(stage1_dir / "final" / "field.npz")
+    bg = load_field(stage1_dir / "final" / "field.npz")
     bg.freeze()
     data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
-    oct_ = mcfg.human.human_octaves
-    walk = np.unique(data.human_pos[data.train], axis=0)
+    if isinstance(bg, CoherentField):
+        oct_ = mcfg.coherent_human.human_octaves
 
-    def factory(tr, rng):
-        return HumanField.near_walk(walk, hcfg=mcfg.human, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed,
-                                    name="human")
+        def factory(tr, rng):
+            return CoherentHumanField.for_background(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
+    else:
+        oct_ = mcfg.human.human_octaves
+        walk = np.unique(data.human_pos[data.train], axis=0)
+
+        def factory(tr, rng):
+            return HumanField.near_walk(walk, hcfg=mcfg.human, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed,
+                                        name="human")
 
     tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
                  extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
-                 extra_inputs=num_human_features(oct_), field_factory=factory)
+                 extra_inputs=num_human_features(oct_) + 3, field_factory=factory)
     _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
     s2 = tr.run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
@@ -194,9 +204,10 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
 
 @dataclass
 class Model:
-    """Trained fields rendered together. ``fields``: list of GaussianField (a
-    :class:`HumanField` is rendered only where a human is present); ``octaves``: human
-    encoding octaves of fields with extra inputs."""
+    """Trained fields rendered together. ``fields``: list of GaussianField, or of coherent fields
+    (:class:`~rfmitsuba.coherent.CoherentField`, whose channels add); a human field
+    (:class:`HumanField`, :class:`~rfmitsuba.coherent.CoherentHumanField`) is rendered only
+    where a human is present; ``octaves``: human encoding octaves of fields with extra inputs."""
 
     fields: list
     octaves: int = 3
@@ -207,14 +218,16 @@ class Model:
         m = get_method(name)
         jd = Path(job_dir)
         if not m.two_stage:
-            return cls([GaussianField.load(jd / "train" / "final" / "field.npz")], octaves=octaves)
+            return cls([load_field(jd / "train" / "final" / "field.npz")], octaves=octaves)
         info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
         if info is None:
             raise RunError(f"{jd}: no stage1.json; the two-stage job has not run")
-        bg = GaussianField.load(Path(info["stage1_dir"]) / "final" / "field.npz")
+        bg = load_field(Path(info["stage1_dir"]) / "final" / "field.npz")
         bg.freeze()
-        hf = HumanField.load(jd / "stage2" / "final" / "field.npz")
+        hf = load_field(jd / "stage2" / "final" / "field.npz")
         hf.freeze()
+        if isinstance(hf, CoherentHumanField):
+            octaves = hf.cfg.human_octaves
         return cls([bg, hf], octaves=octaves)
 
     @property
@@ -233,14 +246,19 @@ class Model:
         idx = np.asarray(idx, np.int64)
         out = np.zeros((len(idx), h, w), np.float32)
         empty = data.states[idx] == 0
+        human = (HumanField, CoherentHumanField)
+        coherent = isinstance(self.fields[0], CoherentField)
         for group in (np.flatnonzero(empty), np.flatnonzero(~empty)):
             for i in range(0, len(group), batch):
                 sel = group[i:i + batch]
                 k = idx[sel]
+                if coherent:
+                    out[sel] = self._render_coherent(data, k, human=not empty[sel[0]], h=h, w=w)
+                    continue
                 ap, vp = data.antenna_pos[k], data.view_pos[k]
                 sets = []
                 for f in self.fields:
-                    if isinstance(f, HumanField) and empty[sel[0]]:
+                    if isinstance(f, human) and empty[sel[0]]:
                         continue
                     kw = {"extra": data.features(k, octaves=self.octaves, raw=isinstance(f, HumanField))} \
                         if f.extra_inputs else {}
@@ -251,6 +269,25 @@ class Model:
                                  rx_to_world=data.rx_to_world, height=h, width=w, num_gaussians=s.n)
                 out[sel] = np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
         return out
+
+    def _render_coherent(self, data: SampleData, k: np.ndarray, *, human: bool, h: int, w: int) -> np.ndarray:
+        """Coherent fields: channels added (the human field's only with a human), one Bartlett readout."""
+        import drjit as dr
+
+        from .bartlett import pas
+
+        x, y, q = data.positions(k)
+        hr = hi = None
+        with dr.suspend_grad():
+            for f in self.fields:
+                if isinstance(f, CoherentHumanField) and not human:
+                    continue
+                ex = data.features(k, octaves=self.octaves, raw=isinstance(f, CoherentHumanField)) \
+                    if f.extra_inputs else None
+                fr, fi = f.channels(x, y, q, extra=ex)
+                hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+            img = pas(hr, hi, frequency_hz=data.frequency_hz, height=h, width=w, normalize=False)
+        return np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
 
 
 # =========================================================================== evaluation

@@ -48,8 +48,12 @@ class DataSize:
 
 @dataclass
 class TrainSize:
-    """Training sizes shared by every method (steps, image downsampling, Gaussians)."""
+    """Training sizes shared by every method (steps, image downsampling, Gaussians) and the model
+    family: "coherent" (image sources read out by Bartlett, :mod:`rfmitsuba.coherent`; trains at
+    full resolution whatever ``downsample`` says; needs a scene, so Sionna data only) or "splat"
+    (Gaussian splatting, WRF-GS+ style)."""
 
+    model: str = "coherent"
     stage1_iterations: int = 3000
     stage2_iterations: int = 1000
     downsample: int = 2
@@ -96,12 +100,17 @@ class ExperimentConfig:
             raise ConfigError("ExperimentConfig: seeds, rooms and tasks must not be empty")
         if any(t not in ("rx", "tx") for t in self.tasks):
             raise ConfigError(f"ExperimentConfig.tasks must be 'rx' / 'tx', got {self.tasks}")
+        if self.train.model not in ("splat", "coherent"):
+            raise ConfigError(f"ExperimentConfig.train.model must be 'splat' or 'coherent', got {self.train.model!r}")
+        if self.train.model == "coherent" and self.source == "synthetic":
+            raise ConfigError("train.model = 'coherent' needs Sionna data with a scene; synthetic data has none "
+                              "(use train.model = 'splat')")
 
 
 SIZES = {
     "tiny": ExperimentConfig(
         size="tiny", source="synthetic", seeds=[0, 1, 2], data=DataSize(positions=25, human_positions=6),
-        train=TrainSize(stage1_iterations=30, stage2_iterations=30, downsample=10, batch_views=4,
+        train=TrainSize(model="splat", stage1_iterations=30, stage2_iterations=30, downsample=10, batch_views=4,
                         num_gaussians=120, max_gaussians=400, human_gaussians=24, val_every=30, density=False),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", snr_db=[10.0],
         position_counts=[10], tables=["main", "two_stage", "perturbation", "positions", "noise"]),
@@ -219,7 +228,8 @@ def method_config(cfg: ExperimentConfig):
     from .train import TrainConfig
 
     t = cfg.train
-    s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, downsample=t.downsample,
+    s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,
+                     downsample=1 if t.model == "coherent" else t.downsample,
                      val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 4),
                      field=FieldConfig(init="random" if cfg.source == "synthetic" else "mesh",
                                        num_gaussians=t.num_gaussians),

@@ -170,7 +170,8 @@ class SampleData(TrainData):
         box = np.stack([lo - 0.3, hi + 0.3])
         data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
                    train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, source=base.source,
-                   bounds=base.bounds, state=0, states=s_arr, antennas=a_arr, human_pos=hp,
+                   bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,
+                   human_pos=hp,
                    noise_snr_db=noise_snr_db, noise_seed=int(noise_seed))
         data._ds = ds
         data._noisy = {}

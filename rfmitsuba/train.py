@@ -31,15 +31,17 @@ import shutil
 import time
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from . import backend as B
 from . import config as C
 from .atomic import write_json
-from .density import DensityConfig, DensityStrategy
+from .coherent import COHERENT_FIELDS, CoherentConfig, CoherentField
+from .density import DensityConfig, DensityStrategy, NoDensity
 from .errors import ConfigError, DatasetError, RunError
-from .field import FieldConfig, GaussianField, scene_meshes, write_ply
+from .field import FieldConfig, GaussianField, load_field, scene_meshes, write_ply
 from .pas import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
 
 PAS_SHAPE = (90, 360)
@@ -59,6 +61,9 @@ class OptimConfig:
     lr_opacity: float = 2e-2
     lr_net: float = 2e-3
     lr_net_final: float = 2e-4
+    #: complex image amplitudes of the coherent model (model = "coherent")
+    lr_amp: float = 1e-2
+    lr_amp_final: float = 1e-3
 
     def __post_init__(self) -> None:
         for k, v in vars(self).items():
@@ -77,6 +82,9 @@ class TrainConfig:
     time_limit_s: stop early after this much training wall time (0 = no limit);
     max_train_positions: use only this many training positions (0 = all; motivation table);
     state: dataset state to train on (0 = empty room).
+    model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
+    "coherent" (image sources summed coherently and read out by the Bartlett beamformer,
+    :mod:`rfmitsuba.coherent`; ``coherent``; needs the scene geometry).
     """
 
     iterations: int = 3000
@@ -91,7 +99,9 @@ class TrainConfig:
     time_limit_s: float = 0.0
     max_train_positions: int = 0
     state: int = 0
+    model: Literal["splat", "coherent"] = "splat"
     field: FieldConfig = dc_field(default_factory=FieldConfig)
+    coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
     density: DensityConfig = dc_field(default_factory=DensityConfig)
     optim: OptimConfig = dc_field(default_factory=OptimConfig)
 
@@ -105,6 +115,8 @@ class TrainConfig:
         for k in ("val_every", "checkpoint_every", "log_every"):
             if getattr(self, k) < 1:
                 raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
+        if self.model not in ("splat", "coherent"):
+            raise ConfigError(f"TrainConfig.model must be 'splat' or 'coherent', got {self.model!r}")
         if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
             raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
 
@@ -178,7 +190,7 @@ class TrainData:
     metres, where the array is (= antenna_pos for task "rx", the fixed array for "tx");
     rx_to_world: float64 [3, 3] or None (array frame); train / test: int64 antenna indices;
     scene_xml: path or None; source: float64 [3] or None (fixed transmitter, task "rx");
-    bounds: (lo [3], hi [3]) metres of everything known (positions, scene).
+    bounds: (lo [3], hi [3]) metres of everything known (positions, scene); frequency_hz: carrier.
     """
 
     path: Path
@@ -193,6 +205,8 @@ class TrainData:
     bounds: tuple
     _pas: object = None
     state: int = 0
+    #: carrier, Hz
+    frequency_hz: float = 2.4e9
 
     @classmethod
     def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
@@ -233,7 +247,8 @@ class TrainData:
         pts = np.concatenate([ap, fixed[None]])
         bounds = (pts.min(0), pts.max(0))
         data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
-                   scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state)
+                   scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
+                   frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))
         if shp != (len(ap), *PAS_SHAPE):
@@ -254,6 +269,16 @@ class TrainData:
             raise DatasetError(f"{self.path}: PAS of antenna position {int(idx[np.flatnonzero(bad)[0]])} "
                                f"(state {self.state}) contains NaN or infinite values")
         return minmax(downsample(raw, d))
+
+    def positions(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(array centre x, transmitter y, moving device q), each float64 [K, 3] metres, of
+        indices ``idx``: moving RX has x = q and y the fixed corner; moving TX has x the fixed
+        array and y = q."""
+        idx = np.asarray(idx, np.int64)
+        q = np.asarray(self.antenna_pos[idx], np.float64)
+        x = np.asarray(self.view_pos[idx], np.float64)
+        y = q if self.task == "tx" else np.tile(np.asarray(self.source, np.float64), (len(idx), 1))
+        return x, y, q
 
     def meshes(self):
         """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, or None
@@ -402,9 +427,12 @@ class Trainer:
             return self.field_factory(self, rng)
         return self.init_field(rng)
 
-    def init_field(self, rng: np.random.Generator) -> GaussianField:
-        """The Stage-1 initial field (scene mesh points or random in the bounds), taking
-        ``extra_inputs`` extra per-view network inputs."""
+    def init_field(self, rng: np.random.Generator) -> GaussianField | CoherentField:
+        """The Stage-1 initial field, taking ``extra_inputs`` extra per-view network inputs:
+        Gaussians from scene mesh points or random in the bounds (model "splat"), or the
+        scene's image sources (model "coherent")."""
+        if self.cfg.model == "coherent":
+            return self.init_coherent()
         fc = self.cfg.field
         meshes = self.data.meshes() if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
@@ -420,12 +448,30 @@ class Trainer:
         return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
                                         extra_inputs=self.extra_inputs, seed=self.cfg.seed, name=self.name)
 
+    def init_coherent(self) -> CoherentField:
+        """A :class:`CoherentField` on the image sources of the dataset's scene."""
+        from .geometry import RoomGeometry
+        from .images import scene_image_maps
+
+        if self.data.scene_xml is None:
+            raise ConfigError(f"model = 'coherent' needs the scene geometry, but dataset {self.data.path} names no "
+                              "scene (NeRF2 folders); use model = 'splat'")
+        c = self.cfg.coherent
+        geo = RoomGeometry.from_xml(self.data.scene_xml)
+        maps = scene_image_maps(geo, room_order=c.room_order, furniture_order=c.furniture_order,
+                                min_face_area=c.min_face_area)
+        lo, hi = geo.bounds
+        return CoherentField(maps, box=np.stack([lo, hi]), cfg=c, frequency_hz=self.data.frequency_hz,
+                             seed=self.cfg.seed, name=self.name, extra_inputs=self.extra_inputs)
+
     def _lrs(self, step: int) -> dict:
         o = self.cfg.optim
         t = step / max(self.cfg.iterations - 1, 1)
         net = _lr(o.lr_net, o.lr_net_final, t)
-        return {"means": _lr(o.lr_means, o.lr_means_final, t), "log_scales": o.lr_log_scales,
-                "rotations": o.lr_rotations, "opacity_logits": o.lr_opacity, "net": net}
+        means = _lr(o.lr_means, o.lr_means_final, t)
+        return {"means": means, "log_scales": o.lr_log_scales, "rotations": o.lr_rotations,
+                "opacity_logits": o.lr_opacity, "net": net,
+                "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
 
     # ---- rendering -------------------------------------------------------------------------
     def render(self, field: GaussianField, idx: np.ndarray, *, h: int | None = None, w: int | None = None):
@@ -433,11 +479,13 @@ class Trainer:
         TensorXf [K, h, w] (default the training resolution)."""
         from .field import Splats
 
+        h, w = h or self.h, w or self.w
+        if isinstance(field, COHERENT_FIELDS):
+            return self._render_coherent(field, idx, h=h, w=w)
         render = load_render()
         vp = self.data.view_pos[idx]
         sets = [self._splats(f, idx) for f in self.frozen] + [self._splats(field, idx)]
         s = Splats.concat(sets)
-        h, w = h or self.h, w or self.w
         if field.cfg.readout == "bartlett":
             from .beam import BartlettReadout
 
@@ -447,6 +495,19 @@ class Trainer:
             return BartlettReadout(ha, wa, h, w)(arr)
         return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
                       rx_to_world=self.data.rx_to_world, height=h, width=w, num_gaussians=s.n)
+
+    def _render_coherent(self, field, idx: np.ndarray, *, h: int, w: int):
+        """Coherent fields (the frozen ones and the trained one) add their channels; the
+        Bartlett beamformer turns the sum into min-max normalised PAS [K, h, w]."""
+        from .bartlett import pas
+
+        x, y, q = self.data.positions(idx)
+        hr = hi = None
+        for f in self.frozen + [field]:
+            ex = self.extra(idx) if (self.extra is not None and getattr(f, "extra_inputs", 0)) else None
+            fr, fi = f.channels(x, y, q, extra=ex)
+            hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+        return pas(hr, hi, frequency_hz=self.data.frequency_hz, height=h, width=w, normalize=True)
 
     def _splats(self, field: GaussianField, idx: np.ndarray):
         """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
@@ -559,7 +620,7 @@ class Trainer:
         opt = Adam(lr=1e-3)
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
-        strategy = DensityStrategy(cfg.density, prefix=self.prefix)
+        strategy = NoDensity() if isinstance(field, COHERENT_FIELDS) else DensityStrategy(cfg.density, prefix=self.prefix)
 
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
@@ -662,20 +723,17 @@ class Trainer:
         tmp.replace(p)
 
     def _finish(self, field, split, step, train_time, val_hist, stopped, strategy) -> dict:
-        import drjit as dr
-
         fd = self.run_dir / "final"
         fd.mkdir(exist_ok=True)
         field.save(fd / "field.npz")
-        probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
-        with dr.suspend_grad():
-            s = self._splats(field, probe)
-            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
-        write_ply(fd / "gaussians.ply", field, signal=sig)
-        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
-        summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time,
+        if isinstance(field, COHERENT_FIELDS):
+            x, y, _ = self.data.positions(split["fit"][:1])
+            field.write_ply(fd / "sources.ply", x=x[0], y=y[0], task=self.data.task)
+        else:
+            self._write_gaussians(field, split, fd)
+        summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time, "model": self.cfg.model,
                    "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
-                   "network_parameters": field.net.num_parameters,
+                   "network_parameters": field.network_parameters,
                    "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
@@ -683,6 +741,17 @@ class Trainer:
                    "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
         _write_json(fd / "summary.json", summary)
         return summary
+
+    def _write_gaussians(self, field: GaussianField, split: dict, fd: Path) -> None:
+        """PLY of the Gaussians (with their mean signal over training views) and the network weights."""
+        import drjit as dr
+
+        probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
+        with dr.suspend_grad():
+            s = self._splats(field, probe)
+            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
+        write_ply(fd / "gaussians.ply", field, signal=sig)
+        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
 
 
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
@@ -705,7 +774,7 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField
     fpath = rd / "final" / "field.npz"
     if not fpath.is_file():
         raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")
-    field = GaussianField.load(fpath)
+    field = load_field(fpath)
     tr = Trainer.__new__(Trainer)
     tr.cfg, tr.data, tr.run_dir, tr.frozen, tr.quiet, tr.name, tr.prefix = cfg, data, rd, [], True, field.name, field.name + "."
     tr.extra = None
