@@ -113,9 +113,12 @@ def _leaky(x):
 
 
 def _columns(a: np.ndarray) -> list:
-    """float [K, C] -> list of C ``Float`` [K]."""
-    a = np.asarray(a, np.float32)
-    return [B.Float(np.ascontiguousarray(a[:, c])) for c in range(a.shape[1])]
+    """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
+    (:func:`rfmitsuba.field.columns`: kernels stay independent of the host arrays' values and
+    alignment, so they compile once)."""
+    from .field import columns
+
+    return columns(np.asarray(a, np.float32).reshape(len(a), -1))
 
 
 def _pair_hidden(view: list, embed, nb: int, n: int, width: int) -> list:
@@ -164,9 +167,7 @@ def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tupl
     m = bm % M
     b = bm // M
     src = b * t_op + ti
-    ex = dr.gather(B.Float, B.Float(e[:, 0].astype(np.float32)), m)
-    ey = dr.gather(B.Float, B.Float(e[:, 1].astype(np.float32)), m)
-    ez = dr.gather(B.Float, B.Float(e[:, 2].astype(np.float32)), m)
+    ex, ey, ez = (dr.gather(B.Float, c, m) for c in _columns(e))
     ph = k * (ex * dr.gather(B.Float, ur[0], src) + ey * dr.gather(B.Float, ur[1], src)
               + ez * dr.gather(B.Float, ur[2], src))
     c, s = dr.cos(ph), dr.sin(ph)
@@ -313,7 +314,7 @@ class CoherentField:
         sc = self.cfg.modulation
         mr, mi = 1.0 + sc * o[0], sc * o[1]
         gr, gi = ar * mr - ai * mi, ar * mi + ai * mr
-        pr, pi = B.Float(prop.real.astype(np.float32)), B.Float(prop.imag.astype(np.float32))
+        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
         return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, ucols, nb, S, frequency_hz=self.frequency_hz)
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
