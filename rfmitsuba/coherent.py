@@ -14,7 +14,7 @@ planes (:mod:`rfmitsuba.images`; ``M_0`` = identity is the direct path), the ele
 ``r_m`` and ``k = 2 pi / lambda``. Propagation phase and direction are exact geometry; what
 is learned is each image's complex gain
 
-    g_i(x, y) = a_i * (1 + s * head(act(V(enc(q)) + e_i), u_i)),
+    g_i(x, y) = a_i * (1 + s * net(enc(q), e_i, u_i)),
 
 a constant complex amplitude ``a_i`` (reflection coefficients, 1/(4 pi) factors) times a
 position-dependent modulation from a small Dr.Jit network: ``q`` is the moving device's
@@ -29,7 +29,7 @@ synthetic-array rule of :mod:`rfmitsuba.simulate` (plane-wave phase per element,
 array centre).
 
 Parameters (Dr.Jit ``Float`` arrays, :meth:`CoherentField.parameters`): ``amp`` [S*2]
-(re, im per image), ``embed`` [S*W], ``net.view`` and ``net.head`` packed MLP weights.
+(re, im per image), ``embed`` [S*E] and ``net.gain`` (packed MLP weights).
 State is plain NumPy (npz, no pickle).
 """
 from __future__ import annotations
@@ -54,7 +54,8 @@ class CoherentConfig:
     room_order: reflections on the room's planes alone (image maps up to this order).
     furniture_order: 0, 1 or 2 (one furniture reflection, alone or with one room reflection).
     min_face_area: furniture faces smaller than this (m^2) make no image.
-    width: hidden width of the gain network; octaves: sine octaves of the position encoding.
+    width / layers: hidden width and hidden layers of the gain network; embed: size of each
+    image's learned embedding; octaves: sine octaves of the position encoding.
     modulation: scale ``s`` of the network's output (its initial size relative to ``a_i``).
     init_reflection: initial amplitude of an image is ``init_reflection ** order``.
     """
@@ -63,6 +64,8 @@ class CoherentConfig:
     furniture_order: int = 2
     min_face_area: float = 0.05
     width: int = 32
+    layers: int = 2
+    embed: int = 16
     octaves: int = 4
     modulation: float = 0.3
     init_reflection: float = 0.5
@@ -71,8 +74,8 @@ class CoherentConfig:
         if self.room_order < 0 or self.furniture_order not in (0, 1, 2):
             raise ConfigError(f"CoherentConfig: room_order must be >= 0 and furniture_order 0, 1 or 2, got "
                               f"{self.room_order}, {self.furniture_order}")
-        if self.width < 1 or self.octaves < 0 or self.min_face_area < 0:
-            raise ConfigError("CoherentConfig: width >= 1, octaves >= 0, min_face_area >= 0 required")
+        if self.width < 1 or self.embed < 1 or self.layers < 0 or self.octaves < 0 or self.min_face_area < 0:
+            raise ConfigError("CoherentConfig: width, embed >= 1, layers, octaves, min_face_area >= 0 required")
         if not (0 < self.init_reflection <= 1) or not (self.modulation > 0):
             raise ConfigError("CoherentConfig: init_reflection in (0, 1] and modulation > 0 required")
 
@@ -106,12 +109,6 @@ FORMAT = "rfmitsuba-coherent-field/1"
 HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
 
 
-def _leaky(x):
-    import drjit as dr
-
-    return dr.maximum(x, 0) + 0.01 * dr.minimum(x, 0)
-
-
 def _columns(a: np.ndarray) -> list:
     """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
     (:func:`rfmitsuba.field.columns`: kernels stay independent of the host arrays' values and
@@ -121,27 +118,44 @@ def _columns(a: np.ndarray) -> list:
     return columns(np.asarray(a, np.float32).reshape(len(a), -1))
 
 
-def _pair_hidden(view: list, embed, nb: int, n: int, width: int) -> list:
-    """``act(view_b + embed_i)`` for every (view b, item i), view-major ``b*n + i``:
-    ``width`` ``Float`` [nb*n] (the first layer of an MLP on [view features, one-hot item])."""
+def sin_encoding(x01: np.ndarray, octaves: int) -> np.ndarray:
+    """``[x, sin(2 pi 2^k x), cos(2 pi 2^k x)]`` of inputs mapped to [0, 1] (float [K, D]), with
+    x = x01 / 2 so that the encoding does not alias over the box: float32 [K, D (1 + 2 octaves)]."""
+    x = 0.5 * np.asarray(x01, np.float64)
+    parts = [x]
+    for k in range(octaves):
+        f = 2.0 * np.pi * 2 ** k
+        parts += [np.sin(f * x), np.cos(f * x)]
+    return np.concatenate(parts, axis=1).astype(np.float32)
+
+
+def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) -> list:
+    """Network inputs of every (view b, item i[, family c]) lane, view-major
+    ``(b*n + i)*repeat + c``: the view's inputs (host data float [nb, D], no gradient) followed by
+    the item's learned embedding (``Float`` [n*e], differentiable): D + e ``Float`` arrays.
+
+    The networks run on these lanes directly. (Evaluating a network once per view and gathering
+    its outputs made Dr.Jit 1.5 return wrong gradients for that network's weights once the
+    loss gradient reached it through a scatter.)"""
     import drjit as dr
 
-    lane = dr.arange(B.UInt32, nb * n)
-    n_op = dr.opaque(B.UInt32, n)
-    i, b = lane % n_op, lane // n_op
-    return [_leaky(dr.gather(B.Float, view[c], b) + dr.gather(B.Float, embed, i * width + c)) for c in range(width)]
+    view = np.asarray(view, np.float32)
+    cols = _columns(np.repeat(view, n * repeat, axis=0)) if view.shape[1] else []
+    lane = dr.arange(B.UInt32, len(view) * n * repeat)
+    i = (lane // dr.opaque(B.UInt32, repeat)) % dr.opaque(B.UInt32, n)
+    return cols + [dr.gather(B.Float, embed, i * e + c) for c in range(e)]
 
 
-def _extra_columns(extra, nb: int, n: int) -> list:
-    """The first ``n`` columns of the per-view extra inputs (float [nb, >= n]) as ``Float`` [nb]."""
+def _extra_array(extra, nb: int, n: int) -> np.ndarray:
+    """The first ``n`` columns of the per-view extra inputs (float [nb, >= n]): float32 [nb, n]."""
     if n == 0:
-        return []
+        return np.zeros((nb, 0), np.float32)
     if extra is None:
         raise ConfigError(f"this field needs {n} extra inputs per view (human-position features), got none")
     e = np.asarray(extra, np.float32).reshape(nb, -1)
     if e.shape[1] < n or not np.isfinite(e[:, :n]).all():
         raise ConfigError(f"extra inputs must be finite [B, >= {n}], got shape {e.shape}")
-    return _columns(e[:, :n])
+    return e[:, :n]
 
 
 def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tuple:
@@ -203,13 +217,13 @@ class CoherentField:
             raise ConfigError(f"CoherentField: box must have hi > lo, got {self.box.tolist()}")
         self.seed, self.name = int(seed), name
         self.extra_inputs = int(extra_inputs)
-        S, W = len(maps), self.cfg.width
-        self.view = MLP(3 * (1 + 2 * self.cfg.octaves) + self.extra_inputs, W, width=W, layers=1, seed=seed + 11)
-        self.head = MLP(W + 3, 2, width=W, layers=1, seed=seed + 12, out_bias=[0.0, 0.0])
+        c = self.cfg
+        n_in = 3 * (1 + 2 * c.octaves) + self.extra_inputs + c.embed + 3
+        self.gain = MLP(n_in, 2, width=c.width, layers=c.layers, seed=seed + 11, out_bias=[0.0, 0.0])
         if params is None:
-            a = self.cfg.init_reflection ** maps.order.astype(np.float64)
+            a = c.init_reflection ** maps.order.astype(np.float64)
             params = {"amp": np.stack([a, np.zeros_like(a)], 1).ravel(),
-                      "embed": 0.1 * np.random.default_rng(seed).standard_normal(S * W)}
+                      "embed": 0.1 * np.random.default_rng(seed).standard_normal(len(maps) * c.embed)}
         self.params = {}
         self.load_state_dict(params)
         self.frozen = False
@@ -224,14 +238,14 @@ class CoherentField:
 
     @property
     def network_parameters(self) -> int:
-        return self.num_sources * self.cfg.width + self.view.num_parameters + self.head.num_parameters
+        return self.num_sources * self.cfg.embed + self.gain.num_parameters
 
     @property
     def num_parameters(self) -> int:
         return 2 * self.num_sources + self.network_parameters
 
     def _modules(self) -> dict:
-        return {"net.view": self.view, "net.head": self.head}
+        return {"net.gain": self.gain}
 
     def parameters(self) -> dict:
         """Name -> Dr.Jit ``Float`` of every parameter (``amp``, ``embed``, ``net.*``)."""
@@ -255,7 +269,7 @@ class CoherentField:
         self.frozen = True
 
     def _sizes(self) -> dict:
-        return {"amp": 2 * self.num_sources, "embed": self.num_sources * self.cfg.width}
+        return {"amp": 2 * self.num_sources, "embed": self.num_sources * self.cfg.embed}
 
     def load_state_dict(self, state: dict) -> None:
         """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
@@ -275,11 +289,10 @@ class CoherentField:
                 m.set_weights(w)
 
     # ---- evaluation ------------------------------------------------------------------------
-    def _enc(self, q: np.ndarray) -> list:
-        from .nn import encode
-
+    def _enc(self, q: np.ndarray) -> np.ndarray:
+        """Encoding of the moving device's positions (float [B, 3] metres): float32 [B, D]."""
         q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
-        return encode(_columns(0.5 * q01), octaves=self.cfg.octaves)
+        return sin_encoding(q01, self.cfg.octaves)
 
     def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None) -> tuple:
         """Channels at the 16 elements: (re, im) ``Float`` [B*16], differentiable in the parameters.
@@ -295,18 +308,19 @@ class CoherentField:
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
         nb, S = len(x), self.num_sources
-        if x.shape != y.shape or np.shape(q) != x.shape or not (np.isfinite(x).all() and np.isfinite(y).all()):
-            raise ConfigError(f"positions must be finite [B, 3] arrays of one size, got {x.shape}, {y.shape}, "
-                              f"{np.shape(q)}")
+        if x.shape != y.shape or np.shape(q) != x.shape:
+            raise ConfigError(f"array, transmitter and moving positions must have one shape [B, 3], got {x.shape}, "
+                              f"{y.shape}, {np.shape(q)}")
+        if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(q).all()):
+            raise ConfigError("positions must be finite (a NaN or inf position was given)")
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
         L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
         u = (d / L[..., None]).reshape(-1, 3)
         prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
-        hid = _pair_hidden(self.view(self._enc(q) + _extra_columns(extra, nb, self.extra_inputs)),
-                           self.params["embed"], nb, S, self.cfg.width)
+        view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
         ucols = _columns(u)
-        o = self.head(hid + ucols)
+        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + ucols)
         lane = dr.arange(B.UInt32, nb * S)
         i = lane % dr.opaque(B.UInt32, S)
         ar = dr.gather(B.Float, self.params["amp"], 2 * i)
@@ -405,7 +419,8 @@ class CoherentHumanConfig:
     num_points: scattering points that move with the person; init_radius / init_height: their
     initial horizontal radius and (lo, hi) height, metres, around the feet position;
     human_octaves: octaves of the human-position features (:func:`rfmitsuba.samples.human_features`);
-    octaves: octaves of the moving device's position encoding; width: network width;
+    octaves: octaves of the moving device's position encoding; width / layers: the gain
+    network's hidden width and layers; embed: size of each point's learned embedding;
     max_offset: bound of the deformation network's position offset, metres;
     init_amplitude: initial |amplitude| of each (point, path) term, relative to the
     background's direct path; modulation: scale of the gain network's output;
@@ -418,14 +433,16 @@ class CoherentHumanConfig:
     human_octaves: int = 3
     octaves: int = 3
     width: int = 32
+    layers: int = 2
+    embed: int = 16
     max_offset: float = 0.15
     init_amplitude: float = 0.03
     modulation: float = 0.3
     scatter_order: int = 1
 
     def __post_init__(self) -> None:
-        if self.num_points < 1 or self.width < 1 or self.octaves < 0 or self.human_octaves < 0:
-            raise ConfigError("CoherentHumanConfig: num_points, width >= 1 and octaves >= 0 required")
+        if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
+            raise ConfigError("CoherentHumanConfig: num_points, width, embed >= 1 and octaves, layers >= 0 required")
         if self.scatter_order not in (0, 1):
             raise ConfigError(f"CoherentHumanConfig.scatter_order must be 0 or 1, got {self.scatter_order}")
         if self.init_radius < 0 or self.max_offset < 0 or not self.init_amplitude > 0:
@@ -493,13 +510,13 @@ class CoherentHumanField:
         self.box = np.asarray(box, np.float64).reshape(2, 3)
         self.reference_amplitude = float(reference_amplitude)
         self.seed, self.name = int(seed), name
-        c, W = self.cfg, self.cfg.width
+        c = self.cfg
         self.num_features = num_human_features(c.human_octaves)
         self.extra_inputs = self.num_features + 3
-        self.view = MLP(3 * (1 + 2 * c.octaves) + self.num_features, W, width=W, layers=1, seed=seed + 21)
-        self.head = MLP(W + 3, 2, width=W, layers=1, seed=seed + 22, out_bias=[0.0, 0.0])
-        self.deform = MLP(self.num_features, W, width=W, layers=1, seed=seed + 23)
-        self.deform_head = MLP(W, 3, width=W, layers=0, seed=seed + 24, out_bias=[0.0, 0.0, 0.0])
+        n_gain = 3 * (1 + 2 * c.octaves) + self.num_features + c.embed + 3
+        self.gain = MLP(n_gain, 2, width=c.width, layers=c.layers, seed=seed + 21, out_bias=[0.0, 0.0])
+        self.deform = MLP(self.num_features + c.embed, 3, width=c.width, layers=1, seed=seed + 23,
+                          out_bias=[0.0, 0.0, 0.0])
         if params is None:
             rng = np.random.default_rng([seed, 5])
             K, C = c.num_points, self.num_paths
@@ -510,24 +527,23 @@ class CoherentHumanField:
             a = c.init_amplitude * self.reference_amplitude
             params = {"offsets": np.stack([r * np.cos(phi), r * np.sin(phi), z], 1).ravel(),
                       "amp": np.stack([a * np.cos(ph), a * np.sin(ph)], 1).ravel(),
-                      "embed": 0.1 * rng.standard_normal(K * W)}
+                      "embed": 0.1 * rng.standard_normal(K * c.embed)}
         self.params = {}
         self.load_state_dict(params)
         self.frozen = False
 
     num_paths = property(lambda self: len(self.paths["pre_b"]))
     num_gaussians = property(lambda self: self.cfg.num_points)
-    network_parameters = property(lambda self: self.cfg.num_points * self.cfg.width
+    network_parameters = property(lambda self: self.cfg.num_points * self.cfg.embed
                                   + sum(m.num_parameters for m in self._modules().values()))
     num_parameters = property(lambda self: self.cfg.num_points * (3 + 2 * self.num_paths) + self.network_parameters)
 
     def _modules(self) -> dict:
-        return {"net.view": self.view, "net.head": self.head, "deform.view": self.deform,
-                "deform.head": self.deform_head}
+        return {"net.gain": self.gain, "deform.net": self.deform}
 
     def _sizes(self) -> dict:
         K = self.cfg.num_points
-        return {"offsets": 3 * K, "amp": 2 * K * self.num_paths, "embed": K * self.cfg.width}
+        return {"offsets": 3 * K, "amp": 2 * K * self.num_paths, "embed": K * self.cfg.embed}
 
     parameters = CoherentField.parameters
     trainable = CoherentField.trainable
@@ -545,11 +561,9 @@ class CoherentHumanField:
         """
         import drjit as dr
 
-        from .nn import encode
-
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
-        nb, K, C, W, F = len(x), self.cfg.num_points, self.num_paths, self.cfg.width, self.num_features
+        nb, K, C, E, F = len(x), self.cfg.num_points, self.num_paths, self.cfg.embed, self.num_features
         if extra is None:
             raise ConfigError("the human field needs the human features and position of every view (extra)")
         e = np.asarray(extra, np.float64).reshape(nb, -1)
@@ -557,13 +571,8 @@ class CoherentHumanField:
             raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
         feats, hpos = e[:, :F], e[:, F:]
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
-        # per (view, point): position s = h + o_k + D(h)_k
-        q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
-        fcols = _columns(feats)
-        hid = _pair_hidden(self.view(encode(_columns(0.5 * q01), octaves=self.cfg.octaves) + fcols),
-                           self.params["embed"], nb, K, W)
-        dh = _pair_hidden(self.deform(fcols), self.params["embed"], nb, K, W)
-        off = [self.cfg.max_offset * dr.tanh(v) for v in self.deform_head(dh)]
+        # per (view, point): position s = h + o_k + D(f(h), e_k)
+        off = [self.cfg.max_offset * dr.tanh(v) for v in self.deform(_pair_inputs(feats, self.params["embed"], K, E))]
         lane = dr.arange(B.UInt32, nb * K)
         ki, bi = lane % dr.opaque(B.UInt32, K), lane // dr.opaque(B.UInt32, K)
         hp = _columns(hpos)
@@ -590,7 +599,9 @@ class CoherentHumanField:
         L1 = dr.maximum(dr.sqrt(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2), 0.05)
         L2 = dr.maximum(dr.sqrt(d2[0] ** 2 + d2[1] ** 2 + d2[2] ** 2), 0.05)
         u = [d / L2 for d in d2]
-        o = self.head([dr.gather(B.Float, h_, bk) for h_ in hid] + u)
+        q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
+        view = np.concatenate([sin_encoding(q01, self.cfg.octaves), feats], axis=1)
+        o = self.gain(_pair_inputs(view, self.params["embed"], K, E, repeat=C) + u)
         ar = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci))
         ai = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci) + 1)
         sc = self.cfg.modulation
