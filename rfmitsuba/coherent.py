@@ -294,7 +294,7 @@ class CoherentField:
         q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
         return sin_encoding(q01, self.cfg.octaves)
 
-    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None) -> tuple:
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
         """Channels at the 16 elements: (re, im) ``Float`` [B*16], differentiable in the parameters.
 
         Args:
@@ -302,6 +302,8 @@ class CoherentField:
                 moving device (x or y); all metres.
             extra: float [B, extra_inputs] more inputs of the gain network (the End-to-End
                 model's human-position features), or None for a field without them.
+            rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
+                orientation), or None for the SPEC's horizontal array (identity).
         """
         import drjit as dr
 
@@ -317,6 +319,8 @@ class CoherentField:
         d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
         L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
         u = (d / L[..., None]).reshape(-1, 3)
+        if rx_to_world is not None:  # arrival directions in the array frame: R^T u
+            u = u @ np.asarray(rx_to_world, np.float64).reshape(3, 3)
         prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
         view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
         ucols = _columns(u)
@@ -552,13 +556,16 @@ class CoherentHumanField:
     load_state_dict = CoherentField.load_state_dict
     save = CoherentField.save
 
-    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None) -> tuple:
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
         """Channels the person adds at the 16 elements: (re, im) ``Float`` [B*16].
 
         Args:
             x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
             extra: float [B, F + 3]: human features, then the feet position in metres.
+            rx_to_world: must be None or the identity (Stage 2 runs on the SPEC's horizontal array).
         """
+        if rx_to_world is not None and not np.allclose(rx_to_world, np.eye(3)):
+            raise ConfigError("the coherent human field supports the horizontal array only (rx_to_world = I)")
         import drjit as dr
 
         x = np.asarray(x, np.float64).reshape(-1, 3)

@@ -41,7 +41,7 @@ from .atomic import write_json
 from .coherent import COHERENT_FIELDS, CoherentConfig, CoherentField
 from .density import DensityConfig, DensityStrategy, NoDensity
 from .errors import ConfigError, DatasetError, RunError
-from .field import FieldConfig, GaussianField, load_field, scene_meshes, write_ply
+from .field import FieldConfig, GaussianField, load_field, write_ply
 from .pas import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
 
 PAS_SHAPE = (90, 360)
@@ -84,7 +84,9 @@ class TrainConfig:
     state: dataset state to train on (0 = empty room).
     model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
     "coherent" (image sources summed coherently and read out by the Bartlett beamformer,
-    :mod:`rfmitsuba.coherent`; ``coherent``; needs the scene geometry).
+    :mod:`rfmitsuba.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
+    scene: the room (built-in scene name or XML path) for a dataset that names none, e.g. a
+    NeRF2 folder measured in a room you have modelled ("" = the dataset's own scene).
     """
 
     iterations: int = 3000
@@ -100,6 +102,7 @@ class TrainConfig:
     max_train_positions: int = 0
     state: int = 0
     model: Literal["splat", "coherent"] = "splat"
+    scene: str = ""
     field: FieldConfig = dc_field(default_factory=FieldConfig)
     coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
     density: DensityConfig = dc_field(default_factory=DensityConfig)
@@ -280,16 +283,15 @@ class TrainData:
         y = q if self.task == "tx" else np.tile(np.asarray(self.source, np.float64), (len(idx), 1))
         return x, y, q
 
-    def meshes(self):
-        """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, or None
-        when the dataset names no scene (NeRF2 folders)."""
-        if self.scene_xml is None:
+    def meshes(self, scene_xml: Path | None = None):
+        """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, of
+        ``scene_xml`` (default the dataset's scene), or None when there is none (NeRF2 folders)."""
+        scene_xml = scene_xml or self.scene_xml
+        if scene_xml is None:
             return None
-        try:
-            from .geometry import RoomGeometry
-        except ImportError:  # pragma: no cover - the geometry module ships with the package
-            return scene_meshes(self.scene_xml)
-        geo = RoomGeometry.from_xml(self.scene_xml)
+        from .geometry import RoomGeometry
+
+        geo = RoomGeometry.from_xml(scene_xml)
         return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64)) for sh in geo.shapes]
 
 
@@ -434,7 +436,7 @@ class Trainer:
         if self.cfg.model == "coherent":
             return self.init_coherent()
         fc = self.cfg.field
-        meshes = self.data.meshes() if fc.init == "mesh" else None
+        meshes = self.data.meshes(self.scene_xml()) if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
             raise ConfigError(f"field.init = 'mesh' but dataset {self.data.path} names no scene; "
                               "use --set field.init=\"random\"")
@@ -448,16 +450,25 @@ class Trainer:
         return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
                                         extra_inputs=self.extra_inputs, seed=self.cfg.seed, name=self.name)
 
+    def scene_xml(self) -> Path | None:
+        """The room's XML: ``cfg.scene`` when set, else the dataset's scene (None when neither)."""
+        if self.cfg.scene:
+            from .dataset import resolve_scene
+
+            return resolve_scene(self.cfg.scene)
+        return self.data.scene_xml
+
     def init_coherent(self) -> CoherentField:
         """A :class:`CoherentField` on the image sources of the dataset's scene."""
         from .geometry import RoomGeometry
         from .images import scene_image_maps
 
-        if self.data.scene_xml is None:
+        xml = self.scene_xml()
+        if xml is None:
             raise ConfigError(f"model = 'coherent' needs the scene geometry, but dataset {self.data.path} names no "
-                              "scene (NeRF2 folders); use model = 'splat'")
+                              "scene (NeRF2 folders): give one with --set scene=NAME_OR_XML, or use model = 'splat'")
         c = self.cfg.coherent
-        geo = RoomGeometry.from_xml(self.data.scene_xml)
+        geo = RoomGeometry.from_xml(xml)
         maps = scene_image_maps(geo, room_order=c.room_order, furniture_order=c.furniture_order,
                                 min_face_area=c.min_face_area)
         lo, hi = geo.bounds
@@ -505,7 +516,7 @@ class Trainer:
         hr = hi = None
         for f in self.frozen + [field]:
             ex = self.extra(idx) if (self.extra is not None and getattr(f, "extra_inputs", 0)) else None
-            fr, fi = f.channels(x, y, q, extra=ex)
+            fr, fi = f.channels(x, y, q, extra=ex, rx_to_world=self.data.rx_to_world)
             hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
         return pas(hr, hi, frequency_hz=self.data.frequency_hz, height=h, width=w, normalize=True)
 

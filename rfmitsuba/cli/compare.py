@@ -1,0 +1,31 @@
+"""``rfmitsuba compare DATASET --out DIR``: train methods over seeds on one dataset, tabulate."""
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("compare", help="train and evaluate methods over seeds on one dataset (resumable)")
+    p.add_argument("dataset", help="dataset folder with human-present states (rfmitsuba generate)")
+    p.add_argument("--out", required=True, help="output folder (report.md, results.json, speed_accuracy.png)")
+    p.add_argument("--methods", default=None, help="comma-separated methods (default baseline,end_to_end,ours)")
+    p.add_argument("--seeds", default=None, help="comma-separated training seeds (default 0,1,2)")
+    p.add_argument("--config", default=None, help="CompareConfig TOML file")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set training.stage1.iterations=1000")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .. import config as C
+    from ..compare import CompareConfig, compare
+
+    cfg = C.load(CompareConfig, args.config) if args.config else CompareConfig()
+    sets = list(args.set)
+    if args.methods:
+        sets.append("methods=[" + ",".join(f'"{m.strip()}"' for m in args.methods.split(",")) + "]")
+    if args.seeds:
+        sets.append(f"seeds=[{args.seeds}]")
+    cfg = C.override(cfg, sets) if sets else cfg
+    path = compare(args.dataset, args.out, cfg=cfg)
+    print(path.read_text())
+    print(f"report: {path}")
+    return 0
