@@ -244,22 +244,40 @@ def coherent_cfg(**over):
     return C.override(TrainConfig(), sets + [f"{k}={v}" for k, v in over.items()])
 
 
-def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(quick_dataset, tmp_path):
-    """The coherent image-source model on Sionna data (quick bedroom, 28 training positions):
-    after 150 steps its held-out SSIM beats the nearest-neighbour floor, and the run folder has
-    the field, the sources as PLY and a summary."""
+@pytest.fixture(scope="module")
+def empty_bedroom(tmp_path_factory, variant):
+    """Sionna bedroom, moving RX, 300 positions (240 train, 60 test), empty room, 2e4 ray samples.
+    Same as ``rfmitsuba generate bedroom --task rx --positions 300 --human-positions 0 --samples 20000``."""
+    from rfmitsuba import dataset
+    from rfmitsuba.simulate import SolverConfig
+
+    cfg = dataset.GenerateConfig(scene="bedroom", task="rx", positions=300, human_positions=0,
+                                 solver=SolverConfig(samples_per_src=20_000))
+    return dataset.generate(tmp_path_factory.mktemp("empty_bedroom") / "ds", cfg, quiet=True).path
+
+
+def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bedroom, tmp_path):
+    """The coherent image-source model on Sionna data (bedroom, 240 training positions): after 400
+    steps (8 views each) its held-out SSIM is above the nearest-neighbour floor, and the run folder
+    has the field, the sources as PLY and a summary.
+
+    Measured (2 cores): model 0.755 / nearest neighbour 0.696 / mean image 0.632 mean SSIM, by
+    ``rfmitsuba train DS --set model=coherent --set iterations=400 --set batch_views=8
+    --set coherent.room_order=2 --set coherent.furniture_order=1`` on the fixture's dataset. (With
+    80 training positions the model does not beat nearest neighbour: it has more parameters than
+    80 PAS constrain.)"""
     from rfmitsuba.evaluate import evaluate_run
     from rfmitsuba.field import read_ply
     from rfmitsuba.train import TrainData, Trainer
 
-    data = TrainData.open(quick_dataset.path)
-    s = Trainer(coherent_cfg(iterations=150, val_every=50, checkpoint_every=50), data, tmp_path / "run",
-                quiet=True).run()
-    assert s["model"] == "coherent" and s["steps"] == 150 and s["num_gaussians"] > 25
+    data = TrainData.open(empty_bedroom)
+    s = Trainer(coherent_cfg(iterations=400, batch_views=8, val_every=200, checkpoint_every=200), data,
+                tmp_path / "run", quiet=True).run()
+    assert s["model"] == "coherent" and s["steps"] == 400 and s["num_gaussians"] > 25
     ply = read_ply(tmp_path / "run" / "final" / "sources.ply")
     assert len(ply["x"]) == s["num_gaussians"]
     m = evaluate_run(tmp_path / "run", quiet=True)
-    assert m["model"]["mean"] > m["nearest_neighbour"]["mean"] + 0.02, m
+    assert m["model"]["mean"] > m["nearest_neighbour"]["mean"] + 0.03, m
 
 
 def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path):

@@ -1,0 +1,46 @@
+"""rfmitsuba.compare: methods over seeds on one dataset, resumable, refuses other sizes."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rfmitsuba.errors import ConfigError, RunError
+
+
+def tiny_compare_cfg(**over):
+    from rfmitsuba import config as C
+    from rfmitsuba.compare import CompareConfig
+
+    sets = ["methods=['baseline','ours']", "seeds=[0]", "training.stage1.iterations=8",
+            "training.stage1.val_every=8", "training.stage1.checkpoint_every=8", "training.stage2_iterations=6",
+            "training.stage1.coherent.room_order=1", "training.stage1.coherent.furniture_order=0",
+            "training.coherent_human.num_points=4"]
+    return C.override(CompareConfig(), sets + [f"{k}={v}" for k, v in over.items()])
+
+
+def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
+    from rfmitsuba.compare import compare
+
+    out = tmp_path / "cmp"
+    rep = compare(quick_dataset.path, out, cfg=tiny_compare_cfg(), progress=False)
+    text = rep.read_text()
+    assert "| Baseline |" in text and "| Ours (two-stage) |" in text and "Dynamic evaluation" in text
+    assert (out / "speed_accuracy.png").is_file()
+    done = {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")}
+    assert len(done) == 2
+    # the same command again trains nothing; a second seed adds its jobs and keeps the first
+    compare(quick_dataset.path, out, cfg=tiny_compare_cfg(seeds="[0, 1]"), progress=False)
+    assert all(p.stat().st_mtime_ns == t for p, t in done.items())
+    res = json.loads((out / "results.json").read_text())
+    assert sorted((r["method"], r["seed"]) for r in res) == [("baseline", 0), ("baseline", 1), ("ours", 0),
+                                                              ("ours", 1)]
+    with pytest.raises(RunError, match="another comparison"):
+        compare(quick_dataset.path, out, cfg=tiny_compare_cfg(**{"training.stage2_iterations": 7}), progress=False)
+
+
+def test_compare_config_errors():
+    with pytest.raises(ConfigError, match="unknown method"):
+        tiny_compare_cfg(methods="['nope']")
+    with pytest.raises(ConfigError, match="repeat"):
+        tiny_compare_cfg(seeds="[0, 0]")
