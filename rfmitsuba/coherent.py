@@ -189,7 +189,95 @@ def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tupl
     return dr.block_sum(a * c - bb * s, t), dr.block_sum(a * s + bb * c, t)
 
 
-class CoherentField:
+class _CoherentParams:
+    """What both coherent fields share: named parameters (plain ``Float`` arrays in
+    :attr:`params` plus the packed networks of :meth:`_modules`), freezing, and an npz state of
+    the parameters, the geometry arrays (``_geometry_prefix`` + name) and a JSON ``meta``.
+
+    Subclasses define ``_modules``, ``_sizes``, ``_meta``, ``_geometry``, ``_from_state``,
+    ``_format`` and ``_geometry_prefix``.
+    """
+
+    def parameters(self) -> dict:
+        """Name -> Dr.Jit ``Float`` of every parameter."""
+        return {**self.params, **{k: m.weights for k, m in self._modules().items()}}
+
+    def trainable(self) -> dict:
+        return {} if self.frozen else self.parameters()
+
+    def assign(self, values: dict) -> None:
+        """Set parameters from ``values`` (name -> ``Float``), e.g. the optimizer's copies."""
+        mods = self._modules()
+        for k, v in values.items():
+            if k in mods:
+                mods[k].set_weights(v)
+            elif k in self.params:
+                self.params[k] = v
+            else:
+                raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
+
+    def freeze(self) -> None:
+        self.frozen = True
+
+    def load_state_dict(self, state: dict) -> None:
+        """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
+        for k, n in self._sizes().items():
+            if k not in state:
+                raise RunError(f"{type(self).__name__} state lacks {k!r}")
+            v = np.asarray(state[k], np.float32).ravel()
+            if v.shape != (n,) or not np.isfinite(v).all():
+                raise RunError(f"{type(self).__name__} state {k!r}: expected {n} finite values, got {v.shape}")
+            self.params[k] = B.Float(v)
+        for k, m in self._modules().items():
+            if k in state:
+                w = np.asarray(state[k], np.float32).ravel()
+                if w.shape != (m.num_parameters,):
+                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.num_parameters} weights, "
+                                   f"got {w.shape[0]}")
+                m.set_weights(w)
+
+    def state_dict(self) -> dict:
+        """NumPy arrays of everything needed to rebuild the field (``meta`` is a JSON string)."""
+        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
+        out.update({f"{self._geometry_prefix}{k}": v for k, v in self._geometry().items()})
+        out["box"] = self.box.copy()
+        out["meta"] = np.asarray(json.dumps({**self._meta(), "seed": self.seed, "name": self.name,
+                                             "frequency_hz": self.frequency_hz, "frozen": self.frozen}))
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict):
+        """Rebuild a field written by :meth:`state_dict` (RunError naming what is missing or wrong)."""
+        try:
+            meta = json.loads(str(state["meta"]))
+            if meta.get("format") != cls._format:
+                raise RunError(f"not a {cls.__name__} state (format {meta.get('format')!r})")
+            n = len(cls._geometry_prefix)
+            f = cls._from_state({k[n:]: state[k] for k in state if k.startswith(cls._geometry_prefix)}, state, meta)
+        except KeyError as e:
+            raise RunError(f"{cls.__name__} state lacks {e}") from None
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
+        from .atomic import write_npz
+
+        return write_npz(Path(path), self.state_dict())
+
+    @classmethod
+    def load(cls, path: str | Path):
+        """Read a field of this class written by :meth:`save`."""
+        from .field import load_field
+
+        f = load_field(path)
+        if not isinstance(f, cls):
+            raise RunError(f"{path} holds a {type(f).__name__}, not a {cls.__name__}")
+        return f
+
+
+class CoherentField(_CoherentParams):
     """Image sources with learned complex gains: the static (background) field. See the module
     docstring.
 
@@ -247,46 +335,8 @@ class CoherentField:
     def _modules(self) -> dict:
         return {"net.gain": self.gain}
 
-    def parameters(self) -> dict:
-        """Name -> Dr.Jit ``Float`` of every parameter (``amp``, ``embed``, ``net.*``)."""
-        return {**self.params, **{k: m.weights for k, m in self._modules().items()}}
-
-    def trainable(self) -> dict:
-        return {} if self.frozen else self.parameters()
-
-    def assign(self, values: dict) -> None:
-        """Set parameters from ``values`` (name -> ``Float``), e.g. the optimizer's copies."""
-        mods = self._modules()
-        for k, v in values.items():
-            if k in mods:
-                mods[k].set_weights(v)
-            elif k in self.params:
-                self.params[k] = v
-            else:
-                raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
-
-    def freeze(self) -> None:
-        self.frozen = True
-
     def _sizes(self) -> dict:
         return {"amp": 2 * self.num_sources, "embed": self.num_sources * self.cfg.embed}
-
-    def load_state_dict(self, state: dict) -> None:
-        """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
-        for k, n in self._sizes().items():
-            if k not in state:
-                raise RunError(f"{type(self).__name__} state lacks {k!r}")
-            v = np.asarray(state[k], np.float32).ravel()
-            if v.shape != (n,) or not np.isfinite(v).all():
-                raise RunError(f"{type(self).__name__} state {k!r}: expected {n} finite values, got {v.shape}")
-            self.params[k] = B.Float(v)
-        for k, m in self._modules().items():
-            if k in state:
-                w = np.asarray(state[k], np.float32).ravel()
-                if w.shape != (m.num_parameters,):
-                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.num_parameters} weights, "
-                                   f"got {w.shape[0]}")
-                m.set_weights(w)
 
     # ---- evaluation ------------------------------------------------------------------------
     def _enc(self, q: np.ndarray) -> np.ndarray:
@@ -365,52 +415,24 @@ class CoherentField:
         return write_ply_arrays(path, pts, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
                                 np.log(rel / (1 - rel)), signal=rel)
 
+    _format = FORMAT
+    _geometry_prefix = "maps."
+
+    def _geometry(self) -> dict:
+        return self.maps.to_arrays()
+
     def _meta(self) -> dict:
         from .config import to_dict
 
-        return {"format": FORMAT, "config": to_dict(self.cfg), "seed": self.seed, "name": self.name,
-                "frequency_hz": self.frequency_hz, "frozen": self.frozen, "extra_inputs": self.extra_inputs}
-
-    def state_dict(self) -> dict:
-        """NumPy arrays of everything needed to rebuild the field (``meta`` is a JSON string)."""
-        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
-        out.update({f"maps.{k}": v for k, v in self.maps.to_arrays().items()})
-        out["box"] = self.box.copy()
-        out["meta"] = np.asarray(json.dumps(self._meta()))
-        return out
+        return {"format": FORMAT, "config": to_dict(self.cfg), "extra_inputs": self.extra_inputs}
 
     @classmethod
-    def from_state_dict(cls, state: dict) -> "CoherentField":
+    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentField":
         from .config import from_dict
 
-        try:
-            meta = json.loads(str(state["meta"]))
-            if meta.get("format") != FORMAT:
-                raise RunError(f"not a coherent field (format {meta.get('format')!r})")
-            maps = ImageMaps.from_arrays({k[5:]: state[k] for k in state if k.startswith("maps.")})
-            f = cls(maps, box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
-                    frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,
-                    extra_inputs=meta.get("extra_inputs", 0))
-        except KeyError as e:
-            raise RunError(f"coherent field state lacks {e}") from None
-        if meta.get("frozen"):
-            f.freeze()
-        return f
-
-    def save(self, path: str | Path) -> Path:
-        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
-        from .atomic import write_npz
-
-        return write_npz(Path(path), self.state_dict())
-
-    @classmethod
-    def load(cls, path: str | Path) -> "CoherentField":
-        from .field import load_field
-
-        f = load_field(path)
-        if not isinstance(f, cls):
-            raise RunError(f"{path} holds a {type(f).__name__}, not a {cls.__name__}")
-        return f
+        return cls(ImageMaps.from_arrays(geometry), box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
+                   frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,
+                   extra_inputs=meta.get("extra_inputs", 0))
 
 
 # ============================================================================ Stage 2
@@ -474,7 +496,7 @@ def scatter_paths(maps: ImageMaps, order: int) -> dict:
             (("pre_A", pre_A), ("pre_b", pre_b), ("post_A", post_A), ("post_b", post_b))}
 
 
-class CoherentHumanField:
+class CoherentHumanField(_CoherentParams):
     """Stage 2 of the coherent model: scattering points that move with the person.
 
     Each of K points sits at ``s = h + o_k + D(h)_k`` (feet position ``h``, learned offset
@@ -548,13 +570,6 @@ class CoherentHumanField:
     def _sizes(self) -> dict:
         K = self.cfg.num_points
         return {"offsets": 3 * K, "amp": 2 * K * self.num_paths, "embed": K * self.cfg.embed}
-
-    parameters = CoherentField.parameters
-    trainable = CoherentField.trainable
-    assign = CoherentField.assign
-    freeze = CoherentField.freeze
-    load_state_dict = CoherentField.load_state_dict
-    save = CoherentField.save
 
     def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
         """Channels the person adds at the 16 elements: (re, im) ``Float`` [B*16].
@@ -633,35 +648,24 @@ class CoherentHumanField:
         return write_ply_arrays(path, off, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
                                 np.log(rel / (1 - rel)), signal=rel)
 
-    def state_dict(self) -> dict:
+    _format = HUMAN_FORMAT
+    _geometry_prefix = "paths."
+
+    def _geometry(self) -> dict:
+        return self.paths
+
+    def _meta(self) -> dict:
         from .config import to_dict
 
-        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
-        out.update({f"paths.{k}": v for k, v in self.paths.items()})
-        out["box"] = self.box.copy()
-        out["meta"] = np.asarray(json.dumps({
-            "format": HUMAN_FORMAT, "config": to_dict(self.cfg), "seed": self.seed, "name": self.name,
-            "frequency_hz": self.frequency_hz, "frozen": self.frozen,
-            "reference_amplitude": self.reference_amplitude}))
-        return out
+        return {"format": HUMAN_FORMAT, "config": to_dict(self.cfg), "reference_amplitude": self.reference_amplitude}
 
     @classmethod
-    def from_state_dict(cls, state: dict) -> "CoherentHumanField":
+    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentHumanField":
         from .config import from_dict
 
-        try:
-            meta = json.loads(str(state["meta"]))
-            if meta.get("format") != HUMAN_FORMAT:
-                raise RunError(f"not a coherent human field (format {meta.get('format')!r})")
-            paths = {k[6:]: state[k] for k in state if k.startswith("paths.")}
-            f = cls(paths, box=state["box"], cfg=from_dict(CoherentHumanConfig, meta["config"]),
-                    frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
-                    seed=meta["seed"], name=meta.get("name", "human"), params=state)
-        except KeyError as e:
-            raise RunError(f"coherent human field state lacks {e}") from None
-        if meta.get("frozen"):
-            f.freeze()
-        return f
+        return cls(geometry, box=state["box"], cfg=from_dict(CoherentHumanConfig, meta["config"]),
+                   frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
+                   seed=meta["seed"], name=meta.get("name", "human"), params=state)
 
     @classmethod
     def for_background(cls, bg: CoherentField, *, cfg: CoherentHumanConfig | None = None, seed: int = 0,
