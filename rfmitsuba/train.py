@@ -79,7 +79,8 @@ class TrainConfig:
     (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
     resolution); seed: all randomness; val_fraction / val_max: training positions held out
     for validation (never test positions); val_every / checkpoint_every / log_every: steps;
-    time_limit_s: stop early after this much training wall time (0 = no limit);
+    time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
+    schedules then also advance with the share of this time used);
     max_train_positions: use only this many training positions (0 = all; motivation table);
     state: dataset state to train on (0 = empty room).
     model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
@@ -475,9 +476,14 @@ class Trainer:
         return CoherentField(maps, box=np.stack([lo, hi]), cfg=c, frequency_hz=self.data.frequency_hz,
                              seed=self.cfg.seed, name=self.name, extra_inputs=self.extra_inputs)
 
-    def _lrs(self, step: int) -> dict:
+    def _lrs(self, step: int, train_time: float = 0.0) -> dict:
+        """Learning rates of step ``step``: the schedule's progress is the larger of the share of
+        iterations done and, with a time limit, the share of training time used (so a run stopped
+        by its time limit ends with its final learning rates, not half-way down the schedule)."""
         o = self.cfg.optim
         t = step / max(self.cfg.iterations - 1, 1)
+        if self.cfg.time_limit_s:
+            t = min(1.0, max(t, train_time / self.cfg.time_limit_s))
         net = _lr(o.lr_net, o.lr_net_final, t)
         means = _lr(o.lr_means, o.lr_means_final, t)
         return {"means": means, "log_scales": o.lr_log_scales, "rotations": o.lr_rotations,
@@ -663,7 +669,7 @@ class Trainer:
                 if cfg.time_limit_s and train_time >= cfg.time_limit_s:
                     stopped = "time_limit"
                     break
-                lrs = self._lrs(step)
+                lrs = self._lrs(step, train_time)
                 for k in list(opt.keys()):
                     short = k[len(self.prefix):]
                     opt.set_learning_rate({k: lrs["net"] if "." in short else lrs[short]})
