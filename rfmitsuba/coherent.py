@@ -450,7 +450,8 @@ class CoherentHumanConfig:
     max_offset: bound of the deformation network's position offset, metres;
     init_amplitude: initial |amplitude| of each (point, path) term, relative to the
     background's direct path; modulation: scale of the gain network's output;
-    scatter_order: most wall reflections on the path before and after the person (0 or 1).
+    scatter_order: most wall reflections on the path before and after the person (0 or 1);
+    scatter_furniture: also paths that meet a furniture face before or after the person.
     """
 
     num_points: int = 24
@@ -465,6 +466,7 @@ class CoherentHumanConfig:
     init_amplitude: float = 0.03
     modulation: float = 0.3
     scatter_order: int = 1
+    scatter_furniture: bool = True
 
     def __post_init__(self) -> None:
         if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
@@ -475,15 +477,17 @@ class CoherentHumanConfig:
             raise ConfigError("CoherentHumanConfig: init_radius, max_offset >= 0 and init_amplitude > 0 required")
 
 
-def scatter_paths(maps: ImageMaps, order: int) -> dict:
+def scatter_paths(maps: ImageMaps, order: int, *, furniture: bool = True) -> dict:
     """The path families through a scattering point ``s`` between ``y`` and ``x``.
 
     "in" families reflect before the person: length ``|s - M_i(y)| + |s - x|``; "out" families
     reflect after it: ``|s - y| + |M_j(s) - x|``, for every map of ``maps`` with at most
-    ``order`` reflections (the direct family once). Returns float64 arrays ``pre_A`` [C, 3, 3],
+    ``order`` reflections (the direct family once; with ``furniture`` False only the room's own
+    planes, not furniture faces, whose labels read ``object:plane``). Returns float64 arrays ``pre_A`` [C, 3, 3],
     ``pre_b`` [C, 3] (applied to y) and ``post_A``, ``post_b`` (applied to s).
     """
-    keep = np.flatnonzero(maps.order <= order)
+    keep = np.flatnonzero((maps.order <= order)
+                          & np.array([furniture or ":" not in lab for lab in maps.label], bool))
     eye, zero = np.eye(3), np.zeros(3)
     pre_A, pre_b, post_A, post_b = [], [], [], []
     for i in keep:
@@ -677,7 +681,7 @@ class CoherentHumanField(_CoherentParams):
         direct = int(np.flatnonzero(bg.maps.order == 0)[0]) if (bg.maps.order == 0).any() else int(np.argmax(
             np.hypot(a[:, 0], a[:, 1])))
         ref = float(np.hypot(*a[direct]))
-        return cls(scatter_paths(bg.maps, cfg.scatter_order), box=bg.box, cfg=cfg, frequency_hz=bg.frequency_hz,
+        return cls(scatter_paths(bg.maps, cfg.scatter_order, furniture=cfg.scatter_furniture), box=bg.box, cfg=cfg, frequency_hz=bg.frequency_hz,
                    reference_amplitude=max(ref, 1e-12), seed=seed, name=name)
 
 
