@@ -355,16 +355,25 @@ class CoherentField(_CoherentParams):
             rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
                 orientation), or None for the SPEC's horizontal array (identity).
         """
-        import drjit as dr
-
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
-        nb, S = len(x), self.num_sources
         if x.shape != y.shape or np.shape(q) != x.shape:
             raise ConfigError(f"array, transmitter and moving positions must have one shape [B, 3], got {x.shape}, "
                               f"{y.shape}, {np.shape(q)}")
         if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(q).all()):
             raise ConfigError("positions must be finite (a NaN or inf position was given)")
+        gr, gi, prop, u = self._terms(x, y, q, extra=extra, rx_to_world=rx_to_world)
+        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
+        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, _columns(u), len(x), self.num_sources,
+                         frequency_hz=self.frequency_hz)
+
+    def _terms(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
+        """Per (view, image) lane ``b*S + i``: the complex gain (two ``Float`` [B*S]), the
+        propagation factor exp(-jkL)/L (complex128 [B*S]) and the arrival direction in the
+        array frame (float64 [B*S, 3])."""
+        import drjit as dr
+
+        nb, S = len(x), self.num_sources
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
         L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
@@ -373,17 +382,14 @@ class CoherentField(_CoherentParams):
             u = u @ np.asarray(rx_to_world, np.float64).reshape(3, 3)
         prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
         view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
-        ucols = _columns(u)
-        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + ucols)
+        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + _columns(u))
         lane = dr.arange(B.UInt32, nb * S)
         i = lane % dr.opaque(B.UInt32, S)
         ar = dr.gather(B.Float, self.params["amp"], 2 * i)
         ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
         sc = self.cfg.modulation
         mr, mi = 1.0 + sc * o[0], sc * o[1]
-        gr, gi = ar * mr - ai * mi, ar * mi + ai * mr
-        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
-        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, ucols, nb, S, frequency_hz=self.frequency_hz)
+        return ar * mr - ai * mi, ar * mi + ai * mr, prop, u
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
@@ -452,6 +458,9 @@ class CoherentHumanConfig:
     background's direct path; modulation: scale of the gain network's output;
     scatter_order: most wall reflections on the path before and after the person (0 or 1);
     scatter_furniture: also paths that meet a furniture face before or after the person.
+    kind: "scatter" (:class:`CoherentHumanField`, scattering points that move with the person)
+    or "perturb" (:class:`CoherentPerturbField`, the person changes the background's own paths;
+    uses human_octaves, width, layers, embed, modulation; the position encoding is the background's).
     """
 
     num_points: int = 24
@@ -467,10 +476,13 @@ class CoherentHumanConfig:
     modulation: float = 0.3
     scatter_order: int = 1
     scatter_furniture: bool = True
+    kind: str = "scatter"
 
     def __post_init__(self) -> None:
         if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
             raise ConfigError("CoherentHumanConfig: num_points, width, embed >= 1 and octaves, layers >= 0 required")
+        if self.kind not in ("scatter", "perturb"):
+            raise ConfigError(f"CoherentHumanConfig.kind must be 'scatter' or 'perturb', got {self.kind!r}")
         if self.scatter_order not in (0, 1):
             raise ConfigError(f"CoherentHumanConfig.scatter_order must be 0 or 1, got {self.scatter_order}")
         if self.init_radius < 0 or self.max_offset < 0 or not self.init_amplitude > 0:
@@ -685,5 +697,134 @@ class CoherentHumanField(_CoherentParams):
                    reference_amplitude=max(ref, 1e-12), seed=seed, name=name)
 
 
+def leg_features(maps: ImageMaps, x: np.ndarray, y: np.ndarray, person: np.ndarray) -> np.ndarray:
+    """Where a standing person is relative to each image path's first and last leg.
+
+    For the last leg (a ray from the array centre ``x`` towards the image ``M_i(y)``) and the first
+    leg (a ray from the transmitter ``y`` towards ``M_i^-1(x)``), both as long as the path: the
+    horizontal distance of the person's vertical axis from the ray, and the height of the ray
+    where it passes closest (metres). A leg that passes within a body radius, below head
+    height, is shadowed.
+
+    Args:
+        maps: S image maps; x, y, person: float [B, 3] metres (person = feet position).
+    Returns:
+        float32 [B*S, 4]: (distance last, height last, distance first, height first), view-major.
+    """
+    x, y, h = (np.asarray(a, np.float64).reshape(-1, 3) for a in (x, y, person))
+    img = maps.apply(y)                                                       # [B, S, 3]
+    back = np.einsum("sji,bsj->bsi", maps.A, x[:, None, :] - maps.b)          # M^-1(x) = A^T (x - b)
+    out = []
+    for p, target in ((x, img), (y, back)):
+        d = target - p[:, None, :]
+        L = np.maximum(np.linalg.norm(d, axis=-1), 1e-9)
+        d = d / L[..., None]
+        dxy = d[..., :2]
+        w = h[:, None, :2] - p[:, None, :2]
+        t = np.clip(np.sum(w * dxy, -1) / np.maximum(np.sum(dxy * dxy, -1), 1e-9), 0.0, L)
+        rho = np.linalg.norm(w - t[..., None] * dxy, axis=-1)
+        z = p[:, None, 2] + t * d[..., 2] - h[:, None, 2]
+        out += [rho, z]
+    return np.stack(out, -1).reshape(-1, 4).astype(np.float32)
+
+
+class CoherentPerturbField(_CoherentParams):
+    """Stage 2 of the coherent model as a perturbation of the background's own paths.
+
+    The person mostly shadows paths (and bends them a little). This field adds, for every image
+    path ``i`` of the frozen background ``bg``,
+
+        h_person = sum_i g_i^bg(q) * m_i(q, h) * exp(-j k L_i) / L_i * exp(+j k r_m . u_i),
+
+    a complex modulation ``m_i = s * net(enc(q), f(h), e_i, u_i, legs_i)`` of that path (so the
+    total is ``g_i^bg (1 + m_i)``: ``m_i = -1`` blocks it). ``legs_i`` are the
+    :func:`leg_features` (how close the person stands to the path's first and last leg). The
+    network's last layer starts at zero, so Stage 2 starts from the background exactly. Channels
+    add to the background's (linear superposition); the background stays frozen, and its state is
+    stored with this field (``bg.*``) so the file is self-contained.
+
+    Per-view input ``extra``: float [B, F + 3] (human features, then the feet position in metres).
+    """
+
+    _format = "rfmitsuba-coherent-perturb-field/1"
+    _geometry_prefix = "bg."
+
+    def __init__(self, bg: CoherentField, *, cfg: CoherentHumanConfig | None = None, seed: int = 0,
+                 name: str = "human", params: dict | None = None):
+        from .nn import MLP
+        from .samples import num_human_features
+
+        self.bg = bg
+        self.cfg = cfg or CoherentHumanConfig(kind="perturb")
+        self.box, self.frequency_hz = bg.box, bg.frequency_hz
+        self.seed, self.name = int(seed), name
+        c = self.cfg
+        self.num_features = num_human_features(c.human_octaves)
+        self.extra_inputs = self.num_features + 3
+        n_in = 3 * (1 + 2 * bg.cfg.octaves) + self.num_features + c.embed + 3 + 4
+        self.net = MLP(n_in, 2, width=c.width, layers=c.layers, seed=seed + 31, out_bias=[0.0, 0.0], zero_output=True)
+        if params is None:
+            params = {"embed": 0.1 * np.random.default_rng([seed, 6]).standard_normal(bg.num_sources * c.embed)}
+        self.params = {}
+        self.load_state_dict(params)
+        self.frozen = False
+
+    num_gaussians = property(lambda self: 0)
+    network_parameters = property(lambda self: self.bg.num_sources * self.cfg.embed + self.net.num_parameters)
+    num_parameters = network_parameters
+
+    def _modules(self) -> dict:
+        return {"net.perturb": self.net}
+
+    def _sizes(self) -> dict:
+        return {"embed": self.bg.num_sources * self.cfg.embed}
+
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
+        """Channels the person adds at the 16 elements: (re, im) ``Float`` [B*16] (see the class)."""
+        import drjit as dr
+
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        nb, S, F = len(x), self.bg.num_sources, self.num_features
+        if extra is None:
+            raise ConfigError("the human field needs the human features and position of every view (extra)")
+        e = np.asarray(extra, np.float64).reshape(nb, -1)
+        if e.shape[1] != F + 3 or not np.isfinite(e).all():
+            raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
+        gr, gi, prop, u = self.bg._terms(x, y, q, rx_to_world=rx_to_world)
+        gr, gi = dr.detach(gr), dr.detach(gi)
+        view = np.concatenate([self.bg._enc(q), e[:, :F]], axis=1)
+        legs = leg_features(self.bg.maps, x, y, e[:, F:]) * np.array([1.0, 0.5, 1.0, 0.5], np.float32)
+        o = self.net(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + _columns(u) + _columns(legs))
+        sc = self.cfg.modulation
+        mr, mi = sc * o[0], sc * o[1]
+        wr, wi = gr * mr - gi * mi, gr * mi + gi * mr
+        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
+        return sum_terms(wr * pr - wi * pi, wr * pi + wi * pr, _columns(u), nb, S, frequency_hz=self.frequency_hz)
+
+    def write_ply(self, path: str | Path, **_) -> Path:
+        """Nothing to place: this field has no points of its own (returns the path unwritten)."""
+        return Path(path)
+
+    def _geometry(self) -> dict:
+        return {k: v for k, v in self.bg.state_dict().items()}
+
+    def _meta(self) -> dict:
+        from .config import to_dict
+
+        return {"format": self._format, "config": to_dict(self.cfg)}
+
+    @classmethod
+    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPerturbField":
+        from .config import from_dict
+
+        bg = CoherentField.from_state_dict(geometry)
+        bg.freeze()
+        return cls(bg, cfg=from_dict(CoherentHumanConfig, meta["config"]), seed=meta["seed"],
+                   name=meta.get("name", "human"), params=state)
+
+
 #: the coherent field classes (rendered by adding channels, then one Bartlett readout)
-COHERENT_FIELDS = (CoherentField, CoherentHumanField)
+COHERENT_FIELDS = (CoherentField, CoherentHumanField, CoherentPerturbField)
+#: the Stage-2 person fields (rendered only where a person is present)
+HUMAN_FIELDS = (CoherentHumanField, CoherentPerturbField)

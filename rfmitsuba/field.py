@@ -526,8 +526,8 @@ class GaussianField:
 
 def load_field(path: str | Path):
     """Read any saved field: a :class:`GaussianField` (or its Stage-2 subclass
-    :class:`~rfmitsuba.human_field.HumanField`) or a :class:`~rfmitsuba.coherent.CoherentField`
-    (or :class:`~rfmitsuba.coherent.CoherentHumanField`), by the ``format`` in its metadata."""
+    :class:`~rfmitsuba.human_field.HumanField`) or a coherent field
+    (:data:`rfmitsuba.coherent.COHERENT_FIELDS`), by the ``format`` in its metadata."""
     path = Path(path)
     if not path.is_file():
         raise RunError(f"field file {path} does not exist")
@@ -547,7 +547,7 @@ def load_field(path: str | Path):
         return HumanField.from_state_dict(state)
     from . import coherent
 
-    classes = {coherent.FORMAT: coherent.CoherentField, coherent.HUMAN_FORMAT: coherent.CoherentHumanField}
+    classes = {c._format: c for c in coherent.COHERENT_FIELDS}
     if fmt not in classes:
         raise RunError(f"{path}: unknown field format {fmt!r}")
     return classes[fmt].from_state_dict(state)

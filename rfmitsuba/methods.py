@@ -41,7 +41,7 @@ import numpy as np
 from . import config as C
 from .atomic import write_json
 from .errors import ConfigError, RunError
-from .coherent import CoherentField, CoherentHumanConfig, CoherentHumanField
+from .coherent import HUMAN_FIELDS, CoherentField, CoherentHumanConfig, CoherentHumanField, CoherentPerturbField
 from .field import GaussianField, Splats, load_field
 from .human_field import HumanConfig, HumanField
 from .samples import SampleData, num_human_features
@@ -181,6 +181,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         oct_ = mcfg.coherent_human.human_octaves
 
         def factory(tr, rng):
+            if mcfg.coherent_human.kind == "perturb":
+                return CoherentPerturbField(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
             return CoherentHumanField.for_background(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
     else:
         oct_ = mcfg.human.human_octaves
@@ -226,7 +228,7 @@ class Model:
         bg.freeze()
         hf = load_field(jd / "stage2" / "final" / "field.npz")
         hf.freeze()
-        if isinstance(hf, CoherentHumanField):
+        if isinstance(hf, HUMAN_FIELDS):
             octaves = hf.cfg.human_octaves
         return cls([bg, hf], octaves=octaves)
 
@@ -246,7 +248,7 @@ class Model:
         idx = np.asarray(idx, np.int64)
         out = np.zeros((len(idx), h, w), np.float32)
         empty = data.states[idx] == 0
-        human = (HumanField, CoherentHumanField)
+        human = (HumanField, *HUMAN_FIELDS)
         coherent = isinstance(self.fields[0], CoherentField)
         for group in (np.flatnonzero(empty), np.flatnonzero(~empty)):
             for i in range(0, len(group), batch):
@@ -280,9 +282,9 @@ class Model:
         hr = hi = None
         with dr.suspend_grad():
             for f in self.fields:
-                if isinstance(f, CoherentHumanField) and not human:
+                if isinstance(f, HUMAN_FIELDS) and not human:
                     continue
-                ex = data.features(k, octaves=self.octaves, raw=isinstance(f, CoherentHumanField)) \
+                ex = data.features(k, octaves=self.octaves, raw=isinstance(f, HUMAN_FIELDS)) \
                     if f.extra_inputs else None
                 fr, fi = f.channels(x, y, q, extra=ex)
                 hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)

@@ -139,14 +139,15 @@ class MLP:
 
     Layers: ``n_in -> width (x layers, activation) -> n_out``, LeakyReLU(0.01) between
     layers, linear output. Weights are Xavier-uniform from a seeded Dr.Jit generator,
-    so equal ``seed`` gives equal weights.
+    so equal ``seed`` gives equal weights; ``zero_output`` zeroes the last layer's weights
+    (the network starts as the constant ``out_bias``).
 
     The single parameter is :attr:`weights` (``Float`` [num_parameters]); assign a new
     value with :meth:`set_weights` (e.g. the optimizer's copy) before evaluating.
     """
 
     def __init__(self, n_in: int, n_out: int, *, width: int, layers: int, seed: int,
-                 out_bias: list[float] | None = None, input_layer: bool = True):
+                 out_bias: list[float] | None = None, input_layer: bool = True, zero_output: bool = False):
         import drjit as dr
         import drjit.nn as nn
 
@@ -158,6 +159,8 @@ class MLP:
         net = nn.Sequential(*mods).alloc(_tensor_type(), n_in, rng=dr.rng(seed=int(seed) + 0x1000))
         if out_bias is not None:
             net.layers[-1].bias = _tensor_type()(np.asarray(out_bias, dtype=np.float32))
+        if zero_output:  # the network starts as the constant out_bias (its last layer learns first)
+            net.layers[-1].weights = dr.zeros(_tensor_type(), net.layers[-1].weights.shape)
         self.net = nn.pack(net, layout="training")
 
     @property

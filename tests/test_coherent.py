@@ -182,3 +182,41 @@ def test_bad_input_is_named(variant):
         from rfmitsuba.coherent import CoherentConfig
 
         CoherentConfig(furniture_order=3)
+
+
+def test_leg_features_closed_form():
+    """A person standing on the direct path is at distance 0 from both its legs; one 0.5 m to the
+    side of a path along x is 0.5 m away; heights are those of the ray above the feet."""
+    from rfmitsuba.coherent import leg_features
+
+    maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
+    x, y = np.array([[1.0, 1.0, 1.0]]), np.array([[3.0, 1.0, 2.0]])
+    f = leg_features(maps, x, y, np.array([[2.0, 1.0, 0.0]]))
+    assert f.shape == (len(maps), 4)
+    np.testing.assert_allclose(f[0], [0.0, 1.5, 0.0, 1.5], atol=1e-6)  # direct path: mid-height 1.5 m
+    f = leg_features(maps, x, y, np.array([[2.0, 1.5, 0.0]]))
+    np.testing.assert_allclose(f[0, [0, 2]], [0.5, 0.5], atol=1e-6)
+
+
+def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
+    """The perturbation field adds nothing before training (its network's last layer is zero), is
+    saved with its background, and loads back to the same channels."""
+    from rfmitsuba.coherent import CoherentField, CoherentHumanConfig, CoherentPerturbField
+    from rfmitsuba.field import load_field
+    from rfmitsuba.samples import num_human_features
+
+    maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
+    bg = CoherentField(maps, box=BOX, frequency_hz=F, seed=1)
+    bg.freeze()
+    p = CoherentPerturbField(bg, cfg=CoherentHumanConfig(kind="perturb"), seed=0)
+    x, y = np.array([[1.0, 0.8, 1.1]]), np.array([[3.6, 2.6, 2.0]])
+    extra = np.concatenate([np.ones((1, num_human_features(3))), [[2.0, 1.5, 0.0]]], 1)
+    assert np.abs(_h(p.channels(x, y, x, extra=extra))).max() == 0.0
+    w = np.asarray(p.net.weights.numpy()).copy()
+    p.net.set_weights(w + 0.01)
+    p.save(tmp_path / "p.npz")
+    q = load_field(tmp_path / "p.npz")
+    assert isinstance(q, CoherentPerturbField) and q.bg.num_sources == bg.num_sources
+    np.testing.assert_allclose(_h(q.channels(x, y, x, extra=extra)), _h(p.channels(x, y, x, extra=extra)),
+                               rtol=1e-5, atol=1e-9)
+    assert np.abs(_h(q.channels(x, y, x, extra=extra))).max() > 0
