@@ -476,7 +476,7 @@ class CoherentHumanConfig:
     modulation: float = 0.3
     scatter_order: int = 1
     scatter_furniture: bool = True
-    kind: str = "scatter"
+    kind: str = "perturb"
 
     def __post_init__(self) -> None:
         if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
@@ -546,7 +546,7 @@ class CoherentHumanField(_CoherentParams):
         from .samples import num_human_features
 
         B.ensure()
-        self.cfg = cfg or CoherentHumanConfig()
+        self.cfg = cfg or CoherentHumanConfig(kind="scatter")
         self.paths = {k: np.asarray(v, np.float64) for k, v in paths.items()}
         self.frequency_hz = float(frequency_hz)
         self.box = np.asarray(box, np.float64).reshape(2, 3)
@@ -688,7 +688,7 @@ class CoherentHumanField(_CoherentParams):
                        name: str = "human") -> "CoherentHumanField":
         """A fresh human field on a trained background: its image maps, box and frequency, and
         initial amplitudes relative to its direct path."""
-        cfg = cfg or CoherentHumanConfig()
+        cfg = cfg or CoherentHumanConfig(kind="scatter")
         a = np.asarray(bg.params["amp"].numpy(), np.float64).reshape(-1, 2)
         direct = int(np.flatnonzero(bg.maps.order == 0)[0]) if (bg.maps.order == 0).any() else int(np.argmax(
             np.hypot(a[:, 0], a[:, 1])))
@@ -755,7 +755,7 @@ class CoherentPerturbField(_CoherentParams):
         from .samples import num_human_features
 
         self.bg = bg
-        self.cfg = cfg or CoherentHumanConfig(kind="perturb")
+        self.cfg = cfg or CoherentHumanConfig()
         self.box, self.frequency_hz = bg.box, bg.frequency_hz
         self.seed, self.name = int(seed), name
         c = self.cfg

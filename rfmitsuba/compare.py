@@ -138,14 +138,16 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
     """Markdown: per method, dynamic and static SSIM (mean +- std over seeds of the per-seed mean
     and median), the floors, whether the method beats nearest neighbour, training and render time."""
     lines = [f"# Method comparison on `{dataset}`", "",
-             f"Seeds {cfg.seeds}; SPEC protocol (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
+             f"Seeds {sorted({r['seed'] for r in results})} (of jobs run in this folder; a method's row averages the "
+             f"seeds it has); SPEC protocol (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
              "over seeds.", ""]
     for part in ("dynamic", "static"):
         lines += [f"## {part.capitalize()} evaluation", "",
                   "| method | mean SSIM | median SSIM | nearest neighbour | mean image | beats NN | train time (s) | "
                   "render (ms / PAS) | sources / Gaussians |",
                   "|---|---|---|---|---|---|---|---|---|"]
-        for m in cfg.methods:
+        have = {r["method"] for r in results}
+        for m in list(cfg.methods) + [m for m in METHODS if m in have and m not in cfg.methods]:
             rs = [r for r in results if r["method"] == m and r["eval"].get(part)]
             if not rs:
                 continue

@@ -83,7 +83,7 @@ def test_missing_stage1(synthetic_ds, tmp_path):
         methods.train_method("ours", synthetic_ds, tmp_path / "o", mcfg=_mcfg(5, 5), stage1_dir=tmp_path / "nothing")
 
 
-def _coherent_mcfg(stage1, stage2):
+def _coherent_mcfg(stage1, stage2, kind="perturb"):
     from rfmitsuba import config as C
     from rfmitsuba.methods import MethodConfig
     from rfmitsuba.train import TrainConfig
@@ -92,25 +92,29 @@ def _coherent_mcfg(stage1, stage2):
                                     f"val_every={stage1}", f"checkpoint_every={stage1}", "coherent.room_order=2",
                                     "coherent.furniture_order=1"])
     return C.override(MethodConfig(stage1=s1, stage2_iterations=stage2),
-                      ["coherent_human.num_points=8", "stage2_optim.lr_amp=3e-3", "stage2_optim.lr_means=3e-3"])
+                      [f"coherent_human.kind='{kind}'", "coherent_human.num_points=8", "stage2_optim.lr_amp=3e-3",
+                       "stage2_optim.lr_means=3e-3"])
 
 
-def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path):
-    """Coherent Ours: Stage 2 adds scattering points that move with the person. On the human-present
-    training samples the background plus the person fits better than the frozen background alone,
-    and the static evaluation renders the background alone (the person off)."""
+@pytest.mark.parametrize("kind", ["perturb", "scatter"])
+def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path, kind):
+    """Coherent Ours: Stage 2 adds the person (kind "perturb": it modulates the background's own
+    paths; "scatter": scattering points that move with the person). On the human-present training
+    samples the background plus the person fits better than the frozen background alone, and the
+    static evaluation renders the background alone (the person off)."""
     from rfmitsuba import methods
-    from rfmitsuba.coherent import CoherentField, CoherentHumanField
+    from rfmitsuba.coherent import CoherentField, CoherentHumanField, CoherentPerturbField
     from rfmitsuba.evaluate import ssim_images
     from rfmitsuba.samples import SampleData
     from rfmitsuba.train import minmax
 
-    mc = _coherent_mcfg(150, 150)
+    mc = _coherent_mcfg(150, 150, kind)
     r = methods.train_method("ours", quick_dataset.path, tmp_path / "ours", mcfg=mc, seed=0)
     assert r["steps"] == 300
     model = methods.Model.load("ours", tmp_path / "ours")
     bg, hf = model.fields
-    assert isinstance(bg, CoherentField) and isinstance(hf, CoherentHumanField)
+    assert isinstance(bg, CoherentField)
+    assert isinstance(hf, CoherentPerturbField if kind == "perturb" else CoherentHumanField)
     data = SampleData.open_samples(quick_dataset.path, states="all")
     sel = methods.test_sets(data)["dynamic_train"]
     gt = data.pas(sel)
