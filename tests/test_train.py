@@ -280,7 +280,19 @@ def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bed
     assert m["model"]["mean"] > m["nearest_neighbour"]["mean"] + 0.03, m
 
 
-def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path):
+@pytest.fixture
+def one_thread():
+    """Dr.Jit on one thread: gradient scatter-adds then sum in a fixed order, so two runs of the same
+    training agree to the last bit (with several threads they differ by about 1e-3 after 30 steps)."""
+    import drjit as dr
+
+    old = dr.thread_count()
+    dr.set_thread_count(1)
+    yield
+    dr.set_thread_count(old)
+
+
+def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path, one_thread):
     from rfmitsuba.train import TrainData, Trainer
 
     data = TrainData.open(quick_dataset.path)
