@@ -158,6 +158,17 @@ def _extra_array(extra, nb: int, n: int) -> np.ndarray:
     return e[:, :n]
 
 
+def _write_points_ply(path: str | Path, points: np.ndarray, magnitude: np.ndarray) -> Path:
+    """Points (float [N, 3] metres) as small isotropic Gaussians (5 cm) in the 3DGS PLY layout, with
+    opacity and signal the magnitude relative to the largest, so a splat viewer shows them."""
+    from .field import write_ply_arrays
+
+    rel = np.clip(magnitude / max(float(np.max(magnitude)), 1e-30), 1e-6, 1 - 1e-6)
+    n = len(points)
+    return write_ply_arrays(path, points, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
+                            np.log(rel / (1 - rel)), signal=rel)
+
+
 def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tuple:
     """Channel at the 16 elements from T plane-wave terms per view.
 
@@ -411,15 +422,8 @@ class CoherentField(_CoherentParams):
     def write_ply(self, path: str | Path, *, x: np.ndarray, y: np.ndarray, task: str) -> Path:
         """The sources as small isotropic Gaussians in the 3DGS PLY layout (opacity = |amp| relative
         to the largest, signal = the same), so a splat viewer shows the virtual sources."""
-        from .field import write_ply_arrays
-
-        pts = self.source_points(x=x, y=y, task=task)
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(-1, 2)
-        mag = np.hypot(a[:, 0], a[:, 1])
-        rel = np.clip(mag / max(mag.max(), 1e-30), 1e-6, 1 - 1e-6)
-        n = len(pts)
-        return write_ply_arrays(path, pts, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
-                                np.log(rel / (1 - rel)), signal=rel)
+        return _write_points_ply(path, self.source_points(x=x, y=y, task=task), np.hypot(a[:, 0], a[:, 1]))
 
     _format = FORMAT
     _geometry_prefix = "maps."
@@ -654,15 +658,9 @@ class CoherentHumanField(_CoherentParams):
         """The scattering points as small Gaussians in the 3DGS PLY layout, at their learned
         offsets from the person's feet (metres; the deformation is left out), opacity and signal
         from the mean |amplitude| of each point relative to the largest."""
-        from .field import write_ply_arrays
-
         off = np.asarray(self.params["offsets"].numpy(), np.float64).reshape(-1, 3)
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(len(off), -1, 2)
-        mag = np.hypot(a[..., 0], a[..., 1]).mean(axis=1)
-        rel = np.clip(mag / max(mag.max(), 1e-30), 1e-6, 1 - 1e-6)
-        n = len(off)
-        return write_ply_arrays(path, off, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
-                                np.log(rel / (1 - rel)), signal=rel)
+        return _write_points_ply(path, off, np.hypot(a[..., 0], a[..., 1]).mean(axis=1))
 
     _format = HUMAN_FORMAT
     _geometry_prefix = "paths."
