@@ -35,7 +35,6 @@ State is plain NumPy (npz, no pickle).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,31 +77,6 @@ class CoherentConfig:
             raise ConfigError("CoherentConfig: width, embed >= 1, layers, octaves, min_face_area >= 0 required")
         if not (0 < self.init_reflection <= 1) or not (self.modulation > 0):
             raise ConfigError("CoherentConfig: init_reflection in (0, 1] and modulation > 0 required")
-
-
-def geometry_factors(maps: ImageMaps, x: np.ndarray, y: np.ndarray, *, frequency_hz: float) -> tuple:
-    """Exact propagation of every image to every element, no gains.
-
-    Args:
-        maps: S image maps.
-        x: float [B, 3] metres, array centres; y: float [B, 3] metres, transmitters.
-        frequency_hz: carrier, Hz.
-    Returns:
-        (G complex64 [B, 16, S] = exp(-j k L)/L * exp(+j k r_m . u), u float32 [B, S, 3]).
-    """
-    x = np.asarray(x, np.float64).reshape(-1, 3)
-    y = np.asarray(y, np.float64).reshape(-1, 3)
-    if x.shape != y.shape:
-        raise ConfigError(f"array and transmitter positions differ in shape: {x.shape} vs {y.shape}")
-    k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
-    s = maps.apply(y)                                   # [B, S, 3]
-    d = s - x[:, None, :]
-    L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)    # [B, S]
-    u = d / L[..., None]
-    e = antenna.element_positions(frequency_hz)         # [16, 3]
-    G = (np.exp(-1j * k * L) / L)[:, None, :] * np.exp(1j * k * np.einsum("bsc,mc->bms", u, e))
-    return G.astype(np.complex64), u.astype(np.float32)
-
 
 
 FORMAT = "rfmitsuba-coherent-field/1"

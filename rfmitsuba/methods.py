@@ -42,7 +42,7 @@ from . import config as C
 from .atomic import write_json
 from .errors import ConfigError, RunError
 from .coherent import HUMAN_FIELDS, CoherentField, CoherentHumanConfig, CoherentHumanField, CoherentPerturbField
-from .field import GaussianField, Splats, load_field
+from .field import Splats, load_field
 from .human_field import HumanConfig, HumanField
 from .samples import SampleData, num_human_features
 from .train import OptimConfig, TrainConfig, Trainer, minmax
