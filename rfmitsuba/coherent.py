@@ -796,6 +796,29 @@ class CoherentPerturbField(_CoherentParams):
                    name=meta.get("name", "human"), params=state)
 
 
+def render_fields(fields: list, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra, frequency_hz: float,
+                  height: int = 90, width: int = 360, normalize: bool = True, rx_to_world=None):
+    """PAS of coherent fields together: their channels add (linear superposition), then one
+    Bartlett readout (:func:`rfmitsuba.bartlett.pas`).
+
+    Args:
+        fields: coherent fields (a frozen background, a Stage-2 person field, ...).
+        x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
+        extra: callable field -> that field's per-view extra inputs (or None).
+        frequency_hz: carrier; height, width: PAS grid; normalize: per-image min-max;
+        rx_to_world: the array frame (None = the SPEC's horizontal array).
+    Returns:
+        ``TensorXf`` [B, height, width].
+    """
+    from .bartlett import pas
+
+    hr = hi = None
+    for f in fields:
+        fr, fi = f.channels(x, y, q, extra=extra(f), rx_to_world=rx_to_world)
+        hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+    return pas(hr, hi, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize)
+
+
 #: the coherent field classes (rendered by adding channels, then one Bartlett readout)
 COHERENT_FIELDS = (CoherentField, CoherentHumanField, CoherentPerturbField)
 #: the Stage-2 person fields (rendered only where a person is present)

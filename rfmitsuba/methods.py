@@ -207,9 +207,9 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
 @dataclass
 class Model:
     """Trained fields rendered together. ``fields``: list of GaussianField, or of coherent fields
-    (:class:`~rfmitsuba.coherent.CoherentField`, whose channels add); a human field
-    (:class:`HumanField`, :class:`~rfmitsuba.coherent.CoherentHumanField`) is rendered only
-    where a human is present; ``octaves``: human encoding octaves of fields with extra inputs."""
+    (:class:`~rfmitsuba.coherent.CoherentField`, whose channels add); a person's field
+    (:class:`HumanField`, :data:`~rfmitsuba.coherent.HUMAN_FIELDS`) is rendered only
+    where a person is present; ``octaves``: human encoding octaves of fields with extra inputs."""
 
     fields: list
     octaves: int = 3
@@ -273,22 +273,20 @@ class Model:
         return out
 
     def _render_coherent(self, data: SampleData, k: np.ndarray, *, human: bool, h: int, w: int) -> np.ndarray:
-        """Coherent fields: channels added (the human field's only with a human), one Bartlett readout."""
+        """Coherent fields: channels added (the person's field only with a person), one Bartlett readout."""
         import drjit as dr
 
-        from .bartlett import pas
+        from .coherent import render_fields
 
         x, y, q = data.positions(k)
-        hr = hi = None
+        fields = [f for f in self.fields if human or not isinstance(f, HUMAN_FIELDS)]
+
+        def extra(f):
+            return data.features(k, octaves=self.octaves, raw=isinstance(f, HUMAN_FIELDS)) if f.extra_inputs else None
+
         with dr.suspend_grad():
-            for f in self.fields:
-                if isinstance(f, HUMAN_FIELDS) and not human:
-                    continue
-                ex = data.features(k, octaves=self.octaves, raw=isinstance(f, HUMAN_FIELDS)) \
-                    if f.extra_inputs else None
-                fr, fi = f.channels(x, y, q, extra=ex)
-                hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
-            img = pas(hr, hi, frequency_hz=data.frequency_hz, height=h, width=w, normalize=False)
+            img = render_fields(fields, x, y, q, extra=extra, frequency_hz=data.frequency_hz, height=h, width=w,
+                                normalize=False, rx_to_world=data.rx_to_world)
         return np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
 
 

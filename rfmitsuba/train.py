@@ -514,17 +514,16 @@ class Trainer:
                       rx_to_world=self.data.rx_to_world, height=h, width=w, num_gaussians=s.n)
 
     def _render_coherent(self, field, idx: np.ndarray, *, h: int, w: int):
-        """Coherent fields (the frozen ones and the trained one) add their channels; the
-        Bartlett beamformer turns the sum into min-max normalised PAS [K, h, w]."""
-        from .bartlett import pas
+        """Coherent fields (the frozen ones and the trained one): min-max normalised PAS [K, h, w]."""
+        from .coherent import render_fields
 
         x, y, q = self.data.positions(idx)
-        hr = hi = None
-        for f in self.frozen + [field]:
-            ex = self.extra(idx) if (self.extra is not None and getattr(f, "extra_inputs", 0)) else None
-            fr, fi = f.channels(x, y, q, extra=ex, rx_to_world=self.data.rx_to_world)
-            hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
-        return pas(hr, hi, frequency_hz=self.data.frequency_hz, height=h, width=w, normalize=True)
+
+        def extra(f):
+            return self.extra(idx) if (self.extra is not None and f.extra_inputs) else None
+
+        return render_fields(self.frozen + [field], x, y, q, extra=extra, frequency_hz=self.data.frequency_hz,
+                             height=h, width=w, rx_to_world=self.data.rx_to_world)
 
     def _splats(self, field: GaussianField, idx: np.ndarray):
         """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
