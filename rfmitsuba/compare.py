@@ -128,10 +128,14 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 
 
 def _ms(values) -> str:
-    v = [float(x) for x in values if x is not None and np.isfinite(x)]
-    if not v:
+    """``mean ± std`` of finite values (reproduce.mean_std), the value alone for one, n/a for none."""
+    from .reproduce import mean_std
+
+    v = [float(x) for x in values if x is not None]
+    m, sd = mean_std(v)
+    if not np.isfinite(m):
         return "n/a"
-    return f"{np.mean(v):.3f} ± {np.std(v, ddof=1):.3f}" if len(v) > 1 else f"{v[0]:.3f}"
+    return f"{m:.3f} ± {sd:.3f}" if sum(np.isfinite(v)) > 1 else f"{m:.3f}"
 
 
 def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
