@@ -77,11 +77,17 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
         raise RunError(f"{out} is not empty and holds no compare.toml: not a comparison folder (nothing was changed)")
 
 
-def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True) -> dict:
-    """Train and evaluate one (method, seed) into ``out/seed<seed>/<method>`` (skipped when DONE)."""
+def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
+            reevaluate: bool = False) -> dict:
+    """Train and evaluate one (method, seed) into ``out/seed<seed>/<method>`` (skipped when DONE;
+    with ``reevaluate`` a finished job is evaluated again, its training kept)."""
     jd = out / f"seed{seed}" / method
     if (jd / "DONE").is_file():
-        return json.loads((jd / "metrics.json").read_text())
+        metrics = json.loads((jd / "metrics.json").read_text())
+        if reevaluate:
+            metrics["eval"] = evaluate(Model.load(method, jd, octaves=mcfg.human.human_octaves), dataset)
+            write_json(jd / "metrics.json", metrics, allow_nan=True)
+        return metrics
     stage1 = None
     if get_method(method).two_stage:
         run_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
@@ -97,8 +103,11 @@ def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
-            progress: bool = True) -> Path:
+            progress: bool = True, reevaluate: bool = False) -> Path:
     """Run (or resume) a comparison; returns the path of ``report.md``.
+
+    ``reevaluate``: evaluate every finished job of the folder again (after the evaluation
+    protocol changed; training is not repeated, ``metrics.json`` is rewritten atomically).
 
     Raises:
         RunError: ``out`` holds another configuration or dataset; DatasetError: a dataset
@@ -114,14 +123,19 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
     order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
     results = []
-    done = [json.loads((p / "metrics.json").read_text()) for p in sorted(out.glob("seed*/*")) if (p / "DONE").is_file()]
     with bar(len(cfg.seeds) * len(order), desc="compare", unit="job", quiet=not progress) as pb:
         for seed in cfg.seeds:
             for m in order:
-                results.append(run_job(m, seed, dataset, out, cfg.training, quiet=quiet))
+                results.append(run_job(m, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
                 pb.update(1)
     # jobs of earlier seeds / methods of the same comparison stay in the results
-    results += [r for r in done if (r["method"], r["seed"]) not in {(x["method"], x["seed"]) for x in results}]
+    ran = {(x["method"], x["seed"]) for x in results}
+    for p in sorted(out.glob("seed*/*")):
+        if (p / "DONE").is_file():
+            r = json.loads((p / "metrics.json").read_text())
+            if (r["method"], r["seed"]) not in ran:
+                results.append(run_job(r["method"], r["seed"], dataset, out, cfg.training, quiet=quiet,
+                                       reevaluate=reevaluate))
     write_json(out / "results.json", results, allow_nan=True)
     _speed_accuracy(out / "speed_accuracy.png", results)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
@@ -163,9 +177,33 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
                 f" | {beats}/{len(ev)} | {_ms(r['train']['train_time_s'] for r in rs)}"
                 f" | {_ms(r['eval']['render_ms_per_pas'] for r in rs)} | {rs[0]['eval']['num_gaussians']} |")
         lines.append("")
+    lines += _affected_lines(results, cfg)
     lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed). "
               "`speed_accuracy.png`: dynamic mean SSIM against training time, every job.", ""]
     return "\n".join(lines)
+
+
+def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
+    """Markdown section: the dynamic evaluation on the PAS the person changes most
+    (:func:`rfmitsuba.methods.evaluate`'s "affected" part; jobs evaluated before it existed are
+    left out: ``--reevaluate`` adds it)."""
+    rs_all = [r for r in results if r["eval"].get("affected")]
+    if not rs_all:
+        return []
+    a0 = rs_all[0]["eval"]["affected"]
+    lines = ["## Where the person matters", "",
+             f"Dynamic test PAS whose SSIM against the empty room's PAS at the same antenna is below "
+             f"{a0['threshold']:g}: {a0['model']['n']} PAS ({100 * a0['fraction']:.1f}% of the dynamic test set). "
+             "\"empty room\" scores the empty room's true PAS as the prediction: what a perfect background "
+             "model can reach here.", "",
+             "| method | mean SSIM | median SSIM | nearest neighbour | empty room | seeds |", "|---|---|---|---|---|---|"]
+    for m in list(cfg.methods) + sorted({r["method"] for r in rs_all} - set(cfg.methods)):
+        rs = [r["eval"]["affected"] for r in rs_all if r["method"] == m]
+        if rs:
+            lines.append(f"| {METHODS[m].label} | {_ms(a['model']['mean'] for a in rs)} | "
+                         f"{_ms(a['model']['median'] for a in rs)} | {_ms(a['nearest_neighbour']['mean'] for a in rs)} | "
+                         f"{_ms(a['empty_room']['mean'] for a in rs)} | {len(rs)} |")
+    return lines + [""]
 
 
 def _speed_accuracy(path: Path, results: list[dict]) -> None:

@@ -310,10 +310,11 @@ def evaluate(model: Model, dataset: str | Path, *, batch: int = 8, keep: bool = 
     """Both evaluations of ``model`` on ``dataset`` (SPEC protocol, full 90 x 360).
 
     Returns:
-        {"dynamic": part, "static": part, "render_ms_per_pas": float, "num_gaussians": int}, each
-        part {"model", "nearest_neighbour", "mean_image": stats dicts (mean, median, p10, min, n),
-        "beats_nearest_neighbour": bool}; with ``keep`` also the per-image arrays
-        (``*_ssim``) and images (``pred``, ``gt``).
+        {"dynamic": part, "static": part, "affected": dict or None, "render_ms_per_pas": float,
+        "num_gaussians": int}, each part {"model", "nearest_neighbour", "mean_image": stats dicts
+        (mean, median, p10, min, n), "beats_nearest_neighbour": bool}; with ``keep`` also the
+        per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
+        evaluation on the PAS the person changes most (:func:`_affected`).
     """
     from .evaluate import floors, ssim_images, stats
 
@@ -346,8 +347,44 @@ def evaluate(model: Model, dataset: str | Path, *, batch: int = 8, keep: bool = 
             res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
                         "nn": data.pas(train)[fl["nearest_index"]]})
         out[part] = res
+        if use_human:
+            out["affected"] = _affected(data, test, gt, s_model, fl["nearest_neighbour"])
     out["render_ms_per_pas"] = 1000 * t_render / max(n_render, 1)
     return out
+
+
+#: A dynamic test PAS is *affected* by the person when its SSIM against the empty room's PAS at
+#: the same antenna position is below this.
+AFFECTED_SSIM = 0.9
+
+
+def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.ndarray, s_nn: np.ndarray) -> dict | None:
+    """The dynamic evaluation restricted to the test PAS the person changes most.
+
+    Args:
+        data: samples opened with states="all"; test: int [K] dynamic test sample indices;
+        gt: float [K, H, W] their ground truth; s_model / s_nn: float [K] per-PAS SSIM of the model
+        and of the nearest-neighbour floor.
+
+    Returns:
+        None when no test PAS is affected (SSIM against the empty room < :data:`AFFECTED_SSIM`
+        for none), else {"model", "nearest_neighbour", "empty_room": stats dicts over the affected
+        PAS ("empty_room" = the empty room's true PAS used as the prediction: what a perfect
+        background model scores), "threshold", "fraction" (affected / all dynamic test PAS)}.
+    """
+    from .evaluate import ssim_images, stats
+
+    empty = {int(a): int(k) for k, a in enumerate(data.antennas) if data.states[k] == 0}
+    ref = np.array([empty.get(int(a), -1) for a in data.antennas[test]])
+    if (ref < 0).any():
+        return None
+    s_empty = ssim_images(data.pas(ref), gt)
+    mask = s_empty < AFFECTED_SSIM
+    if not mask.any():
+        return None
+    return {"model": stats(s_model[mask]), "nearest_neighbour": stats(s_nn[mask]),
+            "empty_room": stats(s_empty[mask]), "threshold": AFFECTED_SSIM,
+            "fraction": float(mask.mean())}
 
 
 def _write_json(path: Path, obj) -> None:

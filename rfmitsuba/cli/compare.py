@@ -11,6 +11,8 @@ def register(sub) -> None:
     p.add_argument("--config", default=None, help="CompareConfig TOML file")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set training.stage1.iterations=1000")
+    p.add_argument("--reevaluate", action="store_true",
+                   help="evaluate finished jobs again (after the evaluation changed); training is kept")
     p.set_defaults(func=run)
 
 
@@ -25,7 +27,7 @@ def run(args) -> int:
     if args.seeds:
         sets.append(f"seeds=[{args.seeds}]")
     cfg = C.override(cfg, sets) if sets else cfg
-    path = compare(args.dataset, args.out, cfg=cfg)
+    path = compare(args.dataset, args.out, cfg=cfg, reevaluate=args.reevaluate)
     print(path.read_text())
     print(f"report: {path}")
     return 0
