@@ -22,6 +22,7 @@ def test_report_has_every_table(tiny_reproduction):
     assert {r["job"]["seed"] for r in res.values()} == set(cfg.seeds)
     r = next(iter(res.values()))
     assert r["eval"]["dynamic"]["model"]["n"] > 0 and r["eval"]["static"]["model"]["n"] > 0
+    assert "where the person matters" in text and "affected" in r["eval"]
 
 
 def test_resume_skips_finished_jobs(tiny_reproduction):
