@@ -23,6 +23,19 @@ def write_json(path: str | Path, obj: Any, *, indent: int = 1, end: str = "", **
     return write_text(path, json.dumps(obj, indent=indent, **dumps_kw) + end)
 
 
+def numpy_default(o: Any):
+    """``json.dumps(default=...)`` for NumPy values: scalars to numbers, arrays to lists."""
+    import numpy as np
+
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
 def write_npz(path: str | Path, arrays: dict) -> Path:
     """Write NumPy ``arrays`` (name -> array; no object arrays) as an ``.npz`` atomically."""
     import numpy as np

@@ -28,7 +28,7 @@ import numpy as np
 from . import config as C
 from .atomic import write_json, write_text
 from .errors import ConfigError, RunError
-from .methods import METHODS, MethodConfig, Model, evaluate, get_method, train_method
+from .methods import METHODS, MethodConfig, get_method, run_job as methods_run_job
 from .train import TrainConfig, config_diff
 
 
@@ -79,27 +79,15 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
 
 def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
             reevaluate: bool = False) -> dict:
-    """Train and evaluate one (method, seed) into ``out/seed<seed>/<method>`` (skipped when DONE;
-    with ``reevaluate`` a finished job is evaluated again, its training kept)."""
-    jd = out / f"seed{seed}" / method
-    if (jd / "DONE").is_file():
-        metrics = json.loads((jd / "metrics.json").read_text())
-        if reevaluate:
-            metrics["eval"] = evaluate(Model.load(method, jd, octaves=mcfg.human.human_octaves), dataset)
-            write_json(jd / "metrics.json", metrics, allow_nan=True)
-        return metrics
+    """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.methods.run_job`
+    (skipped when done; Ours first runs that seed's Baseline, its Stage 1)."""
     stage1 = None
     if get_method(method).two_stage:
         run_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
         stage1 = out / f"seed{seed}" / "baseline" / "train"
-    t0 = time.perf_counter()
-    tr = train_method(method, dataset, jd, mcfg=mcfg, seed=seed, stage1_dir=stage1, quiet=quiet)
-    model = Model.load(method, jd, octaves=mcfg.human.human_octaves)
-    ev = evaluate(model, dataset)
-    metrics = {"method": method, "seed": seed, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
-    write_json(jd / "metrics.json", metrics, allow_nan=True)
-    (jd / "DONE").write_text("done\n")
-    return metrics
+    return methods_run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
+                           record={"method": method, "seed": seed}, stage1_dir=stage1, reevaluate=reevaluate,
+                           quiet=quiet)
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,

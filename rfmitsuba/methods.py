@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from . import config as C
-from .atomic import write_json
+from .atomic import numpy_default, write_json
 from .errors import ConfigError, RunError
 from .coherent import HUMAN_FIELDS, CoherentField, CoherentHumanConfig, CoherentHumanField, CoherentPerturbField
 from .field import Splats, load_field
@@ -387,8 +387,47 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
             "fraction": float(mask.mean())}
 
 
+def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
+            noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+            reevaluate: bool = False, quiet: bool = True) -> dict:
+    """Train method ``name`` into ``job_dir``, evaluate it, and mark the job done; or return the
+    metrics of a job done before.
+
+    The job folder holds the training runs (:func:`train_method`), ``metrics.json`` (written
+    atomically) and then the ``DONE`` marker: a job with a marker is not trained again, so a
+    killed caller (:mod:`rfmitsuba.compare`, :mod:`rfmitsuba.reproduce`) resumes where it stopped.
+
+    Args:
+        name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir: as :func:`train_method`.
+        job_dir: the job folder.
+        record: what the caller files the job under (merged into the metrics).
+        reevaluate: a finished job is evaluated again (its training kept, ``metrics.json``
+            rewritten), for when the evaluation changed.
+        quiet: no progress bars.
+
+    Returns:
+        ``record`` plus {"train": :func:`train_method`'s summary, "eval": :func:`evaluate`'s
+        result, "wall_s": training + evaluation wall time in seconds}.
+    """
+    jd = Path(job_dir)
+    if (jd / "DONE").is_file():
+        metrics = json.loads((jd / "metrics.json").read_text())
+        if reevaluate:
+            metrics["eval"] = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+            _write_json(jd / "metrics.json", metrics)
+        return metrics
+    t0 = time.perf_counter()
+    tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                      train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+    ev = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+    metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
+    _write_json(jd / "metrics.json", metrics)
+    (jd / "DONE").write_text("done\n")
+    return metrics
+
+
 def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, allow_nan=True)
+    write_json(path, obj, allow_nan=True, default=numpy_default)
 
 
 def config_dict(mcfg: MethodConfig) -> dict:

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import config as C
-from .atomic import write_json
+from .atomic import numpy_default, write_json
 from .errors import ConfigError, RunError
 
 TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise")
@@ -309,38 +309,37 @@ def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
         raise RunError(f"{out} holds jobs but no experiment.toml; not an experiment folder (nothing was changed)")
 
 
-def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True) -> dict:
-    """Train and evaluate one job (skipped when its DONE marker exists); returns its metrics."""
-    from .methods import Model, config_dict, evaluate, train_method
+def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
+            reevaluate: bool = False) -> dict:
+    """Train and evaluate one job by :func:`rfmitsuba.methods.run_job` (skipped when done, or
+    evaluated again with ``reevaluate``); returns its metrics.
+
+    Raises:
+        RunError: the job folder holds a job of another configuration (``job.json`` differs).
+    """
+    from .methods import config_dict, run_job as methods_run_job
     from .train import config_diff
 
     jd = job.folder(out)
-    if (jd / "DONE").is_file():
-        return json.loads((jd / "metrics.json").read_text())
     mcfg = method_config(cfg)
-    want = {"job": job.record(), "method_config": config_dict(mcfg)}
-    jt = jd / "job.json"
-    if jt.is_file():
-        diff = config_diff(json.loads(jt.read_text()), json.loads(json.dumps(want)))
-        if diff:
-            raise RunError(f"job folder {jd} belongs to another configuration: {'; '.join(diff)} (nothing was changed)")
-    jd.mkdir(parents=True, exist_ok=True)
-    _write_json(jt, want)
-    ds = dataset_path(job.dataset, cfg, data_dir)
+    if not (jd / "DONE").is_file():
+        want = {"job": job.record(), "method_config": config_dict(mcfg)}
+        jt = jd / "job.json"
+        if jt.is_file():
+            diff = config_diff(json.loads(jt.read_text()), json.loads(json.dumps(want)))
+            if diff:
+                raise RunError(f"job folder {jd} belongs to another configuration: {'; '.join(diff)} "
+                               "(nothing was changed)")
+        jd.mkdir(parents=True, exist_ok=True)
+        _write_json(jt, want)
     stage1 = None
     if job.method == "ours":
         b = job.stage1_job()
         run_job(b, out, cfg, data_dir, quiet=quiet)
         stage1 = b.folder(out) / "train"
-    t0 = time.perf_counter()
-    tr = train_method(job.method, ds, jd, mcfg=mcfg, seed=job.seed, noise_snr_db=job.snr_db,
-                      train_antennas=job.positions, stage1_dir=stage1, quiet=quiet)
-    model = Model.load(job.method, jd, octaves=mcfg.human.human_octaves)
-    ev = evaluate(model, ds)
-    metrics = {"job": job.record(), "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
-    _write_json(jd / "metrics.json", metrics)
-    (jd / "DONE").write_text("done\n")
-    return metrics
+    return methods_run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
+                           record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
+                           stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
 
 
 class Stopped(RunError):
@@ -348,7 +347,7 @@ class Stopped(RunError):
 
 
 def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None = None,
-              stop_after: int | None = None, quiet: bool = False) -> Path:
+              stop_after: int | None = None, reevaluate: bool = False, quiet: bool = False) -> Path:
     """Generate what is missing, run every job not yet done, write the report.
 
     Args:
@@ -356,6 +355,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
         cfg: the experiment.
         data_dir: where datasets live (default ``out/data``); existing complete ones are reused.
         stop_after: raise :class:`Stopped` after this many newly finished jobs (tests).
+        reevaluate: evaluate finished jobs again (after the evaluation changed; no retraining).
         quiet: no progress bars.
 
     Returns:
@@ -384,7 +384,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     with bar(total=len(jobs), desc="jobs", unit="job", quiet=quiet) as pb:
         for j in jobs:
             was_done = (j.folder(out) / "DONE").is_file()
-            results[f"{j.dataset.key}/{j.key}"] = run_job(j, out, cfg, data_dir, quiet=True)
+            results[f"{j.dataset.key}/{j.key}"] = run_job(j, out, cfg, data_dir, quiet=True, reevaluate=reevaluate)
             pb.update(1)
             if not was_done:
                 done_new += 1
@@ -398,17 +398,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 
 
 def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, allow_nan=True, default=_json_default)
-
-
-def _json_default(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+    write_json(path, obj, allow_nan=True, default=numpy_default)
 
 
 def mean_std(values: list[float]) -> tuple[float, float]:

@@ -82,3 +82,28 @@ def test_config_round_trip_and_jobs():
         size_config("huge")
     with pytest.raises(ConfigError, match="tables"):
         ExperimentConfig(tables=["everything"])
+
+
+def test_reevaluate_rewrites_metrics_without_training(tiny_reproduction, tmp_path):
+    """``reevaluate``: every finished job is evaluated again (a damaged figure comes back), its
+    training runs are not touched."""
+    import shutil
+
+    from rfmitsuba.reproduce import reproduce
+
+    src, cfg, _, _ = tiny_reproduction
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    mfile = sorted(out.glob("jobs/*/ours_s0/metrics.json"))[0]
+    good = json.loads(mfile.read_text())
+    bad = json.loads(mfile.read_text())
+    del bad["eval"]["affected"]
+    bad["eval"]["dynamic"]["model"]["mean"] = -1.0
+    mfile.write_text(json.dumps(bad))
+    runs = {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/*/final/*")}
+    assert runs
+    reproduce(out, cfg, reevaluate=True, quiet=True)
+    new = json.loads(mfile.read_text())
+    assert "affected" in new["eval"] and new["train"] == good["train"]
+    assert new["eval"]["dynamic"]["model"]["mean"] == pytest.approx(good["eval"]["dynamic"]["model"]["mean"], abs=1e-3)
+    assert all(p.stat().st_mtime_ns == t for p, t in runs.items())

@@ -12,6 +12,8 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set seeds=[0,1,2,3] --set train.stage2_iterations=500")
     p.add_argument("--data", default=None, help="dataset folder to reuse/generate into (default OUT/data)")
+    p.add_argument("--reevaluate", action="store_true",
+                   help="evaluate finished jobs again (after the evaluation changed); training is kept")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -35,6 +37,6 @@ def run(args) -> int:
     from ..reproduce import reproduce
 
     cfg = build_config(args)
-    path = reproduce(args.out, cfg, data_dir=args.data, quiet=args.quiet)
+    path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet)
     print(f"report: {path}")
     return 0
