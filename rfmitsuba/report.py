@@ -83,6 +83,15 @@ AFF_NN = "eval.affected.nearest_neighbour.mean"
 AFF_EMPTY = "eval.affected.empty_room.mean"
 
 
+def _model_line(t) -> str:
+    """What the training sizes mean for the model family of the run."""
+    if t.model == "coherent":
+        return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.coherent`): "
+                "training images 90x360, one source per image of each room, Stage 2 of kind `perturb`")
+    return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
+            f"background Gaussians, {t.human_gaussians} human Gaussians")
+
+
 class _Claims:
     def __init__(self):
         self.rows = []
@@ -117,9 +126,8 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
           f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "
           f"Baseline (duplicated) and Continued baseline = {t.stage1_iterations + t.stage2_iterations} "
-          f"(equal budgets). Training images {90 // t.downsample}x{360 // t.downsample}, "
-          f"{t.num_gaussians} initial background Gaussians, {t.human_gaussians} human Gaussians, "
-          f"{t.batch_views} views per step. Evaluation at full 90x360 by the SPEC protocol.", "",
+          f"(equal budgets). {_model_line(t)}, {t.batch_views} views per step. Evaluation at full 90x360 by the SPEC "
+          "protocol.", "",
           "Two evaluations: **dynamic** = unseen antenna x unseen human positions against the human-present "
           "ground truth (floors: nearest neighbour over antenna + human position, mean image); **static** = "
           "the background alone at unseen antenna positions against the empty room (floors over the antenna "
@@ -276,7 +284,8 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
     chart = plot_speed(out / "speed_accuracy.png", results)
     L += ["## Speed against accuracy", "", f"![test SSIM against training time]({chart.name})", "",
           "Every job: dynamic test mean SSIM against training wall time (Ours includes its Stage 1).", "",
-          "| method | jobs | training wall time (s) | render time per PAS (ms, 90x360) | Gaussians | dynamic mean |",
+          "| method | jobs | training wall time (s) | render time per PAS (ms, 90x360) | sources / Gaussians | "
+          "dynamic mean |",
           "|---|---|---|---|---|---|"]
     for m in METHODS:
         rs = [r for r in results.values() if r["job"]["method"] == m]
@@ -302,6 +311,11 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
                 cond = ds + ("" if snr == "none" else f", SNR {snr:g} dB") + (f", {n} positions" if n else "")
                 broken.append(f"- {LABEL[m]}, {cond}: {part} {a:.3f} < nearest neighbour {f:.3f}")
     L += broken or ["- none: every method beats the nearest-neighbour floor everywhere"]
+    n_runs = sum(1 for rs in groups.values() for mp, fp in ((DYN, DYN_NN), (STAT, STAT_NN))
+                 if math.isfinite(_mean(rs, mp)) and math.isfinite(_mean(rs, fp)))
+    if n_runs and len(broken) > n_runs / 2:
+        L += ["", f"**{len(broken)} of {n_runs} results are below the nearest-neighbour floor: at this size "
+              "the report checks the pipeline, not the methods.** The verdicts below are about this size only."]
     L.append("")
     for m in METHODS:
         sds = [_ms(rs, DYN)[1] for (ds, mm, *_), rs in groups.items() if mm == m and len(rs) > 1]
