@@ -129,7 +129,7 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
 
 
-def _ms(values) -> str:
+def _ms(values, digits: int = 3) -> str:
     """``mean ± std`` of finite values (reproduce.mean_std), the value alone for one, n/a for none."""
     from .reproduce import mean_std
 
@@ -137,7 +137,7 @@ def _ms(values) -> str:
     m, sd = mean_std(v)
     if not np.isfinite(m):
         return "n/a"
-    return f"{m:.3f} ± {sd:.3f}" if sum(np.isfinite(v)) > 1 else f"{m:.3f}"
+    return f"{m:.{digits}f} ± {sd:.{digits}f}" if sum(np.isfinite(v)) > 1 else f"{m:.{digits}f}"
 
 
 def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
@@ -162,8 +162,8 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
             lines.append(
                 f"| {METHODS[m].label} | {_ms(e['model']['mean'] for e in ev)} | {_ms(e['model']['median'] for e in ev)}"
                 f" | {_ms(e['nearest_neighbour']['mean'] for e in ev)} | {_ms(e['mean_image']['mean'] for e in ev)}"
-                f" | {beats}/{len(ev)} | {_ms(r['train']['train_time_s'] for r in rs)}"
-                f" | {_ms(r['eval']['render_ms_per_pas'] for r in rs)} | {rs[0]['eval']['num_gaussians']} |")
+                f" | {beats}/{len(ev)} | {_ms((r['train']['train_time_s'] for r in rs), 0)}"
+                f" | {_ms((r['eval']['render_ms_per_pas'] for r in rs), 1)} | {rs[0]['eval']['num_gaussians']} |")
         lines.append("")
     lines += _affected_lines(results, cfg)
     lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed). "
