@@ -78,8 +78,9 @@ def test_affected_subset_matches_a_direct_count(trained, synthetic_ds):
     assert a["fraction"] == pytest.approx(mask.mean())
     assert a["empty_room"]["mean"] == pytest.approx(s_empty[mask].mean())
     assert a["empty_room"]["mean"] < methods.AFFECTED_SSIM
-    # the frozen background alone cannot follow the person where it matters most
-    assert a["model"]["mean"] > bg["affected"]["model"]["mean"]
+    # the frozen background alone cannot follow the person where it matters most (measured 0.743 vs 0.526,
+    # 5 of 6 test PAS affected: pytest -s -k affected with a print of both means)
+    assert a["model"]["mean"] > bg["affected"]["model"]["mean"], (a["model"], bg["affected"]["model"])
 
 
 def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
