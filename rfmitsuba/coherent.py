@@ -143,6 +143,11 @@ def _write_points_ply(path: str | Path, points: np.ndarray, magnitude: np.ndarra
                             np.log(rel / (1 - rel)), signal=rel)
 
 
+def _cmul(ar, ai, br, bi) -> tuple:
+    """Complex product ``(ar + j ai)(br + j bi)`` of real/imaginary parts: (re, im)."""
+    return ar * br - ai * bi, ar * bi + ai * br
+
+
 def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tuple:
     """Channel at the 16 elements from T plane-wave terms per view.
 
@@ -340,6 +345,19 @@ class CoherentField(_CoherentParams):
             rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
                 orientation), or None for the SPEC's horizontal array (identity).
         """
+        gr, gi, pr, pi, u = self._terms(x, y, q, extra=extra, rx_to_world=rx_to_world)
+        return sum_terms(*_cmul(gr, gi, pr, pi), u, np.shape(q)[0], self.num_sources, frequency_hz=self.frequency_hz)
+
+    def _terms(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
+        """Per (view, image) lane ``b*S + i``, each a ``Float`` [B*S]: the complex gain (gr, gi),
+        the propagation factor exp(-jkL)/L (pr, pi) and the 3 components of the arrival direction
+        in the array frame. Arguments as :meth:`channels`.
+
+        Raises:
+            ConfigError: positions of different shapes, or not finite.
+        """
+        import drjit as dr
+
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
         if x.shape != y.shape or np.shape(q) != x.shape:
@@ -347,17 +365,6 @@ class CoherentField(_CoherentParams):
                               f"{y.shape}, {np.shape(q)}")
         if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(q).all()):
             raise ConfigError("positions must be finite (a NaN or inf position was given)")
-        gr, gi, prop, u = self._terms(x, y, q, extra=extra, rx_to_world=rx_to_world)
-        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
-        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, _columns(u), len(x), self.num_sources,
-                         frequency_hz=self.frequency_hz)
-
-    def _terms(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
-        """Per (view, image) lane ``b*S + i``: the complex gain (two ``Float`` [B*S]), the
-        propagation factor exp(-jkL)/L (complex128 [B*S]) and the arrival direction in the
-        array frame (float64 [B*S, 3])."""
-        import drjit as dr
-
         nb, S = len(x), self.num_sources
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
@@ -367,14 +374,16 @@ class CoherentField(_CoherentParams):
             u = u @ np.asarray(rx_to_world, np.float64).reshape(3, 3)
         prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
         view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
-        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + _columns(u))
+        ucols = _columns(u)
+        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + ucols)
         lane = dr.arange(B.UInt32, nb * S)
         i = lane % dr.opaque(B.UInt32, S)
         ar = dr.gather(B.Float, self.params["amp"], 2 * i)
         ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
         sc = self.cfg.modulation
-        mr, mi = 1.0 + sc * o[0], sc * o[1]
-        return ar * mr - ai * mi, ar * mi + ai * mr, prop, u
+        gr, gi = _cmul(ar, ai, 1.0 + sc * o[0], sc * o[1])
+        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
+        return gr, gi, pr, pi, ucols
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
@@ -621,12 +630,10 @@ class CoherentHumanField(_CoherentParams):
         ar = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci))
         ai = dr.gather(B.Float, self.params["amp"], 2 * (ki * C + ci) + 1)
         sc = self.cfg.modulation
-        mr, mi = 1.0 + sc * o[0], sc * o[1]
-        gr, gi = ar * mr - ai * mi, ar * mi + ai * mr
+        gr, gi = _cmul(ar, ai, 1.0 + sc * o[0], sc * o[1])
         ph = -k * (L1 + L2)
         inv = 1.0 / (L1 * L2)
-        pr, pi = dr.cos(ph) * inv, dr.sin(ph) * inv
-        return sum_terms(gr * pr - gi * pi, gr * pi + gi * pr, u, nb, T, frequency_hz=self.frequency_hz)
+        return sum_terms(*_cmul(gr, gi, dr.cos(ph) * inv, dr.sin(ph) * inv), u, nb, T, frequency_hz=self.frequency_hz)
 
     def write_ply(self, path: str | Path, **_) -> Path:
         """The scattering points as small Gaussians in the 3DGS PLY layout, at their learned
@@ -763,23 +770,21 @@ class CoherentPerturbField(_CoherentParams):
         e = np.asarray(extra, np.float64).reshape(nb, -1)
         if e.shape[1] != F + 3 or not np.isfinite(e).all():
             raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
-        gr, gi, prop, u = self.bg._terms(x, y, q, rx_to_world=rx_to_world)
+        gr, gi, pr, pi, u = self.bg._terms(x, y, q, rx_to_world=rx_to_world)
         gr, gi = dr.detach(gr), dr.detach(gi)
         view = np.concatenate([self.bg._enc(q), e[:, :F]], axis=1)
         legs = leg_features(self.bg.maps, x, y, e[:, F:]) * np.array([1.0, 0.5, 1.0, 0.5], np.float32)
-        o = self.net(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + _columns(u) + _columns(legs))
+        o = self.net(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + u + _columns(legs))
         sc = self.cfg.modulation
-        mr, mi = sc * o[0], sc * o[1]
-        wr, wi = gr * mr - gi * mi, gr * mi + gi * mr
-        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
-        return sum_terms(wr * pr - wi * pi, wr * pi + wi * pr, _columns(u), nb, S, frequency_hz=self.frequency_hz)
+        wr, wi = _cmul(gr, gi, sc * o[0], sc * o[1])
+        return sum_terms(*_cmul(wr, wi, pr, pi), u, nb, S, frequency_hz=self.frequency_hz)
 
     def write_ply(self, path: str | Path, **_) -> Path:
         """Nothing to place: this field has no points of its own (returns the path unwritten)."""
         return Path(path)
 
     def _geometry(self) -> dict:
-        return {k: v for k, v in self.bg.state_dict().items()}
+        return self.bg.state_dict()
 
     def _meta(self) -> dict:
         from .config import to_dict
