@@ -118,12 +118,10 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
                 pb.update(1)
     # jobs of earlier seeds / methods of the same comparison stay in the results
     ran = {(x["method"], x["seed"]) for x in results}
-    for p in sorted(out.glob("seed*/*")):
-        if (p / "DONE").is_file():
-            r = json.loads((p / "metrics.json").read_text())
-            if (r["method"], r["seed"]) not in ran:
-                results.append(run_job(r["method"], r["seed"], dataset, out, cfg.training, quiet=quiet,
-                                       reevaluate=reevaluate))
+    for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
+        method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
+        if (method, seed) not in ran:
+            results.append(run_job(method, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
     write_json(out / "results.json", results, allow_nan=True)
     _speed_accuracy(out / "speed_accuracy.png", results)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
@@ -152,8 +150,7 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
                   "| method | mean SSIM | median SSIM | nearest neighbour | mean image | beats NN | train time (s) | "
                   "render (ms / PAS) | sources / Gaussians |",
                   "|---|---|---|---|---|---|---|---|---|"]
-        have = {r["method"] for r in results}
-        for m in list(cfg.methods) + [m for m in METHODS if m in have and m not in cfg.methods]:
+        for m in _method_order(results, cfg):
             rs = [r for r in results if r["method"] == m and r["eval"].get(part)]
             if not rs:
                 continue
@@ -171,6 +168,12 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
     return "\n".join(lines)
 
 
+def _method_order(results: list[dict], cfg: CompareConfig) -> list[str]:
+    """The report's rows: the configured methods, then those of earlier jobs in this folder."""
+    have = {r["method"] for r in results}
+    return list(cfg.methods) + [m for m in METHODS if m in have and m not in cfg.methods]
+
+
 def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
     """Markdown section: the dynamic evaluation on the PAS the person changes most
     (:func:`rfmitsuba.methods.evaluate`'s "affected" part; jobs evaluated before it existed are
@@ -185,7 +188,7 @@ def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
              "\"empty room\" scores the empty room's true PAS as the prediction: what a perfect background "
              "model can reach here.", "",
              "| method | mean SSIM | median SSIM | nearest neighbour | empty room | seeds |", "|---|---|---|---|---|---|"]
-    for m in list(cfg.methods) + sorted({r["method"] for r in rs_all} - set(cfg.methods)):
+    for m in _method_order(rs_all, cfg):
         rs = [r["eval"]["affected"] for r in rs_all if r["method"] == m]
         if rs:
             lines.append(f"| {METHODS[m].label} | {_ms(a['model']['mean'] for a in rs)} | "

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import paper, plots
 from .atomic import write_text
-from .methods import METHODS
+from .methods import AFFECTED_SSIM, METHODS
 
 LABEL = {k: m.label for k, m in METHODS.items()}
 
@@ -83,11 +83,15 @@ AFF_NN = "eval.affected.nearest_neighbour.mean"
 AFF_EMPTY = "eval.affected.empty_room.mean"
 
 
-def _model_line(t) -> str:
-    """What the training sizes mean for the model family of the run."""
+def _model_line(cfg) -> str:
+    """What the training sizes of an experiment mean for its model family."""
+    from .reproduce import method_config
+
+    t = cfg.train
     if t.model == "coherent":
         return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.coherent`): "
-                "training images 90x360, one source per image of each room, Stage 2 of kind `perturb`")
+                "training images 90x360, one source per image of each room, Stage 2 of kind "
+                f"`{method_config(cfg).coherent_human.kind}`")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
             f"background Gaussians, {t.human_gaussians} human Gaussians")
 
@@ -126,7 +130,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
           f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "
           f"Baseline (duplicated) and Continued baseline = {t.stage1_iterations + t.stage2_iterations} "
-          f"(equal budgets). {_model_line(t)}, {t.batch_views} views per step. Evaluation at full 90x360 by the SPEC "
+          f"(equal budgets). {_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the SPEC "
           "protocol.", "",
           "Two evaluations: **dynamic** = unseen antenna x unseen human positions against the human-present "
           "ground truth (floors: nearest neighbour over antenna + human position, mean image); **static** = "
@@ -138,7 +142,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
     if "main" in cfg.tables:
         L += ["## Main table (paper Table `tab:generalization_combined_concise`)", "",
               "*Where the person matters* = the dynamic test PAS whose SSIM against the empty room's PAS at the "
-              "same antenna is below 0.9 (`methods.evaluate`, part \"affected\"); its floor row adds the "
+              f"same antenna is below {AFFECTED_SSIM:g} (`methods.evaluate`, part \"affected\"); its floor row adds the "
               "empty room's own PAS as a prediction, what a perfect background model reaches there.", "",
               "| scene | task | method | dynamic mean | dynamic median | static mean | where the person matters | "
               "paper mean / median |",
