@@ -18,7 +18,7 @@ def register() -> list[str]:
 
     Safe to call many times: each variant is registered once.
     """
-    from rfmitsuba import backend
+    from rfmitsuba.core import backend
 
     variant = backend.variant()
     from . import human_tissue

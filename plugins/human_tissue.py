@@ -63,7 +63,7 @@ From Python: ``HumanTissueMaterial(name="tissue", relative_permittivity=40.0, co
 """
 from __future__ import annotations
 
-from rfmitsuba import backend
+from rfmitsuba.core import backend
 
 backend.variant()  # Sionna's classes bind to the active Mitsuba variant when imported
 

@@ -5,12 +5,12 @@ before Dr.Jit starts; import :mod:`rfmitsuba` before :mod:`drjit` or
 :mod:`mitsuba`. The Mitsuba/Dr.Jit variant is chosen on first use, see
 :mod:`rfmitsuba.backend`.
 """
-from . import _llvm
+from .core import _llvm
 
 _llvm.configure()
 
 __version__ = "0.1.0"
 
-from .backend import set_variant, variant  # noqa: E402
+from .core.backend import set_variant, variant  # noqa: E402
 
 __all__ = ["set_variant", "variant", "__version__"]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rfmitsuba.errors import SceneError
+from rfmitsuba.core.errors import SceneError
 
 _HERE = Path(__file__).resolve().parent
 

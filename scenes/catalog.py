@@ -12,8 +12,7 @@ textile; carpet tile is the nearest soft furnishing); metal appliances.
 """
 from __future__ import annotations
 
-from rfmitsuba.scene_builder import (Material, Opening, RoomDescription, bed, block, chair, shelf, sofa,
-                                     table)
+from rfmitsuba.sim.scene_builder import Material, Opening, RoomDescription, bed, block, chair, shelf, sofa, table
 
 G = 0.01  # gap between furniture and walls, metres
 

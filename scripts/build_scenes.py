@@ -13,7 +13,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from rfmitsuba import scene_builder
+from rfmitsuba.sim import scene_builder
 from rfmitsuba.scenes import catalog
 
 ROOT = Path(__file__).resolve().parent.parent

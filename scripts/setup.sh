@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 VENV=${VENV:-.venv}
 
-if ! "$PY" -c 'import sys; sys.path.insert(0, "rfmitsuba"); import _llvm; sys.exit(0 if _llvm.find_libllvm() else 1)'; then
+if ! "$PY" -c 'import sys; sys.path.insert(0, "rfmitsuba/core"); import _llvm; sys.exit(0 if _llvm.find_libllvm() else 1)'; then
   echo "setup: no libLLVM >= 16 found; installing Debian's libllvm19" >&2
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null

@@ -18,7 +18,7 @@ os.environ.setdefault("RFMITSUBA_QUIET", "1")
 @pytest.fixture(scope="session")
 def variant() -> str:
     """The active Mitsuba variant (``llvm_ad_mono_polarized`` on CPU)."""
-    from rfmitsuba import backend
+    from rfmitsuba.core import backend
 
     return backend.set_variant(os.environ.get("RFMITSUBA_VARIANT") or "llvm")
 
@@ -83,17 +83,17 @@ def quick_dataset(tmp_path_factory, variant):
 
     Same as ``rfmitsuba generate bedroom --task rx --quick --seed 0``.
     """
-    from rfmitsuba import dataset
+    from rfmitsuba.sim import generate as gen
 
     out = tmp_path_factory.mktemp("quick_bedroom") / "ds"
-    return dataset.generate(out, dataset.quick_config("bedroom", task="rx", seed=0), quiet=True)
+    return gen.generate(out, gen.quick_config("bedroom", task="rx", seed=0), quiet=True)
 
 
 @pytest.fixture(scope="session")
 def synthetic_ds(tmp_path_factory, variant):
     """A synthetic dynamic dataset (30 antennas x (1 + 6) states) rendered from known background and
     human Gaussians (rfmitsuba.synthetic.make_dataset, seed 0); no Sionna."""
-    from rfmitsuba import synthetic
+    from rfmitsuba.sim import synthetic
 
     out = tmp_path_factory.mktemp("synthetic") / "ds"
     synthetic.make_dataset(out, antennas=30, humans=6, seed=0)
@@ -106,7 +106,8 @@ def tiny_reproduction(tmp_path_factory, variant):
 
     Returns (out folder, config, report path, {DONE marker: mtime_ns} of the jobs finished
     before the stop)."""
-    from rfmitsuba.reproduce import Stopped, reproduce, size_config
+    from rfmitsuba.experiments.reproduce import Stopped, reproduce
+    from rfmitsuba.experiments.sizes import size_config
 
     out = tmp_path_factory.mktemp("tiny_reproduce") / "out"
     cfg = size_config("tiny")

@@ -15,7 +15,7 @@ BOX = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.5]])
 
 def known_field(seed: int = 7, n: int = 30):
     """A random ground-truth field: n Gaussians of 0.3 m, opacity 0.5, network seed ``seed``."""
-    from rfmitsuba.field import FieldConfig, GaussianField
+    from rfmitsuba.models.splat import FieldConfig, GaussianField
 
     rng = np.random.default_rng(seed)
     pts = rng.uniform(BOX[0], BOX[1], (n, 3))
@@ -39,7 +39,7 @@ def render_pas(field, antenna_pos: np.ndarray, view_pos: np.ndarray) -> np.ndarr
 
 def make_dataset(path: Path, *, num_antennas: int = 60, task: str = "rx", seed: int = 0) -> Path:
     """Write a one-state (empty room) dataset of ``num_antennas`` positions; returns its folder."""
-    from rfmitsuba.dataset import write_dataset
+    from rfmitsuba.data.store import write_dataset
 
     rng = np.random.default_rng(seed)
     ap = rng.uniform([0.5, 0.5, 0.8], [3.5, 3.0, 1.6], (num_antennas, 3))

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from rfmitsuba import antenna
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.rf import array as antenna
+from rfmitsuba.core.errors import ConfigError
 
 
 def test_wavelength_2_4ghz():

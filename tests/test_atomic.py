@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from rfmitsuba import atomic
+from rfmitsuba.core import atomic
 
 
 def test_write_text_replaces_and_leaves_no_tmp(tmp_path):

@@ -3,7 +3,7 @@ import drjit as dr
 import mitsuba as mi
 import pytest
 
-from rfmitsuba import backend
+from rfmitsuba.core import backend
 
 
 def test_llvm_variant_types(variant):

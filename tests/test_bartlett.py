@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfmitsuba import pas as P
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.rf import bartlett_ref as P
+from rfmitsuba.core.errors import ConfigError
 
 F = 2.4e9
 
@@ -18,7 +18,7 @@ def _channels(n=3, seed=0):
 
 @pytest.mark.parametrize("d", [1, 2])
 def test_matches_numpy_reference(variant, d):
-    from rfmitsuba import bartlett
+    from rfmitsuba.rf import bartlett
 
     h = _channels()
     ref = P.bartlett(h, frequency_hz=F, resolution_deg=d)
@@ -33,7 +33,8 @@ def test_gradient_matches_finite_differences(variant, normalize):
     """d/dh of sum(c * PAS) by the custom adjoint vs central differences of the float64 reference."""
     import drjit as dr
 
-    from rfmitsuba import backend as B, bartlett
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.rf import bartlett
 
     h = _channels(2, seed=1).astype(np.complex128)
     c = np.random.default_rng(2).normal(size=(2, 90, 360))
@@ -63,7 +64,7 @@ def test_gradient_matches_finite_differences(variant, normalize):
 
 
 def test_bad_input(variant):
-    from rfmitsuba import bartlett
+    from rfmitsuba.rf import bartlett
 
     with pytest.raises(ConfigError, match="B\\*16"):
         bartlett.pas(np.zeros(15, np.float32), np.zeros(15, np.float32), frequency_hz=F)

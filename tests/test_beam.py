@@ -6,8 +6,8 @@ import numpy as np
 
 def test_kernel_is_the_array_response():
     """K[p, q] equals |a(p)^H a(q)| / 16 computed from rfmitsuba.antenna's element positions."""
-    from rfmitsuba import antenna
-    from rfmitsuba.beam import bartlett_kernel
+    from rfmitsuba.rf import array as antenna
+    from rfmitsuba.rf.readout import bartlett_kernel
 
     rng = np.random.default_rng(0)
     el_o, az_o = rng.uniform(0, np.pi / 2, 5), rng.uniform(0, 2 * np.pi, 5)
@@ -30,8 +30,8 @@ def test_kernel_is_the_array_response():
 def test_readout_is_linear_with_transposed_gradient(variant):
     import drjit as dr
 
-    from rfmitsuba import backend as B
-    from rfmitsuba.beam import BartlettReadout
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.rf.readout import BartlettReadout
 
     r = BartlettReadout(6, 24, 9, 36)
     x = np.random.default_rng(1).random((2, 6, 24)).astype(np.float32)

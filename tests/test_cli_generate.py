@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from rfmitsuba import cli
-from rfmitsuba import dataset as D
+from rfmitsuba.data import store as D
 
 
 def test_generate_quick_matches_python_api_and_resumes(quick_dataset, tmp_path, capsys):

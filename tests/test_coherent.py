@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from rfmitsuba import antenna, images
-from rfmitsuba.errors import ConfigError, RunError
+from rfmitsuba.rf import array as antenna, images
+from rfmitsuba.core.errors import ConfigError, RunError
 
 F = 2.4e9
 K = 2 * np.pi / antenna.wavelength(F)
@@ -21,7 +21,7 @@ def _zero(mlp):
 
 def direct_field(amp=(1.0, 0.0), **kw):
     """A field of the direct path alone whose gain network outputs 0 (gain = amp exactly)."""
-    from rfmitsuba.coherent import CoherentField
+    from rfmitsuba.models.coherent import CoherentField
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=0, furniture_order=0)
     f = CoherentField(maps, box=BOX, frequency_hz=F, params={"amp": np.asarray(amp, np.float32),
@@ -52,7 +52,7 @@ def test_free_space_is_a_spherical_wave_with_the_synthetic_array_rule(variant, t
 
 
 def test_pas_peak_points_at_the_transmitter(variant):
-    from rfmitsuba import pas as P
+    from rfmitsuba.rf import bartlett_ref as P
 
     f = direct_field()
     x, y = np.array([[1.0, 0.8, 1.1]]), np.array([[3.2, 2.4, 2.0]])
@@ -67,8 +67,8 @@ def test_gradients_match_finite_differences(variant):
     """d/d(parameters) of a fixed linear read-out of the channels, Dr.Jit AD vs central differences."""
     import drjit as dr
 
-    from rfmitsuba import backend as B
-    from rfmitsuba.coherent import CoherentField
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.coherent import CoherentField
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     f = CoherentField(maps, box=BOX, frequency_hz=F, seed=3)
@@ -101,8 +101,8 @@ def test_gradients_match_finite_differences(variant):
 def human_point_on_the_direct_path(x, y):
     """A human field with one scattering point at the middle of the direct segment x -> y, only its
     first path family (direct in, direct out) switched on, and networks that output 0."""
-    from rfmitsuba.coherent import CoherentHumanConfig, CoherentHumanField, scatter_paths
-    from rfmitsuba.samples import num_human_features
+    from rfmitsuba.models.coherent_person import CoherentHumanConfig, CoherentHumanField, scatter_paths
+    from rfmitsuba.data.samples import num_human_features
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     cfg = CoherentHumanConfig(num_points=1)
@@ -133,8 +133,9 @@ def test_a_scatterer_on_the_direct_path_has_its_length_and_direction(variant):
 
 
 def test_state_round_trips_and_load_field(variant, tmp_path):
-    from rfmitsuba.coherent import CoherentField, CoherentHumanField
-    from rfmitsuba.field import load_field
+    from rfmitsuba.models.coherent import CoherentField
+    from rfmitsuba.models.coherent_person import CoherentHumanField
+    from rfmitsuba.models.splat import load_field
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=2, furniture_order=0)
     f = CoherentField(maps, box=BOX, frequency_hz=F, seed=4)
@@ -179,7 +180,7 @@ def test_bad_input_is_named(variant):
     with pytest.raises(ConfigError, match="human"):
         h.channels(x[None], y[None], x[None], extra=None)
     with pytest.raises(ConfigError):
-        from rfmitsuba.coherent import CoherentConfig
+        from rfmitsuba.models.coherent import CoherentConfig
 
         CoherentConfig(furniture_order=3)
 
@@ -187,7 +188,7 @@ def test_bad_input_is_named(variant):
 def test_leg_features_closed_form():
     """A person standing on the direct path is at distance 0 from both its legs; one 0.5 m to the
     side of a path along x is 0.5 m away; heights are those of the ray above the feet."""
-    from rfmitsuba.coherent import leg_features
+    from rfmitsuba.models.coherent_person import leg_features
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     x, y = np.array([[1.0, 1.0, 1.0]]), np.array([[3.0, 1.0, 2.0]])
@@ -201,9 +202,10 @@ def test_leg_features_closed_form():
 def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
     """The perturbation field adds nothing before training (its network's last layer is zero), is
     saved with its background, and loads back to the same channels."""
-    from rfmitsuba.coherent import CoherentField, CoherentHumanConfig, CoherentPerturbField
-    from rfmitsuba.field import load_field
-    from rfmitsuba.samples import num_human_features
+    from rfmitsuba.models.coherent import CoherentField
+    from rfmitsuba.models.coherent_person import CoherentHumanConfig, CoherentPerturbField
+    from rfmitsuba.models.splat import load_field
+    from rfmitsuba.data.samples import num_human_features
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     bg = CoherentField(maps, box=BOX, frequency_hz=F, seed=1)

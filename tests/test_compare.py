@@ -6,12 +6,12 @@ import json
 import pytest
 
 from job_metrics import age_metrics
-from rfmitsuba.errors import ConfigError, RunError
+from rfmitsuba.core.errors import ConfigError, RunError
 
 
 def tiny_compare_cfg(**over):
-    from rfmitsuba import config as C
-    from rfmitsuba.compare import CompareConfig
+    from rfmitsuba.core import config as C
+    from rfmitsuba.experiments.compare import CompareConfig
 
     sets = ["methods=['baseline','ours']", "seeds=[0]", "training.stage1.iterations=8",
             "training.stage1.val_every=8", "training.stage1.checkpoint_every=8", "training.stage2_iterations=6",
@@ -21,7 +21,7 @@ def tiny_compare_cfg(**over):
 
 
 def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
-    from rfmitsuba.compare import compare
+    from rfmitsuba.experiments.compare import compare
 
     out = tmp_path / "cmp"
     rep = compare(quick_dataset.path, out, cfg=tiny_compare_cfg(), progress=False)

@@ -4,8 +4,8 @@ from typing import Literal, Optional
 
 import pytest
 
-from rfmitsuba import config
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.core import config
+from rfmitsuba.core.errors import ConfigError
 
 
 @dataclass

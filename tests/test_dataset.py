@@ -6,8 +6,10 @@ import shutil
 import numpy as np
 import pytest
 
-from rfmitsuba import dataset as D
-from rfmitsuba.errors import DatasetError, PlacementError
+from rfmitsuba.data import store as D
+from rfmitsuba.sim import generate as gen
+from rfmitsuba.data import split as splits
+from rfmitsuba.core.errors import DatasetError, PlacementError
 
 
 def tiny(path, S=3, A=10, seed=0, **kw):
@@ -51,12 +53,12 @@ def test_arrays_flat_view_row_order(tmp_path):
 
 
 def test_split_fractions_disjoint_and_saved(tmp_path):
-    sp = D.make_split(900, 35, seed=3)
+    sp = splits.make_split(900, 35, seed=3)
     assert len(sp.antenna_test) == 180 and len(sp.human_test) == 7  # 20 % and ~19 %
     assert not set(sp.antenna_test) & set(sp.antenna_train)
     assert sorted([*sp.antenna_test, *sp.antenna_train]) == list(range(900))
-    assert np.array_equal(D.make_split(900, 35, seed=3).antenna_test, sp.antenna_test)
-    assert not np.array_equal(D.make_split(900, 35, seed=4).antenna_test, sp.antenna_test)
+    assert np.array_equal(splits.make_split(900, 35, seed=3).antenna_test, sp.antenna_test)
+    assert not np.array_equal(splits.make_split(900, 35, seed=4).antenna_test, sp.antenna_test)
     ds, _, _ = tiny(tmp_path / "d", S=6, A=20, seed=0)
     again = D.open_dataset(tmp_path / "d").split
     assert np.array_equal(again.antenna_test, ds.split.antenna_test) and len(again.antenna_test) == 4
@@ -139,10 +141,10 @@ def test_config_diff_names_nested_key():
 
 def test_quick_dataset_contents(quick_dataset):
     ds = quick_dataset
-    from rfmitsuba.geometry import RoomGeometry
-    from rfmitsuba import human
+    from rfmitsuba.sim.geometry import RoomGeometry
+    from rfmitsuba.sim import person as human
 
-    assert ds.num_antennas == D.QUICK["positions"] and ds.num_states == 1 + D.QUICK["human_positions"]
+    assert ds.num_antennas == gen.QUICK["positions"] and ds.num_states == 1 + gen.QUICK["human_positions"]
     assert ds.meta["scene"]["name"] == "bedroom" and len(ds.meta["scene"]["sha256"]) == 64
     for key in ("solver", "seeds", "versions", "units", "array", "human"):
         assert key in ds.meta
@@ -160,22 +162,22 @@ def test_quick_dataset_contents(quick_dataset):
 
 
 def test_generate_kill_and_resume_is_bit_identical(quick_dataset, tmp_path):
-    cfg = D.quick_config("bedroom", task="rx", seed=0)
+    cfg = gen.quick_config("bedroom", task="rx", seed=0)
     out = tmp_path / "resumed"
-    D.generate(out, cfg, quiet=True, stop_after=2)  # "killed" after two states
+    gen.generate(out, cfg, quiet=True, stop_after=2)  # "killed" after two states
     assert sorted(p.name for p in (out / "chunks").iterdir()) == ["00000", "00001"]
     # a half-written chunk (never renamed) is cleaned up and redone
     (out / "chunks" / ".tmp-00002-999").mkdir()
     (out / "chunks" / ".tmp-00002-999" / "pas.npy").write_bytes(b"junk")
-    ds = D.generate(out, cfg, quiet=True)
+    ds = gen.generate(out, cfg, quiet=True)
     assert digests(out) == digests(quick_dataset.path)
     assert not list((out / "chunks").glob(".tmp-*")) and ds.num_states == 5
     # damaged chunk: generate refuses, --repair redoes it identically
     f = out / "chunks" / "00003" / "pas.npy"
     f.write_bytes(f.read_bytes()[:500])
     with pytest.raises(DatasetError, match="00003.*--repair"):
-        D.generate(out, cfg, quiet=True)
-    D.generate(out, cfg, quiet=True, repair=True)
+        gen.generate(out, cfg, quiet=True)
+    gen.generate(out, cfg, quiet=True, repair=True)
     assert digests(out) == digests(quick_dataset.path)
 
 
@@ -184,19 +186,19 @@ def test_generate_refuses_other_configuration(quick_dataset, tmp_path):
     shutil.copytree(quick_dataset.path, out)
     before = digests(out)
     with pytest.raises(DatasetError, match="generate.material"):
-        D.generate(out, D.quick_config("bedroom", task="rx", seed=0, material="metal"), quiet=True)
+        gen.generate(out, gen.quick_config("bedroom", task="rx", seed=0, material="metal"), quiet=True)
     with pytest.raises(DatasetError, match="'task' differs"):
-        D.generate(out, D.quick_config("bedroom", task="tx", seed=0), quiet=True)
+        gen.generate(out, gen.quick_config("bedroom", task="tx", seed=0), quiet=True)
     assert digests(out) == before
 
 
 def test_place_antennas_rejects_impossible_requests(variant):
     from rfmitsuba import scenes
-    from rfmitsuba.geometry import RoomGeometry
+    from rfmitsuba.sim.geometry import RoomGeometry
 
     g = RoomGeometry.from_xml(scenes.path("bedroom"))
     with pytest.raises(PlacementError):
-        D.place_antennas(g, 5, rng=np.random.default_rng(0), z_range=(0.5, 2.0), clearance=5.0,
+        gen.place_antennas(g, 5, rng=np.random.default_rng(0), z_range=(0.5, 2.0), clearance=5.0,
                          walk_positions=np.zeros((0, 3)), body_radius=0.3, body_height=1.8)
     with pytest.raises(PlacementError, match="not finite|outside"):
         g.check_points(np.array([[np.nan, 1, 1]]), what="antenna")

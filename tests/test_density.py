@@ -8,10 +8,10 @@ import pytest
 def _setup(n=6, scale=0.02, **cfg_kw):
     from drjit.opt import Adam
 
-    from rfmitsuba import backend as B
-    from rfmitsuba.density import DensityConfig, DensityStrategy
-    from rfmitsuba.field import FieldConfig, GaussianField
-    from rfmitsuba.nn import NetConfig
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.train.density import DensityConfig, DensityStrategy
+    from rfmitsuba.models.splat import FieldConfig, GaussianField
+    from rfmitsuba.models.nn import NetConfig
 
     pts = np.stack([np.arange(n, dtype=float), np.zeros(n), np.ones(n)], 1)
     f = GaussianField.from_points(pts, cfg=FieldConfig(init_scale=scale, net=NetConfig(width=4)),
@@ -29,14 +29,14 @@ def _setup(n=6, scale=0.02, **cfg_kw):
 
 
 def _set_moment(opt, key, values):
-    from rfmitsuba import backend as B
+    from rfmitsuba.core import backend as B
 
     v, p, lr, (t, m, s, vm) = opt.state[key]
     opt.state[key] = (v, p, lr, (t, B.Float(np.asarray(values, np.float32)), s, vm))
 
 
 def test_clone_small_gaussians_with_large_gradient_and_remap_moments(variant):
-    from rfmitsuba import backend as B
+    from rfmitsuba.core import backend as B
 
     f, opt, st = _setup(split_scale=0.05)
     st.grad_sum = B.Float(np.array([0, 2, 0, 1, 0, 0], np.float32))
@@ -53,7 +53,7 @@ def test_clone_small_gaussians_with_large_gradient_and_remap_moments(variant):
 
 
 def test_split_large_gaussians(variant):
-    from rfmitsuba import backend as B
+    from rfmitsuba.core import backend as B
 
     f, opt, st = _setup(scale=0.2, split_scale=0.05)
     st.grad_sum = B.Float(np.array([0, 0, 3, 0, 0, 0], np.float32))
@@ -67,7 +67,7 @@ def test_split_large_gaussians(variant):
 
 
 def test_prune_transparent_and_cap(variant):
-    from rfmitsuba import backend as B
+    from rfmitsuba.core import backend as B
 
     f, opt, st = _setup(max_gaussians=6, prune_opacity=0.05)
     ol = np.asarray(opt["bg.opacity_logits"].numpy()).copy()
@@ -82,7 +82,7 @@ def test_prune_transparent_and_cap(variant):
 
 
 def test_growth_stops_when_validation_stops_improving(variant):
-    from rfmitsuba import backend as B
+    from rfmitsuba.core import backend as B
 
     f, opt, st = _setup(patience=2, min_improvement=0.01)
     for step, v in enumerate([0.5, 0.6, 0.605, 0.609]):
@@ -94,7 +94,7 @@ def test_growth_stops_when_validation_stops_improving(variant):
 
 
 def test_reset_opacity_and_state_round_trip(variant):
-    from rfmitsuba.density import DensityStrategy
+    from rfmitsuba.train.density import DensityStrategy
 
     f, opt, st = _setup(reset_every=3, reset_opacity=0.02)
     st.step_end(3, f, opt, rng=np.random.default_rng(0))
@@ -123,8 +123,8 @@ def test_after_backward_accumulates_gradient_norms(variant):
 
 
 def test_bad_density_config():
-    from rfmitsuba.density import DensityConfig
-    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.train.density import DensityConfig
+    from rfmitsuba.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="every"):
         DensityConfig(every=0)

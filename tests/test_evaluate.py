@@ -14,7 +14,7 @@ def _img(seed, h=20, w=30):
 def test_ssim_images_is_skimage_per_image():
     from skimage.metrics import structural_similarity
 
-    from rfmitsuba.evaluate import ssim_images
+    from rfmitsuba.eval.metrics import ssim_images
 
     a = np.stack([_img(0), _img(1)])
     b = np.stack([_img(0), _img(2)])
@@ -27,7 +27,7 @@ def test_ssim_images_is_skimage_per_image():
 
 
 def test_nearest_index_with_and_without_human():
-    from rfmitsuba.evaluate import nearest_index
+    from rfmitsuba.eval.metrics import nearest_index
 
     train = np.array([[0, 0, 0], [1, 0, 0], [5, 5, 1.0]])
     q = np.array([[0.9, 0.1, 0], [4, 4, 1], [0.2, 0, 0]])
@@ -42,8 +42,8 @@ def test_nearest_index_with_and_without_human():
 def test_floors_on_hand_made_cases():
     """Test image k equals training image k, placed at the training position plus 1 cm: the
     nearest-neighbour floor is exactly 1; the mean-image floor compares with the normalised mean."""
-    from rfmitsuba.evaluate import floors, ssim_images
-    from rfmitsuba.train import minmax
+    from rfmitsuba.eval.metrics import floors, ssim_images
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     train = minmax(np.stack([_img(i) for i in range(4)]))
     pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
@@ -57,8 +57,8 @@ def test_floors_on_hand_made_cases():
 
 
 def test_minmax_and_stats():
-    from rfmitsuba.evaluate import stats
-    from rfmitsuba.train import minmax
+    from rfmitsuba.eval.metrics import stats
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     x = np.stack([np.full((3, 3), 5.0), np.arange(9.0).reshape(3, 3)])
     m = minmax(x)
@@ -72,9 +72,10 @@ def test_evaluate_run_writes_report(tmp_path, variant):
     from test_train import tiny_cfg
 
     from rfmitsuba.cli import main
-    from rfmitsuba.errors import RunError
-    from rfmitsuba.evaluate import evaluate_run
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     ds = make_dataset(tmp_path / "ds", num_antennas=30)
     run = tmp_path / "run"
@@ -100,8 +101,8 @@ def test_motivation_table_and_parsimony_on_a_tiny_dataset(tmp_path, variant):
     from stage1_data import make_dataset
     from test_train import tiny_cfg
 
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.experiments import motivation_table, parsimony_curve
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments.tables import motivation_table, parsimony_curve
 
     ds = make_dataset(tmp_path / "ds", num_antennas=40)
     cfg = tiny_cfg(iterations=5, val_every=5, checkpoint_every=5)

@@ -14,7 +14,7 @@ def _square_meshes():
 
 
 def test_sample_surface_is_on_the_triangles_and_area_weighted():
-    from rfmitsuba.field import sample_surface
+    from rfmitsuba.models.splat import sample_surface
 
     pts = sample_surface(_square_meshes(), 20000, rng=np.random.default_rng(0))
     assert pts.shape == (20000, 3)
@@ -28,7 +28,7 @@ def test_sample_surface_is_on_the_triangles_and_area_weighted():
 
 
 def test_knn_scale_of_a_grid():
-    from rfmitsuba.field import knn_scale
+    from rfmitsuba.models.splat import knn_scale
 
     g = np.stack(np.meshgrid(np.arange(5), np.arange(5), np.arange(5), indexing="ij"), -1).reshape(-1, 3) * 0.1
     s = knn_scale(g)
@@ -38,8 +38,8 @@ def test_knn_scale_of_a_grid():
 
 def test_scene_meshes_of_the_bedroom_and_missing_file(tmp_path):
     from rfmitsuba import scenes
-    from rfmitsuba.errors import SceneError
-    from rfmitsuba.field import scene_meshes
+    from rfmitsuba.core.errors import SceneError
+    from rfmitsuba.models.splat import scene_meshes
 
     ms = scene_meshes(scenes.path("bedroom"))
     assert len(ms) > 3 and all(v.shape[1] == 3 and f.shape[1] == 3 for v, f in ms)
@@ -52,8 +52,8 @@ def test_scene_meshes_of_the_bedroom_and_missing_file(tmp_path):
 
 
 def _field(n=6, **kw):
-    from rfmitsuba.field import FieldConfig, GaussianField
-    from rfmitsuba.nn import NetConfig
+    from rfmitsuba.models.splat import FieldConfig, GaussianField
+    from rfmitsuba.models.nn import NetConfig
 
     cfg = FieldConfig(init_scale=0.2, net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1), **kw)
     pts = np.random.default_rng(0).uniform(0, 3, (n, 3))
@@ -85,7 +85,7 @@ def test_angular_scale_mode_scales_with_distance(variant):
 
 
 def test_state_dict_round_trip_and_freeze(variant, tmp_path):
-    from rfmitsuba.field import GaussianField
+    from rfmitsuba.models.splat import GaussianField
 
     f = _field()
     f.save(tmp_path / "f.npz")
@@ -103,7 +103,7 @@ def test_state_dict_round_trip_and_freeze(variant, tmp_path):
 
 
 def test_bad_gaussian_arrays_are_errors(variant):
-    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.core.errors import ConfigError
 
     f = _field()
     g = f.gaussians_numpy()
@@ -119,7 +119,7 @@ def test_bad_gaussian_arrays_are_errors(variant):
 
 
 def test_ply_round_trip(variant, tmp_path):
-    from rfmitsuba.field import read_ply, write_ply
+    from rfmitsuba.models.splat import read_ply, write_ply
 
     f = _field()
     sig = np.linspace(0, 1, 6).astype(np.float32)
@@ -136,8 +136,8 @@ def test_ply_round_trip(variant, tmp_path):
 
 
 def test_concat_interleaves_sets_view_major(variant):
-    from rfmitsuba import backend as B
-    from rfmitsuba.field import Splats
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.splat import Splats
 
     def mk(n, b, base):
         per_view = B.Float(np.arange(n * b, dtype=np.float32) + base)

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from rfmitsuba import human
-from rfmitsuba.errors import PlacementError
-from rfmitsuba.geometry import RoomGeometry
+from rfmitsuba.sim import person as human
+from rfmitsuba.core.errors import PlacementError
+from rfmitsuba.sim.geometry import RoomGeometry
 from rfmitsuba import scenes
 import trimesh
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.core.errors import ConfigError
 
 
 def _fields(variant, *, anchor="human"):
-    from rfmitsuba.field import FieldConfig, GaussianField
-    from rfmitsuba.human_field import HumanConfig, HumanField
+    from rfmitsuba.models.splat import FieldConfig, GaussianField
+    from rfmitsuba.models.splat_person import HumanConfig, HumanField
 
     rng = np.random.default_rng(0)
     box = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.8]])
@@ -21,7 +21,7 @@ def _fields(variant, *, anchor="human"):
 
 
 def _inputs(box, human):
-    from rfmitsuba.samples import human_features
+    from rfmitsuba.data.samples import human_features
 
     h = np.asarray(human, np.float64).reshape(-1, 3)
     return np.concatenate([human_features(h, box), h.astype(np.float32)], axis=1)
@@ -57,7 +57,7 @@ def test_deformation_network_gets_human_position(variant):
 
 
 def test_bad_inputs(variant):
-    from rfmitsuba.human_field import HumanConfig
+    from rfmitsuba.models.splat_person import HumanConfig
 
     bg, hf, box = _fields(variant)
     with pytest.raises(ValueError, match="human"):
@@ -69,7 +69,7 @@ def test_bad_inputs(variant):
 
 
 def test_state_round_trip(variant, tmp_path):
-    from rfmitsuba.human_field import HumanField
+    from rfmitsuba.models.splat_person import HumanField
 
     bg, hf, box = _fields(variant)
     hf.save(tmp_path / "h.npz")
@@ -84,8 +84,8 @@ def test_state_round_trip(variant, tmp_path):
 
 def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp_path):
     """Train Stage 2 for a few steps on top of a background: its arrays and file do not change."""
-    from rfmitsuba import methods
-    from rfmitsuba.field import GaussianField
+    from rfmitsuba.experiments import methods
+    from rfmitsuba.models.splat import GaussianField
 
     mcfg = methods_config(stage1=20, stage2=12)
     methods.train_method("baseline", synthetic_ds, tmp_path / "b", mcfg=mcfg, seed=0)
@@ -104,10 +104,10 @@ def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp
 
 
 def methods_config(*, stage1, stage2):
-    from rfmitsuba import config as C
-    from rfmitsuba.human_field import HumanConfig
-    from rfmitsuba.methods import MethodConfig
-    from rfmitsuba.train import TrainConfig
+    from rfmitsuba.core import config as C
+    from rfmitsuba.models.splat_person import HumanConfig
+    from rfmitsuba.experiments.methods import MethodConfig
+    from rfmitsuba.train.config import TrainConfig
 
     s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
                                     f"checkpoint_every={stage1}", "field.init='random'", "field.num_gaussians=150",

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfmitsuba import images
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.rf import images
+from rfmitsuba.core.errors import ConfigError
 
 LO, HI = np.zeros(3), np.array([4.0, 3.0, 2.6])
 
@@ -61,7 +61,7 @@ def test_arrays_round_trip_and_bad_shapes():
 
 
 def test_scene_maps_of_the_bedroom_have_furniture_and_no_duplicates():
-    from rfmitsuba.geometry import RoomGeometry
+    from rfmitsuba.sim.geometry import RoomGeometry
 
     geo = RoomGeometry.from_scene("bedroom")
     m = images.scene_image_maps(geo, room_order=2, furniture_order=2)
@@ -76,7 +76,7 @@ def test_scene_maps_of_the_bedroom_have_furniture_and_no_duplicates():
 def test_every_sionna_path_in_a_box_comes_from_an_image(box_room, variant):
     """In a closed box, every specular path Sionna RT finds (depth <= 3) arrives from the direction
     of an image of the transmitter, and every first-order image is found."""
-    from rfmitsuba.simulate import Simulator, SolverConfig
+    from rfmitsuba.sim.simulate import Simulator, SolverConfig
 
     y = np.array([3.6, 2.6, 2.0])
     xs = np.array([[1.0, 1.0, 1.2], [2.5, 0.7, 0.9], [0.6, 2.2, 1.6]])

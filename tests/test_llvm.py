@@ -3,7 +3,7 @@ import os
 
 import pytest
 
-from rfmitsuba import _llvm
+from rfmitsuba.core import _llvm
 
 
 @pytest.mark.parametrize("path, major", [

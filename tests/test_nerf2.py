@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from rfmitsuba import dataset as D
-from rfmitsuba import nerf2
-from rfmitsuba.errors import DatasetError
+from rfmitsuba.data import store as D
+from rfmitsuba.data import nerf2
+from rfmitsuba.core.errors import DatasetError
 
 
 @pytest.fixture
@@ -29,7 +29,7 @@ def test_write_read_round_trip(small, tmp_path):
     want = np.round(D.Dataset(small.path).pas(1) * 0)  # shape only
     p = back.pas(0)
     assert p.shape == want.shape and p.min() == 0 and p.max() == 1
-    from rfmitsuba.pas import normalize
+    from rfmitsuba.rf.bartlett_ref import normalize
 
     assert np.abs(p - normalize(small.pas(1))).max() <= 0.5 / 255 + 1e-6  # 8-bit quantisation
     assert np.allclose(back.antenna_pos, small.antenna_pos, atol=1e-6)

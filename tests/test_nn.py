@@ -23,8 +23,8 @@ def _mlp_numpy(w, sizes, x):
 
 
 def test_sin_encoding_matches_numpy(variant):
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import encode
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import encode
 
     x = np.array([0.0, 0.1, 0.37, 0.5], np.float32)
     out = encode([B.Float(x)], octaves=3, kind="sin")
@@ -36,8 +36,8 @@ def test_sin_encoding_matches_numpy(variant):
 
 
 def test_mlp_forward_matches_numpy(variant):
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import MLP
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import MLP
 
     m = MLP(3, 2, width=8, layers=2, seed=3)
     w = np.random.default_rng(1).normal(0, 0.5, m.num_parameters).astype(np.float32)
@@ -48,7 +48,7 @@ def test_mlp_forward_matches_numpy(variant):
 
 
 def test_mlp_seed_determines_weights(variant):
-    from rfmitsuba.nn import MLP
+    from rfmitsuba.models.nn import MLP
 
     a = MLP(4, 3, width=16, layers=1, seed=5).weights.numpy()
     b = MLP(4, 3, width=16, layers=1, seed=5).weights.numpy()
@@ -58,8 +58,8 @@ def test_mlp_seed_determines_weights(variant):
 
 
 def test_mlp_wrong_weight_shape_is_an_error(variant):
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.nn import MLP
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.nn import MLP
 
     m = MLP(3, 2, width=4, layers=1, seed=0)
     with pytest.raises(ConfigError, match="expected shape"):
@@ -68,8 +68,8 @@ def test_mlp_wrong_weight_shape_is_an_error(variant):
 
 def test_em_network_is_view_major_and_factorised(variant):
     """Output b*N+i equals the network evaluated for view b and Gaussian i alone."""
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import EMNetwork, NetConfig
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import EMNetwork, NetConfig
 
     net = EMNetwork(NetConfig(width=16, gaussian_octaves=2, antenna_octaves=2), seed=1)
     rng = np.random.default_rng(0)
@@ -85,8 +85,8 @@ def test_em_network_is_view_major_and_factorised(variant):
 
 
 def test_em_network_extra_inputs_are_checked(variant):
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import EMNetwork, NetConfig
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import EMNetwork, NetConfig
 
     net = EMNetwork(NetConfig(width=8), extra_inputs=3, seed=0)
     p = [B.Float([0.5])] * 3
@@ -101,8 +101,8 @@ def test_em_network_gradient_matches_finite_differences(variant):
     w.r.t. the head weights equals central finite differences."""
     import drjit as dr
 
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import EMNetwork, NetConfig
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import EMNetwork, NetConfig
 
     net = EMNetwork(NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1, signal_bias=0.0), seed=2)
     rng = np.random.default_rng(3)
@@ -131,8 +131,8 @@ def test_em_network_gradient_matches_finite_differences(variant):
 
 
 def test_hashgrid_network_runs_and_has_parameters(variant):
-    from rfmitsuba import backend as B
-    from rfmitsuba.nn import EMNetwork, NetConfig
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import EMNetwork, NetConfig
 
     cfg = NetConfig(encoding="hashgrid", width=8, hash_levels=2, hash_log2_size=8)
     net = EMNetwork(cfg, seed=0)
@@ -143,8 +143,8 @@ def test_hashgrid_network_runs_and_has_parameters(variant):
 
 
 def test_bad_config_is_an_error():
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.nn import NetConfig
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.nn import NetConfig
 
     with pytest.raises(ConfigError, match="width"):
         NetConfig(width=0)

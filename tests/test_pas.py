@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from rfmitsuba import antenna, pas
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.rf import array as antenna, bartlett_ref as pas
+from rfmitsuba.rf import grid
+from rfmitsuba.core.errors import ConfigError
 
 F = 2.4e9
 
@@ -14,13 +15,13 @@ def plane_wave(el, az):
 
 
 def test_angle_grid_layout():
-    el, az = pas.angle_grid()
+    el, az = grid.angle_grid()
     assert el.shape == (90, 360)
     assert np.isclose(np.degrees(el[0, 0]), 1) and np.isclose(np.degrees(el[-1, 0]), 90)
     assert np.isclose(np.degrees(az[0, 0]), 0) and np.isclose(np.degrees(az[0, -1]), 359)
-    assert pas.angle_grid(resolution_deg=2.0)[0].shape == (45, 180)
+    assert grid.angle_grid(resolution_deg=2.0)[0].shape == (45, 180)
     with pytest.raises(ConfigError, match="resolution_deg"):
-        pas.angle_grid(resolution_deg=7.0)
+        grid.angle_grid(resolution_deg=7.0)
 
 
 @pytest.mark.parametrize("el_deg,az_deg", [(30, 0), (20, 117), (45, 250), (60, 333)])

@@ -1,7 +1,7 @@
 """Tests of rfmitsuba.plots: report figures are written without touching pyplot's state."""
 import matplotlib
 
-from rfmitsuba import plots
+from rfmitsuba.core import plots
 
 
 def test_save_writes_png_and_leaves_backend_and_pyplot_alone(tmp_path):

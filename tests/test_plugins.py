@@ -141,7 +141,7 @@ def test_docstring_xml_example_loads(mod, variant, tmp_path):
     """The XML example in the docstring is a valid scene fragment using only documented parameters."""
     import mitsuba as mi
 
-    from rfmitsuba import human
+    from rfmitsuba.sim import person as human
 
     plugins_pkg.register()
     examples = _xml_examples(mod.__doc__)

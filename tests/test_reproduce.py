@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from rfmitsuba.errors import RunError
+from rfmitsuba.core.errors import RunError
 
 
 def test_report_has_every_table(tiny_reproduction):
@@ -26,7 +26,7 @@ def test_report_has_every_table(tiny_reproduction):
 
 
 def test_resume_skips_finished_jobs(tiny_reproduction):
-    from rfmitsuba.reproduce import all_jobs
+    from rfmitsuba.experiments.reproduce import all_jobs
 
     out, cfg, _, before = tiny_reproduction
     assert len(before) == 4
@@ -36,8 +36,8 @@ def test_resume_skips_finished_jobs(tiny_reproduction):
 
 
 def test_other_configuration_is_refused(tiny_reproduction):
-    from rfmitsuba import config as C
-    from rfmitsuba.reproduce import reproduce
+    from rfmitsuba.core import config as C
+    from rfmitsuba.experiments.reproduce import reproduce
 
     out, cfg, _, _ = tiny_reproduction
     before = (out / "experiment.toml").read_text()
@@ -49,7 +49,8 @@ def test_other_configuration_is_refused(tiny_reproduction):
 
 
 def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
-    from rfmitsuba.reproduce import DatasetSpec, Job, run_job
+    from rfmitsuba.experiments.sizes import DatasetSpec
+    from rfmitsuba.experiments.reproduce import Job, run_job
 
     out, cfg, _, _ = tiny_reproduction
     job = Job(DatasetSpec("bedroom", "rx"), "baseline", 0)
@@ -63,9 +64,10 @@ def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
 
 
 def test_config_round_trip_and_jobs():
-    from rfmitsuba import config as C
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.reproduce import SIZES, ExperimentConfig, all_jobs, size_config
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments.sizes import SIZES, ExperimentConfig, size_config
+    from rfmitsuba.experiments.reproduce import all_jobs
 
     for name in SIZES:
         cfg = size_config(name)
@@ -90,7 +92,7 @@ def test_reevaluate_rewrites_metrics_without_training(tiny_reproduction, tmp_pat
     import shutil
 
     from job_metrics import age_metrics
-    from rfmitsuba.reproduce import reproduce
+    from rfmitsuba.experiments.reproduce import reproduce
 
     src, cfg, _, _ = tiny_reproduction
     out = tmp_path / "copy"

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfmitsuba.errors import ConfigError
+from rfmitsuba.core.errors import ConfigError
 
 
 def test_splits_hold_out_test_antennas_and_humans(synthetic_ds):
-    from rfmitsuba.samples import SampleData
+    from rfmitsuba.data.samples import SampleData
 
     d = SampleData.open_samples(synthetic_ds, states="all")
     sp = d.split
@@ -23,7 +23,7 @@ def test_splits_hold_out_test_antennas_and_humans(synthetic_ds):
 
 
 def test_state_sets_duplicate_and_subset(synthetic_ds):
-    from rfmitsuba.samples import SampleData
+    from rfmitsuba.data.samples import SampleData
 
     e = SampleData.open_samples(synthetic_ds, states="empty")
     assert (e.states == 0).all() and len(e.train) == 24
@@ -37,7 +37,7 @@ def test_state_sets_duplicate_and_subset(synthetic_ds):
 
 
 def test_noise_only_on_training_samples(synthetic_ds):
-    from rfmitsuba.samples import SampleData
+    from rfmitsuba.data.samples import SampleData
 
     clean = SampleData.open_samples(synthetic_ds, states="all")
     noisy = SampleData.open_samples(synthetic_ds, states="all", noise_snr_db=0.0, noise_seed=1)
@@ -48,7 +48,7 @@ def test_noise_only_on_training_samples(synthetic_ds):
 
 
 def test_noise_level():
-    from rfmitsuba.samples import add_noise_channels
+    from rfmitsuba.data.samples import add_noise_channels
 
     rng = np.random.default_rng(0)
     h = np.exp(1j * rng.uniform(0, 6.28, (2000, 16)))  # unit power per element
@@ -57,7 +57,7 @@ def test_noise_level():
 
 
 def test_human_features():
-    from rfmitsuba.samples import human_features, num_human_features
+    from rfmitsuba.data.samples import human_features, num_human_features
 
     box = np.array([[0, 0, 0], [4, 4, 4]], float)
     f = human_features(np.array([[np.nan] * 3, [2.0, 2.0, 0.0]]), box, octaves=2)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from rfmitsuba import config
-from rfmitsuba import scene_builder as sb
-from rfmitsuba.errors import SceneError
+from rfmitsuba.core import config
+from rfmitsuba.sim import scene_builder as sb
+from rfmitsuba.core.errors import SceneError
 from rfmitsuba.scenes import catalog
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfmitsuba import scene_builder as sb
+from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba import scenes
-from rfmitsuba.errors import SceneError
-from rfmitsuba.geometry import RoomGeometry
+from rfmitsuba.core.errors import SceneError
+from rfmitsuba.sim.geometry import RoomGeometry
 
 ROOT = Path(__file__).resolve().parent.parent
 

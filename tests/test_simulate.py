@@ -3,10 +3,11 @@ with an explicit reverse solve, and reproducibility."""
 import numpy as np
 import pytest
 
-from rfmitsuba import antenna, pas
-from rfmitsuba.errors import ConfigError, PlacementError, SceneError
+from rfmitsuba.rf import array as antenna, bartlett_ref as pas
+from rfmitsuba.rf import grid
+from rfmitsuba.core.errors import ConfigError, PlacementError, SceneError
 
-from conftest import box_quads, write_quads_scene
+from conftest import write_quads_scene
 
 F = 2.4e9
 
@@ -26,7 +27,7 @@ def plate_scene(tmp_path_factory):
 
 
 def sim(xml, fixed, positions, **solver):
-    from rfmitsuba.simulate import Simulator, SolverConfig
+    from rfmitsuba.sim.simulate import Simulator, SolverConfig
 
     s = Simulator(xml, fixed_pos=fixed, frequency_hz=F, solver=SolverConfig(**solver))
     s.set_positions(np.asarray(positions, float))
@@ -66,7 +67,7 @@ def test_metal_plate_second_peak_at_mirror_image(variant, plate_scene):
     ps = sim(plate_scene, fixed, pos, samples_per_src=20000).solve()
     assert ps.num_paths[0] == 2  # LoS + one reflection
     p = pas.bartlett(ps.channels("rx", frequency_hz=F), frequency_hz=F)[0]
-    el, az = pas.angle_grid()
+    el, az = grid.angle_grid()
     az_los, el_los = az_el(fixed - pos[0])
     az_img, el_img = az_el(np.array([4.0, 0.0, 2.5]) - pos[0])  # the image of the TX in the plate
     pel, paz = np.degrees(pas.peak_direction(p))
@@ -178,7 +179,7 @@ def test_human_mesh_moves_absolutely(variant, box_room):
 
 
 def test_bad_inputs(variant, box_room, tmp_path):
-    from rfmitsuba.simulate import Simulator, SolverConfig
+    from rfmitsuba.sim.simulate import Simulator, SolverConfig
 
     with pytest.raises(SceneError, match="does not exist"):
         Simulator(tmp_path / "nope.xml", fixed_pos=[0, 0, 1])
@@ -198,6 +199,6 @@ def test_bad_inputs(variant, box_room, tmp_path):
     with pytest.raises(ConfigError, match="set_positions"):
         s.solve()
     with pytest.raises(ConfigError, match="task"):
-        from rfmitsuba.simulate import PathSet
+        from rfmitsuba.sim.simulate import PathSet
         PathSet(np.zeros((1, 1)), np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), np.zeros(1)).channels("up",
                                                                                                   frequency_hz=F)

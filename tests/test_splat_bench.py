@@ -9,7 +9,7 @@ import pytest
 
 import splat_reference as ref
 from rfmitsuba.cli import main
-from rfmitsuba.splat import bench
+from rfmitsuba.experiments import bench
 
 
 def test_torch_baseline_matches_reference():

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from rfmitsuba import backend as B
+from rfmitsuba.core import backend as B
 from rfmitsuba.splat.project import DILATION, project
 from test_splat_render import to_jit
 

@@ -8,7 +8,7 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from rfmitsuba import backend as B
+from rfmitsuba.core import backend as B
 from rfmitsuba.splat.project import Projected
 from rfmitsuba.splat.raster import rasterize
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import splat_reference as ref
-from rfmitsuba import backend as B
-from rfmitsuba.errors import GaussianError
+from rfmitsuba.core import backend as B
+from rfmitsuba.core.errors import GaussianError
 from rfmitsuba.splat import as_jit_array, render
 
 
@@ -213,7 +213,7 @@ def test_no_recompilation_when_n_or_batch_changes(variant):
     # launches the same kernels (same hashes): densification and a short last
     # batch must not recompile. (Hashes, not cache hits, so the on-disk cache of
     # earlier runs cannot hide a recompile.)
-    from rfmitsuba import ssim
+    from rfmitsuba.train import loss as ssim
 
     rng = np.random.default_rng(8)
 

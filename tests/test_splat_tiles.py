@@ -7,7 +7,7 @@ import drjit as dr
 import numpy as np
 
 import splat_reference as ref
-from rfmitsuba import backend as B
+from rfmitsuba.core import backend as B
 from rfmitsuba.splat import tiles
 from rfmitsuba.splat.project import project
 from test_splat_render import random_scene, to_jit

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
-from rfmitsuba import backend as B
-from rfmitsuba import ssim as S
+from rfmitsuba.core import backend as B
+from rfmitsuba.train import loss as S
 
 
 def smooth_images(rng, b, h, w):

@@ -6,9 +6,9 @@ import pytest
 
 
 def test_human_perturbs_the_pas(synthetic_ds):
-    from rfmitsuba.dataset import open_dataset
-    from rfmitsuba.ssim import ssim_np
-    from rfmitsuba.train import minmax
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.train.loss import ssim_np
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     ds = open_dataset(synthetic_ds)
     assert ds.num_states == 7 and ds.num_antennas == 30
@@ -18,8 +18,8 @@ def test_human_perturbs_the_pas(synthetic_ds):
 
 
 def test_bad_sizes(tmp_path):
-    from rfmitsuba import synthetic
-    from rfmitsuba.errors import ConfigError
+    from rfmitsuba.sim import synthetic
+    from rfmitsuba.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="antennas"):
         synthetic.make_dataset(tmp_path / "x", antennas=2, humans=3)

@@ -17,8 +17,8 @@ def tiny_ds(tmp_path_factory, variant):
 
 
 def tiny_cfg(**over):
-    from rfmitsuba import config as C
-    from rfmitsuba.train import TrainConfig
+    from rfmitsuba.core import config as C
+    from rfmitsuba.train.config import TrainConfig
 
     cfg = TrainConfig()
     sets = ["iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
@@ -34,9 +34,9 @@ def _rows(run):
 
 
 def test_config_round_trip_and_unknown_option():
-    from rfmitsuba import config as C
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.train import TrainConfig, quick_config
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.train.config import TrainConfig, quick_config
 
     cfg = quick_config(tiny_cfg(seed=3))
     assert C.from_toml(TrainConfig, C.to_toml(cfg)) == cfg
@@ -50,8 +50,9 @@ def test_config_round_trip_and_unknown_option():
 
 
 def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
-    from rfmitsuba.field import GaussianField, read_ply
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.models.splat import GaussianField, read_ply
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     run = tmp_path / "run"
     s = Trainer(tiny_cfg(iterations=60), TrainData.open(tiny_ds), run, quiet=True).run()
@@ -73,7 +74,8 @@ def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
 def test_killed_run_resumes_to_the_same_result(tiny_ds, tmp_path):
     """A run stopped after step 25 (last checkpoint: step 20) and started again ends where an
     uninterrupted run ends: same Gaussians (count and values within float tolerance), same log."""
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
     cfg = tiny_cfg()
@@ -94,8 +96,9 @@ def test_killed_run_resumes_to_the_same_result(tiny_ds, tmp_path):
 
 
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
-    from rfmitsuba.errors import RunError
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
     run = tmp_path / "run"
@@ -114,8 +117,8 @@ def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
 
 
 def test_bad_datasets_are_clear_errors(tiny_ds, tmp_path):
-    from rfmitsuba.errors import DatasetError
-    from rfmitsuba.train import TrainData
+    from rfmitsuba.core.errors import DatasetError
+    from rfmitsuba.data.views import TrainData
 
     with pytest.raises(DatasetError, match="does not exist"):
         TrainData.open(tmp_path / "missing")
@@ -132,9 +135,10 @@ def test_bad_datasets_are_clear_errors(tiny_ds, tmp_path):
 
 
 def test_nan_in_pas_names_the_position(tmp_path, variant):
-    from rfmitsuba.dataset import write_dataset
-    from rfmitsuba.errors import DatasetError
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data.store import write_dataset
+    from rfmitsuba.core.errors import DatasetError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     pas = np.random.default_rng(0).random((1, 10, 90, 360)).astype(np.float32)
     pas[0, 3, 5, 5] = np.nan
@@ -152,7 +156,7 @@ def test_cli_train_and_unknown_option(tiny_ds, tmp_path, capsys):
 
     run = tmp_path / "run"
     cfg = tmp_path / "c.toml"
-    from rfmitsuba import config as C
+    from rfmitsuba.core import config as C
 
     C.save(tiny_cfg(iterations=10), cfg)
     assert main(["train", str(tiny_ds), "--out", str(run), "--config", str(cfg), "--quiet"]) == 0
@@ -165,7 +169,8 @@ def test_cli_train_and_unknown_option(tiny_ds, tmp_path, capsys):
 
 def test_moving_tx_task_trains(tmp_path, variant):
     """Moving TX: the view is the fixed array, the network input the transmitter position."""
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     ds = make_dataset(tmp_path / "tx", num_antennas=30, task="tx")
     data = TrainData.open(ds)
@@ -177,11 +182,12 @@ def test_moving_tx_task_trains(tmp_path, variant):
 def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
     the gateway orientation reaches the renderer as rx_to_world; no scene -> random init."""
-    from rfmitsuba import nerf2
-    from rfmitsuba.dataset import open_dataset
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.evaluate import evaluate_run
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     ds = make_dataset(tmp_path / "tx", num_antennas=30, task="tx")
     folder = nerf2.write(open_dataset(ds), tmp_path / "nerf2")
@@ -198,8 +204,9 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
 def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
     """What Stage 2 does: load and freeze a trained background, train a second set with an extra
     network input rendered in the same call; the background does not change."""
-    from rfmitsuba.field import GaussianField
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.models.splat import GaussianField
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
     Trainer(tiny_cfg(iterations=10), data, tmp_path / "bg", quiet=True).run()
@@ -223,8 +230,8 @@ def test_shipped_configs_load():
     """Every TOML under configs/ is a valid TrainConfig (the README points users at them)."""
     from pathlib import Path
 
-    from rfmitsuba import config
-    from rfmitsuba.train import TrainConfig
+    from rfmitsuba.core import config
+    from rfmitsuba.train.config import TrainConfig
 
     files = sorted((Path(__file__).parent.parent / "configs").glob("*.toml"))
     assert files
@@ -236,8 +243,8 @@ def test_shipped_configs_load():
 # --------------------------------------------------------------------------- the coherent model
 
 def coherent_cfg(**over):
-    from rfmitsuba import config as C
-    from rfmitsuba.train import TrainConfig
+    from rfmitsuba.core import config as C
+    from rfmitsuba.train.config import TrainConfig
 
     sets = ["model=\"coherent\"", "iterations=30", "batch_views=4", "val_every=10", "checkpoint_every=10",
             "log_every=5", "coherent.room_order=2", "coherent.furniture_order=1"]
@@ -248,12 +255,12 @@ def coherent_cfg(**over):
 def empty_bedroom(tmp_path_factory, variant):
     """Sionna bedroom, moving RX, 300 positions (240 train, 60 test), empty room, 2e4 ray samples.
     Same as ``rfmitsuba generate bedroom --task rx --positions 300 --human-positions 0 --samples 20000``."""
-    from rfmitsuba import dataset
-    from rfmitsuba.simulate import SolverConfig
+    from rfmitsuba.sim import generate as gen
+    from rfmitsuba.sim.simulate import SolverConfig
 
-    cfg = dataset.GenerateConfig(scene="bedroom", task="rx", positions=300, human_positions=0,
+    cfg = gen.GenerateConfig(scene="bedroom", task="rx", positions=300, human_positions=0,
                                  solver=SolverConfig(samples_per_src=20_000))
-    return dataset.generate(tmp_path_factory.mktemp("empty_bedroom") / "ds", cfg, quiet=True).path
+    return gen.generate(tmp_path_factory.mktemp("empty_bedroom") / "ds", cfg, quiet=True).path
 
 
 def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bedroom, tmp_path):
@@ -266,9 +273,10 @@ def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bed
     --set coherent.room_order=2 --set coherent.furniture_order=1`` on the fixture's dataset. (With
     80 training positions the model does not beat nearest neighbour: it has more parameters than
     80 PAS constrain.)"""
-    from rfmitsuba.evaluate import evaluate_run
-    from rfmitsuba.field import read_ply
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.models.splat import read_ply
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(empty_bedroom)
     s = Trainer(coherent_cfg(iterations=400, batch_views=8, val_every=200, checkpoint_every=200), data,
@@ -293,7 +301,8 @@ def one_thread():
 
 
 def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path, one_thread):
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(quick_dataset.path)
     cfg = coherent_cfg()
@@ -308,10 +317,11 @@ def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path,
 
 def test_coherent_needs_a_scene_and_takes_one_for_a_nerf2_folder(quick_dataset, tmp_path):
     """A NeRF2 folder names no scene: the coherent model says so, and trains with --set scene=..."""
-    from rfmitsuba import nerf2
-    from rfmitsuba.dataset import open_dataset
-    from rfmitsuba.errors import ConfigError
-    from rfmitsuba.train import TrainData, Trainer
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
 
     folder = nerf2.write(open_dataset(quick_dataset.path), tmp_path / "nerf2")
     data = TrainData.open(folder)

@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from ..errors import RfmError
+from ..core.errors import RfmError
 
 #: Sub-command modules, in help order.
 COMMANDS = ["info", "generate", "show", "train", "eval", "experiment", "compare", "reproduce", "demo", "bench"]
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         if args.variant:
-            from .. import backend
+            from ..core import backend
 
             backend.set_variant(args.variant)
         return int(args.func(args) or 0)

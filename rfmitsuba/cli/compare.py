@@ -17,8 +17,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .. import config as C
-    from ..compare import CompareConfig, compare
+    from ..core import config as C
+    from ..experiments.compare import CompareConfig, compare
 
     cfg = C.load(CompareConfig, args.config) if args.config else CompareConfig()
     sets = list(args.set)

@@ -12,7 +12,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..demo import SIZES, run_demo
+    from ..experiments.demo import SIZES, run_demo
 
     path = run_demo(args.out, cfg=SIZES[args.size], quiet=args.quiet, dataset=args.dataset)
     print(f"report: {path}")

@@ -12,7 +12,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..evaluate import evaluate_run
+    from ..eval.run import evaluate_run
 
     m = evaluate_run(args.run, batch=args.batch)
     print((Path(args.run) / "eval" / "summary.md").read_text())

@@ -16,7 +16,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .. import experiments as E
+    from ..experiments import tables as E
     from .train import build_config
 
     cfg = build_config(args)

@@ -35,10 +35,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .. import dataset as D
-    from ..errors import ConfigError
-    from ..geometry import RoomGeometry
-    from ..simulate import SolverConfig
+    from ..data import store as D
+    from ..sim import generate as gen
+    from ..core.errors import ConfigError
+    from ..sim.geometry import RoomGeometry
+    from ..sim.simulate import SolverConfig
 
     if args.positions is not None and args.positions < 1:
         raise ConfigError(f"--positions must be >= 1, got {args.positions}")
@@ -47,11 +48,11 @@ def run(args) -> int:
     if args.samples is not None and (args.samples < 1 or args.samples != int(args.samples)):
         raise ConfigError(f"--samples must be a positive integer, got {args.samples}")
     xml = D.resolve_scene(args.scene)
-    base = D.default_solver(RoomGeometry.from_xml(xml), quick=args.quick)
+    base = gen.default_solver(RoomGeometry.from_xml(xml), quick=args.quick)
     solver = SolverConfig(samples_per_src=int(args.samples) if args.samples else base.samples_per_src,
                           max_depth=args.max_depth, diffuse_reflection=args.diffuse, diffraction=args.diffraction,
                           seed=args.solver_seed, threads=args.threads)
-    cfg = D.quick_config(str(args.scene)) if args.quick else D.GenerateConfig(scene=str(args.scene))
+    cfg = gen.quick_config(str(args.scene)) if args.quick else gen.GenerateConfig(scene=str(args.scene))
     cfg.task = args.task
     cfg.material = args.material
     cfg.seed = args.seed
@@ -62,7 +63,7 @@ def run(args) -> int:
     if args.human_positions is not None:
         cfg.human_positions = args.human_positions
     t = time.perf_counter()
-    ds = D.generate(args.out, cfg, repair=args.repair)
+    ds = gen.generate(args.out, cfg, repair=args.repair)
     wall = time.perf_counter() - t
     runs = json.loads((ds.path / "timing.json").read_text())
     last = runs[-1]

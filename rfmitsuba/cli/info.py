@@ -13,7 +13,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from importlib.metadata import PackageNotFoundError, version
 
-    from .. import backend
+    from ..core import backend
 
     print(f"python      {platform.python_version()} ({platform.machine()})")
     for pkg in ("rfmitsuba", "drjit", "mitsuba", "sionna-rt", "numpy", "scikit-image", "trimesh"):

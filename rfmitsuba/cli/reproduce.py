@@ -20,9 +20,9 @@ def register(sub) -> None:
 
 def build_config(args):
     """The ExperimentConfig of the command line: --config file or size, then --set overrides."""
-    from .. import config as C
-    from ..errors import ConfigError
-    from ..reproduce import ExperimentConfig, size_config
+    from ..core import config as C
+    from ..core.errors import ConfigError
+    from ..experiments.sizes import ExperimentConfig, size_config
 
     if args.config and (args.quick or args.size):
         raise ConfigError("give either --config or --quick/--size, not both")
@@ -34,7 +34,7 @@ def build_config(args):
 
 
 def run(args) -> int:
-    from ..reproduce import reproduce
+    from ..experiments.reproduce import reproduce
 
     cfg = build_config(args)
     path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet)

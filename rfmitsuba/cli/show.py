@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import plots
+from ..core import plots
 
 
 def register(sub) -> None:
@@ -24,8 +24,8 @@ def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
     """Per-image SSIM (SPEC protocol) between the empty-room PAS and each human-present PAS: float64 [S-1, A]."""
     from skimage.metrics import structural_similarity
 
-    from .. import progress
-    from ..pas import normalize
+    from ..core import progress
+    from ..rf.bartlett_ref import normalize
 
     empty = normalize(np.asarray(ds.pas(0)))
     out = np.empty((ds.num_states - 1, ds.num_antennas))
@@ -38,8 +38,8 @@ def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
 
 
 def run(args) -> int:
-    from ..dataset import open_dataset
-    from ..pas import normalize
+    from ..data.store import open_dataset
+    from ..rf.bartlett_ref import normalize
 
     ds = open_dataset(args.dataset)
     out = Path(args.out)
@@ -94,7 +94,7 @@ def run(args) -> int:
     fig, ax = plots.subplots(figsize=(7, 6))
     scene_file = ds.meta.get("scene", {}).get("file") if isinstance(ds.meta.get("scene"), dict) else None
     if scene_file and Path(scene_file).is_file():
-        from ..geometry import RoomGeometry
+        from ..sim.geometry import RoomGeometry
 
         RoomGeometry.from_xml(scene_file).plot_top_view(ax, labels=True)
     p = ds.antenna_pos

@@ -18,8 +18,8 @@ def register(sub) -> None:
 
 def build_config(args):
     """The TrainConfig of the command line: file, then --quick, then --set overrides."""
-    from .. import config as C
-    from ..train import TrainConfig, quick_config
+    from ..core import config as C
+    from ..train.config import TrainConfig, quick_config
 
     cfg = C.load(TrainConfig, args.config) if args.config else TrainConfig()
     if args.quick:
@@ -28,7 +28,7 @@ def build_config(args):
 
 
 def run(args) -> int:
-    from ..train import train
+    from ..train.trainer import train
 
     cfg = build_config(args)
     s = train(args.dataset, args.out, cfg=cfg, quiet=args.quiet)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 
-from .. import backend as B
+from ..core import backend as B
 
 #: Isotropic blur added to every projected covariance, pixels^2 (as in 3DGS):
 #: keeps sub-pixel Gaussians visible and the conic well conditioned.

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import drjit as dr
 
-from .. import backend as B
+from ..core import backend as B
 from . import tiles as _tiles
 from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_LANES, TILE_SIZE, TILE_W
 

@@ -6,8 +6,8 @@ import math
 import drjit as dr
 import numpy as np
 
-from .. import backend as B
-from ..errors import GaussianError
+from ..core import backend as B
+from ..core.errors import GaussianError
 from .project import project
 from .raster import rasterize
 

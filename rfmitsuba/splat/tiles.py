@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .. import backend as B
+from ..core import backend as B
 
 #: Tile height and width, pixels.
 TILE_H, TILE_W = 8, 8

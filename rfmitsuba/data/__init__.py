@@ -1,0 +1,1 @@
+"""Data: the dataset store and splits, NeRF2 folders, the training views and samples."""

@@ -1,0 +1,243 @@
+"""Flat (state, antenna) views of a dataset: what Stage 2 and the baselines train on.
+
+A :class:`SampleData` looks like :class:`rfmitsuba.train.TrainData` to the
+:class:`~rfmitsuba.train.Trainer` (``antenna_pos``, ``view_pos``, ``train``, ``test``,
+``pas(idx, d=)``...), but its index ``k`` runs over *samples*: pairs of a dataset state
+(0 = empty room, s > 0 = human at ``human_positions[s-1]``) and an antenna position.
+
+* which states: ``"empty"`` (state 0), ``"human"`` (states 1..H) or ``"all"``;
+* ``duplicate``: the sample list repeated (the Baseline-duplicated ablation);
+* ``noise_snr_db``: complex white noise added to the *training* channels at this SNR
+  (relative to the mean channel power per sample) and the PAS recomputed with the
+  Bartlett beamformer; datasets without channels get the noise on the PAS amplitude.
+
+Training samples: antenna in the antenna-train split and (state 0 or human in the
+human-train split). Test samples: antenna-test x (state 0 for "empty", human-test states
+otherwise). Nothing of a test antenna or a test human position is ever a training sample.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ConfigError, DatasetError
+from ..rf.grid import PAS_SHAPE
+from .views import TrainData, downsample
+from ..rf.bartlett_ref import normalize as minmax
+
+STATE_SETS = ("empty", "human", "all")
+
+
+def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
+    """Network input describing a human position (or its absence).
+
+    Args:
+        human_pos: float [K, 3] metres; NaN rows = empty room.
+        box: float [2, 3] metres, the normalisation box (lo, hi).
+        octaves: sine/cosine octaves of the encoding.
+
+    Returns:
+        float32 [K, 3 * (1 + 2 * octaves) + 1]: position mapped to [0, 0.5] per axis, its
+        sin/cos encoding (period 1), and a presence flag (1 = a human is there); all zeros
+        for an empty room.
+    """
+    h = np.asarray(human_pos, np.float64).reshape(-1, 3)
+    box = np.asarray(box, np.float64).reshape(2, 3)
+    present = np.isfinite(h).all(axis=1)
+    x = np.where(present[:, None], (h - box[0]) / (box[1] - box[0]), 0.0) * 0.5
+    parts = [x]
+    for k in range(octaves):
+        f = 2.0 * np.pi * 2 ** k
+        parts += [np.sin(f * x), np.cos(f * x)]
+    out = np.concatenate(parts + [present[:, None].astype(np.float64)], axis=1)
+    out[~present] = 0.0
+    return out.astype(np.float32)
+
+
+def num_human_features(octaves: int = 3) -> int:
+    """Width of :func:`human_features`."""
+    return 3 * (1 + 2 * octaves) + 1
+
+
+def add_noise_channels(channel: np.ndarray, snr_db: float, *, rng: np.random.Generator) -> np.ndarray:
+    """Complex white Gaussian noise at ``snr_db`` relative to each row's mean power.
+
+    Args:
+        channel: complex [K, M]; snr_db: signal-to-noise ratio in dB; rng: generator.
+
+    Returns:
+        complex64 [K, M].
+    """
+    h = np.asarray(channel, np.complex128)
+    p = np.mean(np.abs(h) ** 2, axis=1, keepdims=True)
+    sigma = np.sqrt(p / 10 ** (snr_db / 10) / 2)
+    n = sigma * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape))
+    return (h + n).astype(np.complex64)
+
+
+def add_noise_pas(pas: np.ndarray, snr_db: float, *, rng: np.random.Generator) -> np.ndarray:
+    """White Gaussian noise on PAS amplitude images at ``snr_db`` relative to each image's mean
+    power; float [K, H, W] -> float32 [K, H, W] (clipped at 0)."""
+    x = np.asarray(pas, np.float64)
+    p = np.mean(x ** 2, axis=(1, 2), keepdims=True)
+    sigma = np.sqrt(p / 10 ** (snr_db / 10))
+    return np.maximum(x + sigma * rng.standard_normal(x.shape), 0).astype(np.float32)
+
+
+@dataclass
+class SampleData(TrainData):
+    """Samples over (state, antenna) pairs; see the module docstring.
+
+    Extra attributes: ``states`` int64 [K] dataset state per sample, ``antennas`` int64 [K]
+    antenna index per sample, ``human_pos`` float64 [K, 3] metres (NaN = empty room),
+    ``box`` float64 [2, 3] metres (bounds used to normalise human positions).
+    """
+
+    states: np.ndarray = None
+    antennas: np.ndarray = None
+    human_pos: np.ndarray = None
+    noise_snr_db: float | None = None
+    noise_seed: int = 0
+    _ds: object = None
+    _noisy: dict = None
+
+    @classmethod
+    def open_samples(cls, path: str | Path, *, states: str = "all", duplicate: int = 1,
+                     noise_snr_db: float | None = None, noise_seed: int = 0,
+                     train_antennas: int = 0, subset_seed: int = 0) -> "SampleData":
+        """Open a dataset folder as samples.
+
+        Args:
+            path: dataset folder (:mod:`rfmitsuba.dataset` format).
+            states: "empty", "human" or "all".
+            duplicate: how many times the sample list is repeated (>= 1).
+            noise_snr_db: SNR of the noise added to training samples (None = no noise).
+            noise_seed: seed of that noise.
+            train_antennas: keep only this many training antenna positions (0 = all), a seeded
+                subset (``subset_seed``) shared by every state; the test split is unchanged.
+
+        Raises:
+            ConfigError: bad ``states`` / ``duplicate``; DatasetError: no human states when
+            they are asked for.
+        """
+        if states not in STATE_SETS:
+            raise ConfigError(f"states must be one of {STATE_SETS}, got {states!r}")
+        if duplicate < 1:
+            raise ConfigError(f"duplicate must be >= 1, got {duplicate}")
+        base = TrainData.open(path, state=0)
+        from .store import open_dataset
+
+        ds = open_dataset(path)
+        A, S = ds.num_antennas, ds.num_states
+        if states != "empty" and S < 2:
+            raise DatasetError(f"{path}: has no human-present states (needed for states={states!r})")
+        st = {"empty": [0], "human": list(range(1, S)), "all": list(range(S))}[states]
+        sp = ds.split
+        h_train = set(int(h) + 1 for h in sp.human_train)
+        h_test = set(int(h) + 1 for h in sp.human_test)
+        s_arr = np.repeat(np.asarray(st, np.int64), A)
+        a_arr = np.tile(np.arange(A, dtype=np.int64), len(st))
+        ant_train = np.asarray(base.train)
+        if train_antennas and train_antennas < len(ant_train):
+            ant_train = np.sort(np.random.default_rng([subset_seed, 7]).choice(ant_train, train_antennas, replace=False))
+        a_train = np.isin(a_arr, ant_train)
+        a_test = np.isin(a_arr, base.test)
+        s_train = np.array([s == 0 or s in h_train for s in s_arr])
+        s_test = np.array([(s == 0 and states == "empty") or s in h_test for s in s_arr])
+        train = np.flatnonzero(a_train & s_train)
+        test = np.flatnonzero(a_test & s_test)
+        if duplicate > 1:
+            k = len(s_arr)
+            s_arr, a_arr = np.tile(s_arr, duplicate), np.tile(a_arr, duplicate)
+            train = np.concatenate([train + j * k for j in range(duplicate)])
+        if len(train) == 0 or len(test) == 0:
+            raise DatasetError(f"{path}: {len(train)} training and {len(test)} test samples for states={states!r}")
+        hp = np.asarray(ds.human_pos, np.float64)[s_arr]
+        ap = base.antenna_pos[a_arr]
+        vp = base.view_pos[a_arr]
+        lo, hi = base.bounds
+        meshes = None
+        try:
+            meshes = base.meshes()
+        except Exception:  # noqa: BLE001 - a scene that cannot be read only widens nothing
+            meshes = None
+        if meshes:
+            allv = np.concatenate([v for v, _ in meshes])
+            lo, hi = np.minimum(lo, allv.min(0)), np.maximum(hi, allv.max(0))
+        hpf = hp[np.isfinite(hp).all(1)]
+        if len(hpf):
+            lo, hi = np.minimum(lo, hpf.min(0)), np.maximum(hi, hpf.max(0) + [0, 0, 1.8])
+        box = np.stack([lo - 0.3, hi + 0.3])
+        data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
+                   train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, source=base.source,
+                   bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,
+                   human_pos=hp,
+                   noise_snr_db=noise_snr_db, noise_seed=int(noise_seed))
+        data._ds = ds
+        data._noisy = {}
+        data.box = box
+        data.split = sp
+        return data
+
+    def raw(self, idx: np.ndarray) -> np.ndarray:
+        """Raw PAS of samples ``idx`` (noise added to training samples when configured):
+        float32 [K, 90, 360]."""
+        idx = np.asarray(idx, np.int64)
+        out = np.zeros((len(idx), *PAS_SHAPE), np.float32)
+        st = self.states[idx]
+        an = self.antennas[idx]
+        for s in np.unique(st):
+            sel = np.flatnonzero(st == s)
+            order = np.argsort(an[sel])
+            out[sel[order]] = np.asarray(self._ds.pas(int(s))[an[sel][order]], dtype=np.float32)
+        if self.noise_snr_db is not None:
+            is_train = np.isin(idx, self.train)
+            for j in np.flatnonzero(is_train):
+                out[j] = self._noisy_pas(int(st[j]), int(an[j]))
+        return out
+
+    def _noisy_pas(self, state: int, antenna: int) -> np.ndarray:
+        key = (state, antenna)
+        if key not in self._noisy:
+            rng = np.random.default_rng([self.noise_seed, state, antenna])
+            ch = None
+            try:
+                ch = np.asarray(self._ds.channel(state)[antenna:antenna + 1])
+            except DatasetError:
+                ch = None
+            if ch is not None and np.abs(ch).sum() > 0:
+                from ..rf import bartlett_ref as _pas
+
+                noisy = add_noise_channels(ch, float(self.noise_snr_db), rng=rng)
+                img = _pas.bartlett(noisy, frequency_hz=float(self._ds.frequency_hz))[0]
+            else:
+                img = add_noise_pas(np.asarray(self._ds.pas(state)[antenna:antenna + 1]), float(self.noise_snr_db),
+                                    rng=rng)[0]
+            self._noisy[key] = np.asarray(img, np.float32)
+        return self._noisy[key]
+
+    def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
+        """Min-max normalised PAS of samples ``idx``: float32 [K, 90/d, 360/d].
+
+        Raises:
+            DatasetError: a PAS with NaN/inf values (naming state and antenna).
+        """
+        raw = self.raw(idx)
+        bad = ~np.isfinite(raw).all(axis=(1, 2))
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            k = int(np.asarray(idx)[j])
+            raise DatasetError(f"{self.path}: PAS of antenna position {int(self.antennas[k])} (state "
+                               f"{int(self.states[k])}) contains NaN or infinite values")
+        return minmax(downsample(raw, d))
+
+    def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False) -> np.ndarray:
+        """:func:`human_features` of samples ``idx``: float32 [K, num_human_features(octaves)];
+        with ``raw`` followed by the human position in metres (zeros for the empty room), [K, F + 3]."""
+        hp = self.human_pos[np.asarray(idx, np.int64)]
+        f = human_features(hp, self.box, octaves=octaves)
+        if raw:
+            f = np.concatenate([f, np.nan_to_num(hp, nan=0.0).astype(np.float32)], axis=1)
+        return f

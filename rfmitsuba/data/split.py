@@ -1,0 +1,91 @@
+"""The on-disk PAS dataset: folder layout, atomic per-state chunks, splits.
+
+Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
+
+    meta.json          configuration, reproducibility record, units
+    split.json         antenna / human train-test indices and their seed
+    antenna_pos.npy    float32 [A, 3], metres, world frame
+    chunks/00000/      state 0: the empty room
+        pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
+        channel.npy    complex64 [A, 16], narrowband channel per element
+        chunk.json     sha256 of both arrays (checked by Dataset.verify)
+    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
+
+Each chunk folder is written under a temporary name and renamed when
+complete, so a folder named ``chunks/<state:05d>`` is either whole or was
+damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
+``k = state * A + antenna``.
+
+Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
+datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+"""
+from __future__ import annotations
+from dataclasses import dataclass
+import numpy as np
+from ..core.errors import DatasetError
+
+#: Fractions of held-out antenna and human positions (SPEC "Splits").
+ANTENNA_TEST_FRACTION = 0.2
+
+
+HUMAN_TEST_FRACTION = 0.19
+
+
+@dataclass(frozen=True)
+class Split:
+    """Train/test indices (int64, sorted): antenna ones index [0, A), human ones index [0, H).
+
+    Human index ``h`` is dataset state ``h + 1``.
+    """
+
+    antenna_train: np.ndarray
+    antenna_test: np.ndarray
+    human_train: np.ndarray
+    human_test: np.ndarray
+    seed: int = 0
+
+    def to_json(self) -> dict:
+        return {
+            "seed": int(self.seed),
+            "antenna_test_fraction": ANTENNA_TEST_FRACTION,
+            "human_test_fraction": HUMAN_TEST_FRACTION,
+            "antenna_train": [int(i) for i in self.antenna_train],
+            "antenna_test": [int(i) for i in self.antenna_test],
+            "human_train": [int(i) for i in self.human_train],
+            "human_test": [int(i) for i in self.human_test],
+        }
+
+    @classmethod
+    def from_json(cls, d: dict, *, num_antennas: int, num_humans: int, where: str = "split.json") -> "Split":
+        try:
+            arrs = {k: np.asarray(d[k], dtype=np.int64) for k in
+                    ("antenna_train", "antenna_test", "human_train", "human_test")}
+            seed = int(d.get("seed", 0))
+        except (KeyError, TypeError, ValueError) as e:
+            raise DatasetError(f"{where}: missing or malformed key {e}") from None
+        for key, n in (("antenna", num_antennas), ("human", num_humans)):
+            both = np.concatenate([arrs[f"{key}_train"], arrs[f"{key}_test"]])
+            if both.size and (both.min() < 0 or both.max() >= n):
+                raise DatasetError(f"{where}: {key} indices outside [0, {n})")
+            if len(np.unique(both)) != both.size:
+                raise DatasetError(f"{where}: {key} train and test indices overlap or repeat")
+        return cls(**arrs, seed=seed)
+
+
+def make_split(num_antennas: int, num_humans: int, *, seed: int = 0) -> Split:
+    """Seeded split per SPEC: 20% of antenna positions and ~19% of human positions held out.
+
+    Args:
+        num_antennas: A, number of antenna positions.
+        num_humans: H, number of human positions (states minus the empty one).
+        seed: RNG seed.
+    """
+    rng = np.random.default_rng(seed)
+    perm_a = rng.permutation(num_antennas)
+    n_at = int(round(ANTENNA_TEST_FRACTION * num_antennas)) if num_antennas > 1 else 0
+    perm_h = rng.permutation(num_humans)
+    n_ht = int(round(HUMAN_TEST_FRACTION * num_humans)) if num_humans > 1 else 0
+    return Split(antenna_train=np.sort(perm_a[n_at:]).astype(np.int64),
+                 antenna_test=np.sort(perm_a[:n_at]).astype(np.int64),
+                 human_train=np.sort(perm_h[n_ht:]).astype(np.int64),
+                 human_test=np.sort(perm_h[:n_ht]).astype(np.int64), seed=seed)

@@ -1,0 +1,442 @@
+"""The on-disk PAS dataset: folder layout, atomic per-state chunks, splits.
+
+Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
+
+    meta.json          configuration, reproducibility record, units
+    split.json         antenna / human train-test indices and their seed
+    antenna_pos.npy    float32 [A, 3], metres, world frame
+    chunks/00000/      state 0: the empty room
+        pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
+        channel.npy    complex64 [A, 16], narrowband channel per element
+        chunk.json     sha256 of both arrays (checked by Dataset.verify)
+    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
+
+Each chunk folder is written under a temporary name and renamed when
+complete, so a folder named ``chunks/<state:05d>`` is either whole or was
+damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
+``k = state * A + antenna``.
+
+Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
+datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+"""
+from __future__ import annotations
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+import numpy as np
+from ..core.atomic import write_json
+from ..core.errors import DatasetError
+from .split import Split, make_split
+from ..rf.grid import PAS_SHAPE
+from ..rf.array import NUM_ELEMENTS
+
+FORMAT = "rfmitsuba-dataset/1"
+
+
+
+
+
+
+UNITS = {
+    "positions": "metres, world frame (scene XML), z up",
+    "angles": "radians unless the key ends in _deg",
+    "frequency_hz": "hertz",
+    "pas": "linear Bartlett amplitude |sum_m conj(a_m) h_m| / 16, raw (not normalised)",
+    "channel": "complex baseband narrowband channel per element, unitless (sqrt of path gain)",
+}
+
+
+def chunk_name(state: int) -> str:
+    """Folder name of one state's chunk, e.g. ``00003``."""
+    return f"{int(state):05d}"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    write_json(path, obj, sort_keys=True, allow_nan=False, end="\n")
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, Path):
+        return str(v)
+    return v
+
+
+def write_chunk(root: str | Path, state: int, *, pas: np.ndarray, channel: np.ndarray | None = None) -> Path:
+    """Write one state's arrays atomically (temporary folder, then rename).
+
+    Args:
+        root: dataset folder.
+        state: state index s (0 = empty room).
+        pas: float32 [A, 90, 360], raw linear amplitude.
+        channel: complex64 [A, 16] or None (zeros are stored then).
+    Returns:
+        The chunk folder. An existing chunk of that state is replaced.
+    """
+    root = Path(root)
+    pas = np.ascontiguousarray(pas, dtype=np.float32)
+    if pas.ndim != 3 or pas.shape[1:] != PAS_SHAPE:
+        raise DatasetError(f"state {state}: pas must be [A, 90, 360], got {pas.shape}")
+    if channel is None:
+        channel = np.zeros((pas.shape[0], NUM_ELEMENTS), np.complex64)
+    channel = np.ascontiguousarray(channel, dtype=np.complex64)
+    if channel.shape != (pas.shape[0], NUM_ELEMENTS):
+        raise DatasetError(f"state {state}: channel must be [{pas.shape[0]}, 16], got {channel.shape}")
+    chunks = root / "chunks"
+    chunks.mkdir(parents=True, exist_ok=True)
+    final = chunks / chunk_name(state)
+    tmp = chunks / f".tmp-{chunk_name(state)}-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    np.save(tmp / "pas.npy", pas, allow_pickle=False)
+    np.save(tmp / "channel.npy", channel, allow_pickle=False)
+    _write_json(tmp / "chunk.json", {"state": int(state), "num_antennas": int(pas.shape[0]),
+                                     "sha256": {"pas.npy": _sha256(tmp / "pas.npy"),
+                                                "channel.npy": _sha256(tmp / "channel.npy")}})
+    for f in tmp.iterdir():  # data on disk before the rename makes the chunk visible
+        with open(f, "rb") as fh:
+            os.fsync(fh.fileno())
+    if final.exists():
+        shutil.rmtree(final)
+    os.rename(tmp, final)
+    return final
+
+
+def remove_stale_tmp(root: str | Path) -> int:
+    """Delete unfinished chunk folders (never renamed); returns how many."""
+    chunks = Path(root) / "chunks"
+    n = 0
+    if chunks.is_dir():
+        for p in chunks.glob(".tmp-*"):
+            shutil.rmtree(p, ignore_errors=True)
+            n += 1
+    return n
+
+
+def check_chunk(root: str | Path, state: int, num_antennas: int, *, full: bool = False) -> None:
+    """Raise DatasetError naming the chunk if it is missing, truncated or (``full``) corrupt.
+
+    The quick check reads the .npy headers and compares file sizes; ``full``
+    also compares sha256 digests with ``chunk.json``.
+    """
+    folder = Path(root) / "chunks" / chunk_name(state)
+    name = f"chunk {folder}"
+    if not folder.is_dir():
+        raise DatasetError(f"{name} is missing")
+    expect = {"pas.npy": ((num_antennas, *PAS_SHAPE), np.float32),
+              "channel.npy": ((num_antennas, NUM_ELEMENTS), np.complex64)}
+    for fname, (shape, dtype) in expect.items():
+        f = folder / fname
+        if not f.is_file():
+            raise DatasetError(f"{name}: {fname} is missing")
+        try:
+            arr = np.load(f, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise DatasetError(f"{name}: {fname} is truncated or corrupt ({e})") from None
+        if arr.shape != shape or arr.dtype != dtype:
+            raise DatasetError(f"{name}: {fname} has shape {arr.shape} {arr.dtype}, expected {shape} {np.dtype(dtype)}")
+        del arr
+    if full:
+        try:
+            digests = json.loads((folder / "chunk.json").read_text())["sha256"]
+        except (OSError, ValueError, KeyError) as e:
+            raise DatasetError(f"{name}: chunk.json is missing or malformed ({e})") from None
+        for fname in expect:
+            if _sha256(folder / fname) != digests.get(fname):
+                raise DatasetError(f"{name}: {fname} does not match its sha256 in chunk.json (corrupt)")
+
+
+class Dataset:
+    """A dataset folder opened for reading (see module docstring).
+
+    Attributes:
+        path: the folder.
+        meta: the parsed meta.json.
+        task: "rx" (moving array) or "tx" (moving transmitter).
+        frequency_hz: carrier, Hz.
+        num_antennas: A.
+        num_states: S = 1 + H.
+        antenna_pos: float32 [A, 3], metres, positions of the moving device.
+        human_pos: float32 [S, 3], metres (row 0 NaN: empty room).
+        fixed_pos: float64 [3], metres, the fixed device in the room corner.
+        split: the saved :class:`Split`.
+    """
+
+    def __init__(self, path: str | Path, *, check: bool = True):
+        self.path = Path(path)
+        meta_file = self.path / "meta.json"
+        if not meta_file.is_file():
+            raise DatasetError(f"{self.path}: no meta.json, not a dataset folder")
+        try:
+            self.meta = json.loads(meta_file.read_text())
+        except ValueError as e:
+            raise DatasetError(f"{meta_file}: not valid JSON ({e})") from None
+        if self.meta.get("format") != FORMAT:
+            raise DatasetError(f"{meta_file}: format is {self.meta.get('format')!r}, expected {FORMAT!r}")
+        for key in ("task", "frequency_hz", "num_antenna_positions", "human_positions", "fixed_pos"):
+            if key not in self.meta:
+                raise DatasetError(f"{meta_file}: missing key {key!r}")
+        self.task = self.meta["task"]
+        self.frequency_hz = float(self.meta["frequency_hz"])
+        self.num_antennas = int(self.meta["num_antenna_positions"])
+        hp = np.asarray(self.meta["human_positions"], dtype=np.float32).reshape(-1, 3)
+        self.num_states = 1 + hp.shape[0]
+        self.human_pos = np.concatenate([np.full((1, 3), np.nan, np.float32), hp])
+        self.fixed_pos = np.asarray(self.meta["fixed_pos"], dtype=np.float64)
+        ap_file = self.path / "antenna_pos.npy"
+        try:
+            self.antenna_pos = np.load(ap_file, allow_pickle=False).astype(np.float32)
+        except (OSError, ValueError, EOFError) as e:
+            raise DatasetError(f"{ap_file}: missing or unreadable ({e})") from None
+        if self.antenna_pos.shape != (self.num_antennas, 3):
+            raise DatasetError(f"{ap_file}: shape {self.antenna_pos.shape}, expected ({self.num_antennas}, 3)")
+        split_file = self.path / "split.json"
+        try:
+            sd = json.loads(split_file.read_text())
+        except (OSError, ValueError) as e:
+            raise DatasetError(f"{split_file}: missing or malformed ({e})") from None
+        self.split = Split.from_json(sd, num_antennas=self.num_antennas, num_humans=self.num_states - 1,
+                                     where=str(split_file))
+        if check:
+            for s in range(self.num_states):
+                check_chunk(self.path, s, self.num_antennas)
+
+    def __repr__(self) -> str:
+        return (f"Dataset({str(self.path)!r}, task={self.task!r}, antennas={self.num_antennas}, "
+                f"states={self.num_states})")
+
+    def pas(self, state: int) -> np.ndarray:
+        """Raw PAS of one state: float32 [A, 90, 360] (read-only memmap)."""
+        return self._load(state, "pas.npy")
+
+    def channel(self, state: int) -> np.ndarray:
+        """Narrowband channel of one state: complex64 [A, 16] (read-only memmap)."""
+        return self._load(state, "channel.npy")
+
+    def _load(self, state: int, fname: str) -> np.ndarray:
+        if not 0 <= int(state) < self.num_states:
+            raise DatasetError(f"{self.path}: state {state} outside [0, {self.num_states})")
+        f = self.path / "chunks" / chunk_name(state) / fname
+        try:
+            return np.load(f, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError, EOFError) as e:
+            raise DatasetError(f"chunk {f.parent}: {fname} unreadable ({e})") from None
+
+    def verify(self) -> list[int]:
+        """Full check (sha256) of every chunk; returns the states whose chunk is bad or missing."""
+        bad = []
+        for s in range(self.num_states):
+            try:
+                check_chunk(self.path, s, self.num_antennas, full=True)
+            except DatasetError:
+                bad.append(s)
+        return bad
+
+    def arrays(self, states: list[int] | None = None) -> dict[str, np.ndarray]:
+        """Flat SPEC arrays, row ``k = state * A + antenna`` (over ``states`` in the given order).
+
+        Returns:
+            ``pas`` float32 [K, 90, 360], ``antenna_pos`` float32 [K, 3],
+            ``human_pos`` float32 [K, 3] (NaN rows for the empty room),
+            ``channel`` complex64 [K, 16], ``state`` int64 [K], ``antenna`` int64 [K].
+        """
+        states = list(range(self.num_states)) if states is None else [int(s) for s in states]
+        A = self.num_antennas
+        return {
+            "pas": np.concatenate([np.asarray(self.pas(s)) for s in states]) if states
+            else np.zeros((0, *PAS_SHAPE), np.float32),
+            "channel": np.concatenate([np.asarray(self.channel(s)) for s in states]) if states
+            else np.zeros((0, NUM_ELEMENTS), np.complex64),
+            "antenna_pos": np.tile(self.antenna_pos, (len(states), 1)),
+            "human_pos": np.repeat(self.human_pos[states], A, axis=0),
+            "state": np.repeat(np.asarray(states, np.int64), A),
+            "antenna": np.tile(np.arange(A, dtype=np.int64), len(states)),
+        }
+
+
+def open_dataset(path: str | Path, *, check: bool = True) -> Dataset:
+    """Open a dataset folder; DatasetError naming the file/chunk when it is incomplete or damaged.
+
+    A NeRF2 spectrum folder (``spectrum/`` + ``gateway_info.yml``) is read through
+    :func:`rfmitsuba.nerf2.read` instead.
+    """
+    p = Path(path)
+    if not (p / "meta.json").exists() and (p / "spectrum").is_dir():
+        from . import nerf2
+
+        return nerf2.read(p)
+    return Dataset(p, check=check)
+
+
+#: keys compared first, so the reported difference is the cause rather than a consequence
+_DIFF_FIRST = ("format", "task", "scene", "frequency_hz", "generate", "solver", "seeds", "num_antenna_positions",
+               "num_states", "versions")
+
+
+def config_diff(a: Any, b: Any, prefix: str = "") -> str | None:
+    """Dotted name of the first key where two meta dicts differ, or None when equal."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = sorted(set(a) | set(b))
+        keys = [k for k in _DIFF_FIRST if k in keys] + [k for k in keys if k not in _DIFF_FIRST]
+        for k in keys:
+            if k not in a or k not in b:
+                return f"{prefix}{k}"
+            d = config_diff(a[k], b[k], f"{prefix}{k}.")
+            if d is not None:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return prefix.rstrip(".") or "<root>"
+        for i, (x, y) in enumerate(zip(a, b)):
+            d = config_diff(x, y, f"{prefix.rstrip('.')}[{i}].")
+            if d is not None:
+                return d.rstrip(".") if d.endswith(".") else d
+        return None
+    if a != b:
+        return prefix.rstrip(".") or "<root>"
+    return None
+
+
+def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, split: Split) -> Path:
+    """Create the dataset folder (meta, split, antenna positions), or check an existing one matches.
+
+    An existing ``meta.json`` of another configuration raises DatasetError naming
+    the first differing key; nothing is overwritten then. A folder holding
+    other files but no ``meta.json`` is refused too.
+    """
+    root = Path(path)
+    meta = _jsonable(meta)
+    meta_file = root / "meta.json"
+    if meta_file.exists():
+        try:
+            old = json.loads(meta_file.read_text())
+        except ValueError as e:
+            raise DatasetError(f"{meta_file}: not valid JSON ({e}); refusing to overwrite") from None
+        key = config_diff(old, meta)
+        if key is not None:
+            raise DatasetError(f"{root} holds a dataset of another configuration: key {key!r} differs; "
+                               "nothing was overwritten (choose another --out)")
+        ap_old = np.load(root / "antenna_pos.npy", allow_pickle=False)
+        if not np.array_equal(ap_old, np.asarray(antenna_pos, np.float32)):
+            raise DatasetError(f"{root}/antenna_pos.npy differs from this configuration's positions")
+        return root
+    if root.exists() and any(root.iterdir()):
+        raise DatasetError(f"{root} is not empty and holds no dataset; refusing to write into it")
+    root.mkdir(parents=True, exist_ok=True)
+    np.save(root / "antenna_pos.npy", np.asarray(antenna_pos, np.float32), allow_pickle=False)
+    _write_json(root / "split.json", split.to_json())
+    _write_json(meta_file, meta)  # last: its presence marks a prepared folder
+    return root
+
+
+def base_meta(*, task: str, frequency_hz: float, num_antennas: int, human_positions: np.ndarray,
+              fixed_pos: np.ndarray, extra: dict | None = None) -> dict:
+    """The meta.json keys every dataset has, plus ``extra`` (scene, solver, seeds, versions...)."""
+    from ..rf import array as antenna
+
+    if task not in ("rx", "tx"):
+        raise DatasetError(f"task must be 'rx' or 'tx', got {task!r}")
+    hp = np.asarray(human_positions, np.float64).reshape(-1, 3)
+    meta = {
+        "format": FORMAT,
+        "task": task,
+        "frequency_hz": float(frequency_hz),
+        "num_antenna_positions": int(num_antennas),
+        "num_states": int(1 + hp.shape[0]),
+        "human_positions": hp.tolist(),
+        "fixed_pos": [float(x) for x in np.asarray(fixed_pos, np.float64).reshape(3)],
+        "array": antenna.describe(float(frequency_hz)),
+        "pas_layout": {"shape": list(PAS_SHAPE), "row": "elevation (i + 1) deg above the array plane",
+                       "column": "azimuth j deg from array +x towards +y"},
+        "units": UNITS,
+    }
+    meta.update(extra or {})
+    return _jsonable(meta)
+
+
+def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray, human_pos: np.ndarray,
+                  meta: dict | None = None, split: Split | None = None, seed: int = 0,
+                  channel: np.ndarray | None = None) -> Dataset:
+    """Write a whole in-memory dataset (tests, converters); needs no Sionna.
+
+    Args:
+        path: new (or empty) folder.
+        pas: float32 [S, A, 90, 360], raw or normalised amplitude.
+        antenna_pos: float [A, 3], metres.
+        human_pos: float [S, 3], metres; row 0 must be NaN (the empty room).
+        meta: extra meta.json keys (e.g. ``task``, ``frequency_hz``, ``fixed_pos``, ``scene``).
+        split: train/test split; default :func:`make_split` with ``seed``.
+        seed: split seed when ``split`` is None.
+        channel: complex64 [S, A, 16] or None.
+    Returns:
+        The written dataset, opened.
+    """
+    pas = np.asarray(pas, dtype=np.float32)
+    if pas.ndim != 4 or pas.shape[2:] != PAS_SHAPE:
+        raise DatasetError(f"pas must be [S, A, 90, 360], got {pas.shape}")
+    S, A = pas.shape[:2]
+    antenna_pos = np.asarray(antenna_pos, np.float64)
+    if antenna_pos.shape != (A, 3) or not np.isfinite(antenna_pos).all():
+        raise DatasetError(f"antenna_pos must be finite [{A}, 3], got shape {antenna_pos.shape}")
+    human_pos = np.asarray(human_pos, np.float64)
+    if human_pos.shape != (S, 3):
+        raise DatasetError(f"human_pos must be [{S}, 3], got {human_pos.shape}")
+    if not np.isnan(human_pos[0]).all() or not np.isfinite(human_pos[1:]).all():
+        raise DatasetError("human_pos row 0 must be NaN (empty room) and rows 1.. finite")
+    if channel is not None and np.shape(channel) != (S, A, NUM_ELEMENTS):
+        raise DatasetError(f"channel must be [{S}, {A}, 16], got {np.shape(channel)}")
+    meta = dict(meta or {})
+    extra = {k: v for k, v in meta.items() if k not in
+             ("task", "frequency_hz", "fixed_pos", "human_positions", "num_antenna_positions", "num_states")}
+    full = base_meta(task=meta.get("task", "rx"), frequency_hz=meta.get("frequency_hz", 2.4e9), num_antennas=A,
+                     human_positions=human_pos[1:], fixed_pos=meta.get("fixed_pos", [0.0, 0.0, 0.0]),
+                     extra={"source": "write_dataset", **extra})
+    split = split if split is not None else make_split(A, S - 1, seed=seed)
+    root = prepare_folder(path, full, antenna_pos=antenna_pos, split=split)
+    for s in range(S):
+        write_chunk(root, s, pas=pas[s], channel=None if channel is None else channel[s])
+    return Dataset(root)
+
+
+def resolve_scene(scene: str | Path) -> Path:
+    """A built-in scene name (``bedroom``...) or an XML path -> the XML path (SceneError if missing)."""
+    from ..core.errors import SceneError
+
+    p = Path(scene)
+    if p.suffix.lower() == ".xml":
+        if not p.is_file():
+            raise SceneError(f"scene file {p} does not exist")
+        return p.resolve()
+    from .. import scenes
+
+    return scenes.path(str(scene))
+
+
+def _scene_record(xml: Path) -> dict:
+    meshes = sorted(xml.parent.rglob("*.ply"))
+    h = hashlib.sha256()
+    for m in meshes:
+        h.update(m.relative_to(xml.parent).as_posix().encode())
+        h.update(_sha256(m).encode())
+    return {"name": xml.stem, "file": str(xml), "sha256": _sha256(xml),
+            "meshes_sha256": h.hexdigest(), "num_meshes": len(meshes)}

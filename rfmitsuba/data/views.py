@@ -1,0 +1,181 @@
+"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+
+* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
+  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
+* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
+  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
+* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
+  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
+  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
+  same result, a progress bar, and the run folder.
+
+Run folder layout::
+
+    config.toml      the TrainConfig (a run folder of another config is refused)
+    run.json         dataset path, task, split sizes, package versions
+    split.json       train / validation / test antenna indices
+    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    checkpoint/      latest resumable state (written atomically)
+    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/gaussians.ply, final/network.npz, final/summary.json
+
+Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
+(view = the fixed array, network input = transmitter position).
+"""
+from __future__ import annotations
+from dataclasses import dataclass
+from pathlib import Path
+import numpy as np
+from ..core.errors import DatasetError
+from ..rf.bartlett_ref import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
+from ..rf.grid import PAS_SHAPE
+
+
+
+def downsample(x: np.ndarray, d: int) -> np.ndarray:
+    """Block means of d x d pixels: float [K, H, W] -> [K, H/d, W/d]."""
+    if d == 1:
+        return np.asarray(x, dtype=np.float32)
+    k, h, w = x.shape
+    return x.reshape(k, h // d, d, w // d, d).mean(axis=(2, 4)).astype(np.float32)
+
+
+def quat_xyzw_to_matrix(q) -> np.ndarray:
+    """3x3 rotation of a quaternion given as [x, y, z, w] (NeRF2 gateway_info.yml order)."""
+    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _scene_xml(meta: dict, root: Path) -> Path | None:
+    """The scene XML a dataset was simulated in (meta "scene": {"file", "name"} or a string), or None."""
+    sc = meta.get("scene")
+    cands = []
+    if isinstance(sc, dict):
+        cands = [sc.get("file"), sc.get("name")]
+    elif isinstance(sc, str):
+        cands = [sc]
+    for v in cands:
+        if not isinstance(v, str) or not v:
+            continue
+        p = Path(v) if Path(v).is_absolute() else root / v
+        if p.suffix.lower() == ".xml" and p.is_file():
+            return p
+        try:
+            from ..scenes import path as scene_path
+
+            return Path(scene_path(Path(v).stem))
+        except Exception:  # noqa: BLE001 - not a built-in scene name
+            continue
+    return None
+
+
+@dataclass
+class TrainData:
+    """What a run trains and is evaluated on.
+
+    antenna_pos: float64 [A, 3] metres, moving device per position; view_pos: float64 [A, 3]
+    metres, where the array is (= antenna_pos for task "rx", the fixed array for "tx");
+    rx_to_world: float64 [3, 3] or None (array frame); train / test: int64 antenna indices;
+    scene_xml: path or None; source: float64 [3] or None (fixed transmitter, task "rx");
+    bounds: (lo [3], hi [3]) metres of everything known (positions, scene); frequency_hz: carrier.
+    """
+
+    path: Path
+    task: str
+    antenna_pos: np.ndarray
+    view_pos: np.ndarray
+    rx_to_world: np.ndarray | None
+    train: np.ndarray
+    test: np.ndarray
+    scene_xml: Path | None
+    source: np.ndarray | None
+    bounds: tuple
+    _pas: object = None
+    state: int = 0
+    #: carrier, Hz
+    frequency_hz: float = 2.4e9
+
+    @classmethod
+    def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
+        """Open a dataset folder (or NeRF2 spectrum folder) for training on ``state``.
+
+        Raises:
+            DatasetError: missing folder/arrays, mismatched shapes, unknown task.
+        """
+        from .store import open_dataset
+
+        path = Path(path)
+        if not path.exists():
+            raise DatasetError(f"dataset {path} does not exist")
+        ds = open_dataset(path)
+        task = getattr(ds, "task", None)
+        if task not in ("rx", "tx"):
+            raise DatasetError(f"{path}: task must be 'rx' or 'tx', got {task!r}")
+        if not 0 <= state < int(getattr(ds, "num_states", 1)):
+            raise DatasetError(f"{path}: state {state} does not exist (dataset has {ds.num_states} states)")
+        ap = np.asarray(ds.antenna_pos, dtype=np.float64)
+        if ap.ndim != 2 or ap.shape[1] != 3:
+            raise DatasetError(f"{path}: antenna_pos has shape {ap.shape}, expected [A, 3]")
+        if not np.isfinite(ap).all():
+            raise DatasetError(f"{path}: antenna_pos has non-finite values (row {int(np.flatnonzero(~np.isfinite(ap).all(1))[0])})")
+        fixed = np.asarray(getattr(ds, "fixed_pos", np.zeros(3)), dtype=np.float64).reshape(3)
+        meta = dict(getattr(ds, "meta", {}) or {})
+        r2w = getattr(ds, "rx_to_world", None)
+        if r2w is None and "gateway_orientation_xyzw" in meta:
+            r2w = quat_xyzw_to_matrix(meta["gateway_orientation_xyzw"])
+        r2w = None if r2w is None else np.asarray(r2w, dtype=np.float64).reshape(3, 3)
+        view = ap.copy() if task == "rx" else np.tile(fixed, (len(ap), 1))
+        sp = ds.split
+        train = np.asarray(sp.antenna_train, dtype=np.int64)
+        test = np.asarray(sp.antenna_test, dtype=np.int64)
+        if len(train) == 0 or len(test) == 0:
+            raise DatasetError(f"{path}: the split has {len(train)} training and {len(test)} test positions; both must be > 0")
+        xml = _scene_xml(meta, path)
+        pts = np.concatenate([ap, fixed[None]])
+        bounds = (pts.min(0), pts.max(0))
+        data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
+                   scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
+                   frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)))
+        data._pas = ds.pas(state)
+        shp = tuple(np.shape(data._pas))
+        if shp != (len(ap), *PAS_SHAPE):
+            raise DatasetError(f"{path}: pas of state {state} has shape {shp}, expected ({len(ap)}, 90, 360)")
+        return data
+
+    def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
+        """Min-max normalised PAS of antenna indices ``idx``: float32 [K, 90/d, 360/d].
+
+        Raises:
+            DatasetError: a PAS with NaN/inf values (naming the antenna index).
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        raw = np.asarray(self._pas[np.sort(idx)] if len(idx) else np.zeros((0, *PAS_SHAPE)), dtype=np.float32)
+        raw = raw[np.argsort(np.argsort(idx))] if len(idx) else raw
+        bad = ~np.isfinite(raw).all(axis=(1, 2))
+        if bad.any():
+            raise DatasetError(f"{self.path}: PAS of antenna position {int(idx[np.flatnonzero(bad)[0]])} "
+                               f"(state {self.state}) contains NaN or infinite values")
+        return minmax(downsample(raw, d))
+
+    def positions(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(array centre x, transmitter y, moving device q), each float64 [K, 3] metres, of
+        indices ``idx``: moving RX has x = q and y the fixed corner; moving TX has x the fixed
+        array and y = q."""
+        idx = np.asarray(idx, np.int64)
+        q = np.asarray(self.antenna_pos[idx], np.float64)
+        x = np.asarray(self.view_pos[idx], np.float64)
+        y = q if self.task == "tx" else np.tile(np.asarray(self.source, np.float64), (len(idx), 1))
+        return x, y, q
+
+    def meshes(self, scene_xml: Path | None = None):
+        """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, of
+        ``scene_xml`` (default the dataset's scene), or None when there is none (NeRF2 folders)."""
+        scene_xml = scene_xml or self.scene_xml
+        if scene_xml is None:
+            return None
+        from ..sim.geometry import RoomGeometry
+
+        geo = RoomGeometry.from_xml(scene_xml)
+        return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64)) for sh in geo.shapes]

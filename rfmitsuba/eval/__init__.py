@@ -1,0 +1,1 @@
+"""Evaluation: SSIM metrics and floors, Stage-1 run evaluation, the dynamic/static protocols, figures."""

@@ -1,0 +1,131 @@
+"""The compared methods (a registry), how each trains, and the two evaluations.
+
+Methods (:data:`METHODS`; budgets in optimizer steps, ``n1`` = Stage-1 steps, ``n2`` =
+Stage-2 steps of :class:`MethodConfig`):
+
+==================  ================================================================  ===========
+name                what it trains                                                    steps
+==================  ================================================================  ===========
+baseline            one field on the empty-room data                                  n1
+continued           the baseline trained longer (same data)                           n1 + n2
+duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
+baseline_human      one field on empty + human-present data, no human position        n1 + n2
+end_to_end          one field on empty + human-present data, human position as input  n1 + n2
+ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
+                    Gaussians (:mod:`rfmitsuba.human_field`) on the human-present data
+==================  ================================================================  ===========
+
+So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
+stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
+human-present data at training antenna and training human positions).
+
+Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
+
+* **dynamic** - unseen antenna positions x unseen human positions, against the human-present
+  ground truth; nearest neighbour over (antenna, human) position among the human-present
+  training samples. Methods without a human input render the same image for every human.
+* **static** - the background alone (human Gaussians off; end-to-end with "no human" input)
+  at unseen antenna positions, against the empty-room ground truth; nearest neighbour over
+  the antenna position among empty-room training samples.
+"""
+from __future__ import annotations
+import time
+from pathlib import Path
+import numpy as np
+from ..core.errors import RunError
+from ..data.samples import SampleData
+from ..rf.bartlett_ref import normalize as minmax
+
+def test_sets(data: SampleData) -> dict:
+    """Sample indices (into ``data`` opened with states="all") of both evaluations:
+    ``dynamic_test``, ``dynamic_train`` (human-present training samples), ``static_test``,
+    ``static_train``."""
+    sp = data.split
+    a_test = np.isin(data.antennas, sp.antenna_test)
+    a_train = np.isin(data.antennas, sp.antenna_train)
+    h_test = np.isin(data.states, np.asarray(sp.human_test) + 1)
+    h_train = np.isin(data.states, np.asarray(sp.human_train) + 1)
+    st0 = data.states == 0
+    return {"dynamic_test": np.flatnonzero(a_test & h_test), "dynamic_train": np.flatnonzero(a_train & h_train),
+            "static_test": np.flatnonzero(a_test & st0), "static_train": np.flatnonzero(a_train & st0)}
+
+
+def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) -> dict:
+    """Both evaluations of ``model`` on ``dataset`` (SPEC protocol, full 90 x 360).
+
+    Returns:
+        {"dynamic": part, "static": part, "affected": dict or None, "render_ms_per_pas": float,
+        "num_gaussians": int}, each part {"model", "nearest_neighbour", "mean_image": stats dicts
+        (mean, median, p10, min, n), "beats_nearest_neighbour": bool}; with ``keep`` also the
+        per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
+        evaluation on the PAS the person changes most (:func:`_affected`).
+    """
+    from .metrics import floors, ssim_images, stats
+
+    data = SampleData.open_samples(dataset, states="all")
+    sets = test_sets(data)
+    out = {"num_gaussians": model.num_gaussians}
+    t_render, n_render = 0.0, 0
+    for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
+                                                 ("static", "static_test", "static_train", False)):
+        test, train = sets[test_key], sets[train_key]
+        if len(test) == 0 or len(train) == 0:
+            out[part] = None
+            continue
+        gt = data.pas(test)
+        t0 = time.perf_counter()
+        pred = minmax(model.render(data, test, batch=batch))
+        t_render += time.perf_counter() - t0
+        n_render += len(test)
+        if not np.isfinite(pred).all():
+            raise RunError(f"the model renders non-finite values ({part} evaluation of {dataset})")
+        s_model = ssim_images(pred, gt)
+        fl = floors(data.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test],
+                    train_human=data.human_pos[train] if use_human else None,
+                    test_human=data.human_pos[test] if use_human else None)
+        res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
+               "mean_image": stats(fl["mean_image"]),
+               "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
+               "test_samples": int(len(test)), "train_samples": int(len(train))}
+        if keep:
+            res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
+                        "nn": data.pas(train)[fl["nearest_index"]]})
+        out[part] = res
+        if use_human:
+            out["affected"] = _affected(data, test, gt, s_model, fl["nearest_neighbour"])
+    out["render_ms_per_pas"] = 1000 * t_render / max(n_render, 1)
+    return out
+
+
+#: A dynamic test PAS is *affected* by the person when its SSIM against the empty room's PAS at
+#: the same antenna position is below this.
+AFFECTED_SSIM = 0.9
+
+
+def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.ndarray, s_nn: np.ndarray) -> dict | None:
+    """The dynamic evaluation restricted to the test PAS the person changes most.
+
+    Args:
+        data: samples opened with states="all"; test: int [K] dynamic test sample indices;
+        gt: float [K, H, W] their ground truth; s_model / s_nn: float [K] per-PAS SSIM of the model
+        and of the nearest-neighbour floor.
+
+    Returns:
+        None when no test PAS is affected (SSIM against the empty room < :data:`AFFECTED_SSIM`
+        for none), else {"model", "nearest_neighbour", "empty_room": stats dicts over the affected
+        PAS ("empty_room" = the empty room's true PAS used as the prediction: what a perfect
+        background model scores), "threshold", "fraction" (affected / all dynamic test PAS)}.
+    """
+    from .metrics import ssim_images, stats
+
+    empty = {int(a): int(k) for k, a in enumerate(data.antennas) if data.states[k] == 0}
+    ref = np.array([empty.get(int(a), -1) for a in data.antennas[test]])
+    if (ref < 0).any():
+        return None
+    s_empty = ssim_images(data.pas(ref), gt)
+    mask = s_empty < AFFECTED_SSIM
+    if not mask.any():
+        return None
+    return {"model": stats(s_model[mask]), "nearest_neighbour": stats(s_nn[mask]),
+            "empty_room": stats(s_empty[mask]), "threshold": AFFECTED_SSIM,
+            "fraction": float(mask.mean())}

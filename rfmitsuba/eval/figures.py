@@ -1,0 +1,62 @@
+"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
+
+Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
+normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
+data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
+Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
+position - and human position, where given - is nearest) and **mean image** (the mean of the
+normalised training PAS). Wall times of training and rendering are reported too.
+
+:func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
+(per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
+nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
+``ssim_vs_time.png`` (validation SSIM during training against wall time).
+"""
+from __future__ import annotations
+import json
+from pathlib import Path
+import numpy as np
+from ..core import plots
+
+def plot_grid(path: Path, gt: np.ndarray, pred: np.ndarray, nn: np.ndarray, s_model: np.ndarray,
+              s_nn: np.ndarray, *, count: int = 6) -> None:
+    """Ground truth, prediction and nearest neighbour at ``count`` test positions spread from the
+    worst to the best model SSIM."""
+    order = np.argsort(s_model)
+    pick = order[np.linspace(0, len(order) - 1, min(count, len(order))).astype(int)]
+    fig, axes = plots.subplots(len(pick), 3, figsize=(12, 1.6 * len(pick) + 0.6), squeeze=False)
+    for r, i in enumerate(pick):
+        for c, (img, title) in enumerate([(gt[i], "ground truth"), (pred[i], f"model SSIM {s_model[i]:.3f}"),
+                                          (nn[i], f"nearest neighbour SSIM {s_nn[i]:.3f}")]):
+            ax = axes[r, c]
+            ax.imshow(img, origin="lower", aspect="auto", extent=(0, 360, 1, 90), vmin=0, vmax=1, cmap="viridis")
+            ax.set_title(title, fontsize=8)
+            ax.tick_params(labelsize=6)
+            if c == 0:
+                ax.set_ylabel("elevation (deg)", fontsize=7)
+            if r == len(pick) - 1:
+                ax.set_xlabel("azimuth (deg)", fontsize=7)
+    plots.save(fig, path, dpi=110)
+
+
+def plot_cdf(path: Path, series: dict) -> None:
+    """Empirical CDF of per-image SSIM for each named series."""
+    fig, ax = plots.subplots(figsize=(5, 3.5))
+    for name, x in series.items():
+        x = np.sort(np.asarray(x))
+        ax.plot(x, np.arange(1, len(x) + 1) / len(x), label=f"{name} (mean {x.mean():.3f})")
+    plots.label(ax, xlabel="SSIM", ylabel="fraction of test images", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)
+
+
+def plot_time(path: Path, log_file: Path, *, final: tuple | None = None) -> None:
+    """Validation SSIM against training wall time (from ``log.jsonl``), with the final test mean."""
+    rows = [json.loads(ln) for ln in log_file.read_text().splitlines() if ln.strip()] if log_file.is_file() else []
+    rows = [r for r in rows if "val_ssim" in r]
+    fig, ax = plots.subplots(figsize=(5, 3.5))
+    if rows:
+        ax.plot([r["time_s"] for r in rows], [r["val_ssim"] for r in rows], "o-", ms=3, label="validation SSIM")
+    if final and final[0] is not None:
+        ax.plot([final[0]], [final[1]], "r*", ms=10, label="test mean SSIM")
+    plots.label(ax, xlabel="training wall time (s)", ylabel="mean SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)

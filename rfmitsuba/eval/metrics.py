@@ -1,0 +1,90 @@
+"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
+
+Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
+normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
+data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
+Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
+position - and human position, where given - is nearest) and **mean image** (the mean of the
+normalised training PAS). Wall times of training and rendering are reported too.
+
+:func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
+(per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
+nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
+``ssim_vs_time.png`` (validation SSIM during training against wall time).
+"""
+from __future__ import annotations
+import numpy as np
+from ..rf.bartlett_ref import normalize as minmax
+
+def ssim_images(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """SSIM per image pair (skimage, data_range=1, default 7x7 window).
+
+    Args:
+        pred, gt: float [K, H, W], already min-max normalised to [0, 1].
+
+    Returns:
+        float64 [K].
+    """
+    from skimage.metrics import structural_similarity
+
+    pred = np.asarray(pred, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    if pred.shape != gt.shape or pred.ndim != 3:
+        raise ValueError(f"ssim_images: pred {pred.shape} and gt {gt.shape} must both be [K, H, W]")
+    return np.array([structural_similarity(p, g, data_range=1.0) for p, g in zip(pred, gt)], dtype=np.float64)
+
+
+def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
+                  query_human: np.ndarray | None = None) -> np.ndarray:
+    """Index of the nearest training sample for every query.
+
+    Distance: Euclidean over the antenna position (metres), plus the human position
+    where both are given (6-D distance; NaN human rows, i.e. empty room, count as a human
+    far away from any real position).
+
+    Args:
+        train_pos: float [M, 3] metres; query_pos: float [K, 3] metres.
+        train_human / query_human: float [M, 3] / [K, 3] metres or None.
+
+    Returns:
+        int64 [K] indices into the training rows (ties: the lowest index).
+    """
+    from scipy.spatial import cKDTree
+
+    a = np.asarray(train_pos, np.float64)
+    q = np.asarray(query_pos, np.float64)
+    if train_human is not None and query_human is not None:
+        th = np.nan_to_num(np.asarray(train_human, np.float64), nan=1e3)
+        qh = np.nan_to_num(np.asarray(query_human, np.float64), nan=1e3)
+        a, q = np.concatenate([a, th], 1), np.concatenate([q, qh], 1)
+    if len(a) == 0:
+        raise ValueError("nearest_index: no training samples")
+    _, idx = cKDTree(a).query(q, k=1)
+    return np.asarray(idx, dtype=np.int64)
+
+
+def floors(train_pas: np.ndarray, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.ndarray, *,
+           train_human=None, test_human=None) -> dict:
+    """Model-free baselines on one split.
+
+    Args:
+        train_pas: float [M, H, W] normalised training PAS; train_pos: float [M, 3] metres.
+        test_pas: float [K, H, W] normalised test PAS; test_pos: float [K, 3] metres.
+        train_human / test_human: optional human positions [M, 3] / [K, 3].
+
+    Returns:
+        {"nearest_neighbour": float64 [K] SSIM, "nearest_index": int64 [K],
+         "mean_image": float64 [K] SSIM}.
+    """
+    idx = nearest_index(train_pos, test_pos, train_human=train_human, query_human=test_human)
+    nn_pred = np.asarray(train_pas)[idx]
+    mean_img = minmax(np.asarray(train_pas, np.float64).mean(axis=0)[None])
+    return {"nearest_neighbour": ssim_images(nn_pred, test_pas), "nearest_index": idx,
+            "mean_image": ssim_images(np.repeat(mean_img, len(test_pas), axis=0), test_pas)}
+
+
+def stats(x: np.ndarray) -> dict:
+    """Mean, median, 10th percentile, min of per-image SSIM."""
+    x = np.asarray(x, np.float64)
+    return {"mean": float(x.mean()), "median": float(np.median(x)), "p10": float(np.percentile(x, 10)),
+            "min": float(x.min()), "n": int(len(x))}

@@ -1,0 +1,101 @@
+"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
+
+Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
+normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
+data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
+Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
+position - and human position, where given - is nearest) and **mean image** (the mean of the
+normalised training PAS). Wall times of training and rendering are reported too.
+
+:func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
+(per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
+nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
+``ssim_vs_time.png`` (validation SSIM during training against wall time).
+"""
+from __future__ import annotations
+import json
+import os
+import time
+from pathlib import Path
+import numpy as np
+from ..core.errors import RunError
+from ..rf.bartlett_ref import normalize as minmax
+from .figures import plot_cdf, plot_grid, plot_time
+from .metrics import floors, ssim_images, stats
+
+def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) -> dict:
+    """Evaluate a finished run on its test split (full 90 x 360 resolution) and write ``RUN/eval``.
+
+    Returns:
+        the metrics dict (also ``RUN/eval/metrics.json``).
+
+    Raises:
+        RunError: not a run folder, or training not finished.
+    """
+    from ..train.trainer import load_run
+
+    rd = Path(run_dir)
+    cfg, data, field, tr = load_run(rd)
+    split = json.loads((rd / "split.json").read_text())
+    train_idx = np.asarray(split["train"], np.int64)
+    test_idx = np.asarray(split["test"], np.int64)
+    gt_test = data.pas(test_idx)
+    t0 = time.perf_counter()
+    pred = tr.predict(field, test_idx, h=90, w=360, batch=batch)
+    render_s = time.perf_counter() - t0
+    if not np.isfinite(pred).all():
+        raise RunError(f"{rd}: the model renders non-finite values")
+    model_ssim = ssim_images(minmax(pred), gt_test)
+    gt_train = data.pas(train_idx)
+    fl = floors(gt_train, data.antenna_pos[train_idx], gt_test, data.antenna_pos[test_idx])
+    summary = json.loads((rd / "final" / "summary.json").read_text())
+    metrics = {
+        "run": str(rd), "dataset": str(data.path), "task": data.task, "test_positions": int(len(test_idx)),
+        "train_positions": int(len(train_idx)),
+        "model": stats(model_ssim), "nearest_neighbour": stats(fl["nearest_neighbour"]),
+        "mean_image": stats(fl["mean_image"]),
+        "beats_nearest_neighbour": bool(model_ssim.mean() > fl["nearest_neighbour"].mean()),
+        "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
+        "network_parameters": field.network_parameters,
+        "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
+        "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
+        "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),
+    }
+    out = rd / "eval"
+    out.mkdir(exist_ok=True)
+    np.savez(out / "ssim.npz", model=model_ssim, nearest_neighbour=fl["nearest_neighbour"],
+             mean_image=fl["mean_image"], test_index=test_idx)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    (out / "summary.md").write_text(summary_markdown(metrics))
+    plot_grid(out / "grid.png", gt_test, minmax(pred), gt_train[fl["nearest_index"]], model_ssim,
+              fl["nearest_neighbour"])
+    plot_cdf(out / "ssim_cdf.png", {"model": model_ssim, "nearest neighbour": fl["nearest_neighbour"],
+                                    "mean image": fl["mean_image"]})
+    plot_time(out / "ssim_vs_time.png", rd / "log.jsonl", final=(metrics["train_time_s"], metrics["model"]["mean"]))
+    return metrics
+
+
+def summary_markdown(m: dict) -> str:
+    """The Markdown report of :func:`evaluate_run`'s metrics."""
+    verdict = ("The model beats the nearest-neighbour floor (mean SSIM)." if m["beats_nearest_neighbour"] else
+               "The model does NOT beat the nearest-neighbour floor (mean SSIM): on average it has learned "
+               "nothing more useful than a lookup of the closest training PAS.")
+    rows = [("model", m["model"]), ("nearest neighbour", m["nearest_neighbour"]), ("mean image", m["mean_image"])]
+    lines = [
+        f"# Evaluation of `{m['run']}`", "",
+        f"Dataset `{m['dataset']}`, task moving-{m['task'].upper()}, {m['train_positions']} training and "
+        f"{m['test_positions']} held-out test positions. SSIM by the SPEC protocol (skimage, data_range=1, "
+        "7x7 window, per-image min-max normalised 90x360 PAS).", "",
+        "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
+    ]
+    lines += [f"| {name} | {s['mean']:.4f} | {s['median']:.4f} | {s['p10']:.4f} | {s['min']:.4f} |" for name, s in rows]
+    lines += ["", verdict, "",
+              f"- Gaussians: {m['num_gaussians']}; parameters: {m['num_parameters']} "
+              f"(network {m['network_parameters']})",
+              f"- training: {m['train_steps']} steps, {m['train_time_s']:.1f} s wall time",
+              f"- rendering: {m['render_time_s']:.2f} s for {m['test_positions']} images "
+              f"({m['render_ms_per_image']:.1f} ms per image); machine: {m['cpu_count']} cores, "
+              f"1-minute load average {m['load_average_1min']:.1f} at evaluation (shared machines time slower)", "",
+              "Plots: `grid.png` (ground truth / prediction / nearest neighbour), `ssim_cdf.png`, "
+              "`ssim_vs_time.png`.", ""]
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""Experiments: the methods registry and job runner, compare, reproduce, demo, benchmarks, reports."""

@@ -1,0 +1,211 @@
+"""Compare methods on one dataset of your own: train each over seeds, evaluate, tabulate.
+
+:func:`compare` is what ``rfmitsuba compare DATASET --out DIR`` runs. For every seed it trains
+the requested methods of :mod:`rfmitsuba.methods` (Ours reuses that seed's Baseline as its
+Stage 1, so Baseline and Ours share one background), evaluates each by both protocols
+(dynamic: unseen antenna x unseen human positions; static: the background alone) with the
+nearest-neighbour and mean-image floors, and writes
+
+    DIR/compare.toml        the configuration (a folder of other training sizes is refused; seeds
+                            and methods may be added later: their jobs are new folders)
+    DIR/seed<S>/<method>/   each job: runs, metrics.json, DONE
+    DIR/results.json        every job's metrics
+    DIR/report.md           mean +- std over seeds, floors, training and render time
+    DIR/speed_accuracy.png  dynamic SSIM against training wall time, every job
+
+Jobs with a DONE marker are not run again, so a killed comparison resumes where it stopped.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from ..core import config as C
+from ..core.atomic import write_json, write_text
+from ..core.errors import ConfigError, RunError
+from .methods import METHODS, MethodConfig, get_method, run_job as methods_run_job
+from ..train.config import TrainConfig, config_diff
+
+
+def default_methods_config() -> MethodConfig:
+    """The coherent model at the sizes of the README's bedroom figures (900 positions x 35 walk
+    positions; about 25 min per seed for Baseline, Ours and End-to-End on 2 cores)."""
+    s1 = TrainConfig(model="coherent", iterations=3000, batch_views=8, downsample=1, val_every=500,
+                     checkpoint_every=500, log_every=50)
+    s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4
+    return MethodConfig(stage1=s1, stage2_iterations=1500,
+                        stage2_optim=dataclasses.replace(s1.optim, lr_amp=3e-3, lr_amp_final=3e-4,
+                                                         lr_means=3e-3, lr_means_final=3e-4))
+
+
+@dataclass
+class CompareConfig:
+    """What :func:`compare` runs: ``methods`` (names of :data:`rfmitsuba.methods.METHODS`),
+    ``seeds`` (training seeds) and ``training`` (the sizes every method shares)."""
+
+    methods: list[str] = dc_field(default_factory=lambda: ["baseline", "end_to_end", "ours"])
+    seeds: list[int] = dc_field(default_factory=lambda: [0, 1, 2])
+    training: MethodConfig = dc_field(default_factory=default_methods_config)
+
+    def __post_init__(self) -> None:
+        for m in self.methods:
+            get_method(m)
+        if not self.methods or not self.seeds:
+            raise ConfigError("CompareConfig: methods and seeds must not be empty")
+        if len(set(self.seeds)) != len(self.seeds) or len(set(self.methods)) != len(self.methods):
+            raise ConfigError("CompareConfig: methods and seeds must not repeat")
+
+
+def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
+    f = out / "compare.toml"
+    if f.is_file():
+        # more seeds or methods may be added to a comparison; the training sizes must not change
+        diff = config_diff(C.to_dict(C.load(CompareConfig, f).training), C.to_dict(cfg.training), "training.")
+        if diff:
+            raise RunError(f"output folder {out} holds another comparison: {'; '.join(diff)}. Use another --out "
+                           "(nothing was changed)")
+        info = json.loads((out / "dataset.json").read_text()) if (out / "dataset.json").is_file() else {}
+        if info.get("dataset") and Path(info["dataset"]).resolve() != dataset.resolve():
+            raise RunError(f"output folder {out} compares on dataset {info['dataset']}, not {dataset} "
+                           "(nothing was changed)")
+    elif out.is_dir() and any(out.iterdir()):
+        raise RunError(f"{out} is not empty and holds no compare.toml: not a comparison folder (nothing was changed)")
+
+
+def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
+            reevaluate: bool = False) -> dict:
+    """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.methods.run_job`
+    (skipped when done; Ours first runs that seed's Baseline, its Stage 1)."""
+    stage1 = None
+    if get_method(method).two_stage:
+        run_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
+        stage1 = out / f"seed{seed}" / "baseline" / "train"
+    return methods_run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
+                           record={"method": method, "seed": seed}, stage1_dir=stage1, reevaluate=reevaluate,
+                           quiet=quiet)
+
+
+def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
+            progress: bool = True, reevaluate: bool = False) -> Path:
+    """Run (or resume) a comparison; returns the path of ``report.md``.
+
+    ``reevaluate``: evaluate every finished job of the folder again (after the evaluation
+    protocol changed; training is not repeated, ``metrics.json`` is rewritten atomically).
+
+    Raises:
+        RunError: ``out`` holds another configuration or dataset; DatasetError: a dataset
+        without human-present states (the methods need them).
+    """
+    from ..core.progress import bar
+
+    cfg = cfg or CompareConfig()
+    dataset, out = Path(dataset), Path(out)
+    _check_folder(out, cfg, dataset)
+    out.mkdir(parents=True, exist_ok=True)
+    C.save(cfg, out / "compare.toml")
+    write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
+    order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
+    results = []
+    with bar(len(cfg.seeds) * len(order), desc="compare", unit="job", quiet=not progress) as pb:
+        for seed in cfg.seeds:
+            for m in order:
+                results.append(run_job(m, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
+                pb.update(1)
+    # jobs of earlier seeds / methods of the same comparison stay in the results
+    ran = {(x["method"], x["seed"]) for x in results}
+    for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
+        method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
+        if (method, seed) not in ran:
+            results.append(run_job(method, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
+    write_json(out / "results.json", results, allow_nan=True)
+    _speed_accuracy(out / "speed_accuracy.png", results)
+    return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
+
+
+def _ms(values, digits: int = 3) -> str:
+    """``mean ± std`` of finite values (reproduce.mean_std), the value alone for one, n/a for none."""
+    from ..eval.metrics import mean_std
+
+    v = [float(x) for x in values if x is not None]
+    m, sd = mean_std(v)
+    if not np.isfinite(m):
+        return "n/a"
+    return f"{m:.{digits}f} ± {sd:.{digits}f}" if sum(np.isfinite(v)) > 1 else f"{m:.{digits}f}"
+
+
+def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
+    """Markdown: per method, dynamic and static SSIM (mean +- std over seeds of the per-seed mean
+    and median), the floors, whether the method beats nearest neighbour, training and render time."""
+    lines = [f"# Method comparison on `{dataset}`", "",
+             f"Seeds {sorted({r['seed'] for r in results})} (of jobs run in this folder; a method's row averages the "
+             f"seeds it has); SPEC protocol (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
+             "over seeds.", ""]
+    for part in ("dynamic", "static"):
+        lines += [f"## {part.capitalize()} evaluation", "",
+                  "| method | mean SSIM | median SSIM | nearest neighbour | mean image | beats NN | train time (s) | "
+                  "render (ms / PAS) | sources / Gaussians |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for m in _method_order(results, cfg):
+            rs = [r for r in results if r["method"] == m and r["eval"].get(part)]
+            if not rs:
+                continue
+            ev = [r["eval"][part] for r in rs]
+            beats = sum(e["beats_nearest_neighbour"] for e in ev)
+            lines.append(
+                f"| {METHODS[m].label} | {_ms(e['model']['mean'] for e in ev)} | {_ms(e['model']['median'] for e in ev)}"
+                f" | {_ms(e['nearest_neighbour']['mean'] for e in ev)} | {_ms(e['mean_image']['mean'] for e in ev)}"
+                f" | {beats}/{len(ev)} | {_ms((r['train']['train_time_s'] for r in rs), 0)}"
+                f" | {_ms((r['eval']['render_ms_per_pas'] for r in rs), 1)} | {rs[0]['eval']['num_gaussians']} |")
+        lines.append("")
+    lines += _affected_lines(results, cfg)
+    lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed). "
+              "`speed_accuracy.png`: dynamic mean SSIM against training time, every job.", ""]
+    return "\n".join(lines)
+
+
+def _method_order(results: list[dict], cfg: CompareConfig) -> list[str]:
+    """The report's rows: the configured methods, then those of earlier jobs in this folder."""
+    have = {r["method"] for r in results}
+    return list(cfg.methods) + [m for m in METHODS if m in have and m not in cfg.methods]
+
+
+def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
+    """Markdown section: the dynamic evaluation on the PAS the person changes most
+    (:func:`rfmitsuba.methods.evaluate`'s "affected" part; jobs evaluated before it existed are
+    left out: ``--reevaluate`` adds it)."""
+    rs_all = [r for r in results if r["eval"].get("affected")]
+    if not rs_all:
+        return []
+    a0 = rs_all[0]["eval"]["affected"]
+    lines = ["## Where the person matters", "",
+             f"Dynamic test PAS whose SSIM against the empty room's PAS at the same antenna is below "
+             f"{a0['threshold']:g}: {a0['model']['n']} PAS ({100 * a0['fraction']:.1f}% of the dynamic test set). "
+             "\"empty room\" scores the empty room's true PAS as the prediction: what a perfect background "
+             "model can reach here.", "",
+             "| method | mean SSIM | median SSIM | nearest neighbour | empty room | seeds |", "|---|---|---|---|---|---|"]
+    for m in _method_order(rs_all, cfg):
+        rs = [r["eval"]["affected"] for r in rs_all if r["method"] == m]
+        if rs:
+            lines.append(f"| {METHODS[m].label} | {_ms(a['model']['mean'] for a in rs)} | "
+                         f"{_ms(a['model']['median'] for a in rs)} | {_ms(a['nearest_neighbour']['mean'] for a in rs)} | "
+                         f"{_ms(a['empty_room']['mean'] for a in rs)} | {len(rs)} |")
+    return lines + [""]
+
+
+def _speed_accuracy(path: Path, results: list[dict]) -> None:
+    from ..core import plots
+
+    fig, ax = plots.subplots(figsize=(5, 3.5))
+    for m in sorted({r["method"] for r in results}):
+        rs = [r for r in results if r["method"] == m and r["eval"].get("dynamic")]
+        ax.scatter([r["train"]["train_time_s"] for r in rs], [r["eval"]["dynamic"]["model"]["mean"] for r in rs],
+                   label=METHODS[m].label)
+    nn = [r["eval"]["dynamic"]["nearest_neighbour"]["mean"] for r in results if r["eval"].get("dynamic")]
+    if nn:
+        ax.axhline(float(np.mean(nn)), color="grey", ls="--", lw=1, label="nearest neighbour")
+    plots.label(ax, xlabel="training wall time (s)", ylabel="dynamic mean SSIM", legend_fontsize=7)
+    plots.save(fig, path)

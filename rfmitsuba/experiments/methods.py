@@ -1,0 +1,335 @@
+"""The compared methods (a registry), how each trains, and the two evaluations.
+
+Methods (:data:`METHODS`; budgets in optimizer steps, ``n1`` = Stage-1 steps, ``n2`` =
+Stage-2 steps of :class:`MethodConfig`):
+
+==================  ================================================================  ===========
+name                what it trains                                                    steps
+==================  ================================================================  ===========
+baseline            one field on the empty-room data                                  n1
+continued           the baseline trained longer (same data)                           n1 + n2
+duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
+baseline_human      one field on empty + human-present data, no human position        n1 + n2
+end_to_end          one field on empty + human-present data, human position as input  n1 + n2
+ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
+                    Gaussians (:mod:`rfmitsuba.human_field`) on the human-present data
+==================  ================================================================  ===========
+
+So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
+stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
+human-present data at training antenna and training human positions).
+
+Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
+
+* **dynamic** - unseen antenna positions x unseen human positions, against the human-present
+  ground truth; nearest neighbour over (antenna, human) position among the human-present
+  training samples. Methods without a human input render the same image for every human.
+* **static** - the background alone (human Gaussians off; end-to-end with "no human" input)
+  at unseen antenna positions, against the empty-room ground truth; nearest neighbour over
+  the antenna position among empty-room training samples.
+"""
+from __future__ import annotations
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+import numpy as np
+from ..core import config as C
+from ..core.atomic import numpy_default, write_json
+from ..core.errors import ConfigError, RunError
+from ..models.coherent_person import HUMAN_FIELDS, CoherentHumanConfig, CoherentHumanField, CoherentPerturbField
+from ..models.coherent import CoherentField
+from ..models.splat import Splats, load_field
+from ..models.splat_person import HumanConfig, HumanField
+from ..data.samples import SampleData, num_human_features
+from ..train.config import OptimConfig, TrainConfig
+from ..train.trainer import Trainer
+from ..eval.dynamic_static import evaluate
+
+@dataclass(frozen=True)
+class Method:
+    """One compared method (see the module table)."""
+
+    name: str
+    label: str
+    description: str
+    states: str
+    human_input: bool = False
+    two_stage: bool = False
+    duplicate: bool = False
+    long_budget: bool = True
+
+
+METHODS: dict[str, Method] = {m.name: m for m in [
+    Method("baseline", "Baseline", "trained on empty-room data", "empty", long_budget=False),
+    Method("continued", "Continued baseline", "baseline trained longer on empty-room data", "empty"),
+    Method("duplicated", "Baseline (duplicated)", "trained on duplicated empty-room data", "empty", duplicate=True),
+    Method("baseline_human", "Baseline (human)", "trained on human-present data, no human position", "all"),
+    Method("end_to_end", "End-to-End", "one model on human-present data with the human position as input", "all",
+           human_input=True),
+    Method("ours", "Ours (two-stage)", "frozen background + human Gaussians", "human", human_input=True,
+           two_stage=True),
+]}
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name`` (ConfigError listing the known ones)."""
+    if name not in METHODS:
+        raise ConfigError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    return METHODS[name]
+
+
+@dataclass
+class MethodConfig:
+    """Training sizes shared by all methods.
+
+    stage1: the background training configuration (its ``iterations`` is n1; its ``model``,
+    "splat" or "coherent", is the model family of every method); stage2_iterations: n2;
+    human: the Stage-2 human Gaussians (model "splat"); coherent_human: the Stage-2 human
+    scatterers (model "coherent"); stage2_optim: Stage-2 learning rates. ``human.human_octaves``
+    are the encoding octaves of the human position for the end-to-end model.
+    """
+
+    stage1: TrainConfig = dc_field(default_factory=TrainConfig)
+    stage2_iterations: int = 1000
+    human: HumanConfig = dc_field(default_factory=HumanConfig)
+    coherent_human: CoherentHumanConfig = dc_field(default_factory=CoherentHumanConfig)
+    stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
+        lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
+        lr_net=1e-2, lr_net_final=1e-3))
+
+    def __post_init__(self) -> None:
+        if self.stage2_iterations < 1:
+            raise ConfigError(f"MethodConfig.stage2_iterations must be >= 1, got {self.stage2_iterations}")
+
+
+def stage1_config(mcfg: MethodConfig, method: Method, *, seed: int) -> TrainConfig:
+    """The single-field training configuration of ``method`` (budget and seed applied)."""
+    it = mcfg.stage1.iterations + (mcfg.stage2_iterations if method.long_budget else 0)
+    return dataclasses.replace(mcfg.stage1, iterations=it, seed=seed, state=0, max_train_positions=0)
+
+
+def stage2_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
+    """Stage-2 training configuration: n2 steps, no density control, Stage-2 learning rates."""
+    s1 = mcfg.stage1
+    dens = dataclasses.replace(s1.density, enabled=False)
+    return dataclasses.replace(s1, iterations=mcfg.stage2_iterations, seed=seed, state=0, max_train_positions=0,
+                               density=dens, optim=mcfg.stage2_optim)
+
+
+def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None = None, train_antennas: int = 0,
+              seed: int = 0) -> SampleData:
+    """The samples ``method`` trains on (noise seed = ``seed``; antenna subset seed fixed to 0 so
+    that every method sees the same positions)."""
+    dup = 1
+    if method.duplicate:
+        from ..data.store import open_dataset
+
+        dup = 1 + len(open_dataset(dataset).split.human_train)
+    return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,
+                                   noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
+
+
+def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
+                 noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+                 quiet: bool = True) -> dict:
+    """Train method ``name`` on ``dataset`` into folder ``out`` (resumable).
+
+    Args:
+        name: a key of :data:`METHODS`.
+        dataset: dataset folder.
+        out: job folder; single-field methods train into ``out/train``, Ours into
+            ``out/stage2`` on top of ``stage1_dir`` (default: trains its own ``out/stage1``).
+        mcfg: sizes; seed: training (and noise) seed; noise_snr_db: noise on the training data;
+        train_antennas: number of training antenna positions (0 = all).
+        quiet: no progress bars.
+
+    Returns:
+        {"train_time_s": total training wall time (Stage 1 included for Ours), "steps": total
+        steps, "val_ssim": final validation SSIM of the last stage, "runs": [run folders]}.
+    """
+    m = get_method(name)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not m.two_stage:
+        data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+        cfg = stage1_config(mcfg, m, seed=seed)
+        kw = {}
+        if m.human_input:
+            nf = num_human_features(mcfg.human.human_octaves)
+            kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves), "extra_inputs": nf}
+        s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()
+        return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
+                "runs": [str(out / "train")]}
+    if stage1_dir is None:
+        stage1_dir = out / "stage1"
+        train_method("baseline", dataset, out / "stage1_job", mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                     train_antennas=train_antennas, quiet=quiet)
+        stage1_dir = out / "stage1_job" / "train"
+    stage1_dir = Path(stage1_dir)
+    s1 = json.loads((stage1_dir / "final" / "summary.json").read_text()) \
+        if (stage1_dir / "final" / "summary.json").is_file() else None
+    if s1 is None:
+        raise RunError(f"Stage 1 run {stage1_dir} has not finished (no final/summary.json)")
+    bg = load_field(stage1_dir / "final" / "field.npz")
+    bg.freeze()
+    data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+    cfg2 = stage2_config(mcfg, seed=seed)
+    if isinstance(bg, CoherentField):
+        oct_ = mcfg.coherent_human.human_octaves
+
+        def factory(tr, rng):
+            if mcfg.coherent_human.kind == "perturb":
+                return CoherentPerturbField(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
+            return CoherentHumanField.for_background(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
+    else:
+        oct_ = mcfg.human.human_octaves
+        walk = np.unique(data.human_pos[data.train], axis=0)
+
+        def factory(tr, rng):
+            return HumanField.near_walk(walk, hcfg=mcfg.human, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed,
+                                        name="human")
+
+    tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
+                 extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
+                 extra_inputs=num_human_features(oct_) + 3, field_factory=factory)
+    _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    s2 = tr.run()
+    return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
+            "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
+            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")]}
+
+
+@dataclass
+class Model:
+    """Trained fields rendered together. ``fields``: list of GaussianField, or of coherent fields
+    (:class:`~rfmitsuba.coherent.CoherentField`, whose channels add); a person's field
+    (:class:`HumanField`, :data:`~rfmitsuba.coherent.HUMAN_FIELDS`) is rendered only
+    where a person is present; ``octaves``: human encoding octaves of fields with extra inputs."""
+
+    fields: list
+    octaves: int = 3
+
+    @classmethod
+    def load(cls, name: str, job_dir: str | Path, *, octaves: int = 3) -> "Model":
+        """The trained model of method ``name`` in job folder ``job_dir``."""
+        m = get_method(name)
+        jd = Path(job_dir)
+        if not m.two_stage:
+            return cls([load_field(jd / "train" / "final" / "field.npz")], octaves=octaves)
+        info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
+        if info is None:
+            raise RunError(f"{jd}: no stage1.json; the two-stage job has not run")
+        bg = load_field(Path(info["stage1_dir"]) / "final" / "field.npz")
+        bg.freeze()
+        hf = load_field(jd / "stage2" / "final" / "field.npz")
+        hf.freeze()
+        if isinstance(hf, HUMAN_FIELDS):
+            octaves = hf.cfg.human_octaves
+        return cls([bg, hf], octaves=octaves)
+
+    @property
+    def num_gaussians(self) -> int:
+        return sum(f.num_gaussians for f in self.fields)
+
+    def render(self, data: SampleData, idx: np.ndarray, *, batch: int = 8, h: int = 90, w: int = 360) -> np.ndarray:
+        """Raw predicted PAS at samples ``idx`` of ``data``: float32 [K, h, w].
+
+        Human fields are left out for empty-room samples (state 0); fields with extra inputs get
+        :meth:`SampleData.features` (all zeros for the empty room)."""
+        import drjit as dr
+
+        from ..splat import render
+
+        idx = np.asarray(idx, np.int64)
+        out = np.zeros((len(idx), h, w), np.float32)
+        empty = data.states[idx] == 0
+        human = (HumanField, *HUMAN_FIELDS)
+        coherent = isinstance(self.fields[0], CoherentField)
+        for group in (np.flatnonzero(empty), np.flatnonzero(~empty)):
+            for i in range(0, len(group), batch):
+                sel = group[i:i + batch]
+                k = idx[sel]
+                if coherent:
+                    out[sel] = self._render_coherent(data, k, human=not empty[sel[0]], h=h, w=w)
+                    continue
+                ap, vp = data.antenna_pos[k], data.view_pos[k]
+                sets = []
+                for f in self.fields:
+                    if isinstance(f, human) and empty[sel[0]]:
+                        continue
+                    kw = {"extra": data.features(k, octaves=self.octaves, raw=isinstance(f, HumanField))} \
+                        if f.extra_inputs else {}
+                    sets.append(f.splats(ap, view_pos=vp, **kw))
+                s = Splats.concat(sets)
+                with dr.suspend_grad():
+                    img = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                                 rx_to_world=data.rx_to_world, height=h, width=w, num_gaussians=s.n)
+                out[sel] = np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
+        return out
+
+    def _render_coherent(self, data: SampleData, k: np.ndarray, *, human: bool, h: int, w: int) -> np.ndarray:
+        """Coherent fields: channels added (the person's field only with a person), one Bartlett readout."""
+        import drjit as dr
+
+        from ..models.coherent_person import render_fields
+
+        x, y, q = data.positions(k)
+        fields = [f for f in self.fields if human or not isinstance(f, HUMAN_FIELDS)]
+
+        def extra(f):
+            return data.features(k, octaves=self.octaves, raw=isinstance(f, HUMAN_FIELDS)) if f.extra_inputs else None
+
+        with dr.suspend_grad():
+            img = render_fields(fields, x, y, q, extra=extra, frequency_hz=data.frequency_hz, height=h, width=w,
+                                normalize=False, rx_to_world=data.rx_to_world)
+        return np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
+
+
+def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
+            noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+            reevaluate: bool = False, quiet: bool = True) -> dict:
+    """Train method ``name`` into ``job_dir``, evaluate it, and mark the job done; or return the
+    metrics of a job done before.
+
+    The job folder holds the training runs (:func:`train_method`), ``metrics.json`` (written
+    atomically) and then the ``DONE`` marker: a job with a marker is not trained again, so a
+    killed caller (:mod:`rfmitsuba.compare`, :mod:`rfmitsuba.reproduce`) resumes where it stopped.
+
+    Args:
+        name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir: as :func:`train_method`.
+        job_dir: the job folder.
+        record: what the caller files the job under (merged into the metrics).
+        reevaluate: a finished job is evaluated again (its training kept, ``metrics.json``
+            rewritten), for when the evaluation changed.
+        quiet: no progress bars.
+
+    Returns:
+        ``record`` plus {"train": :func:`train_method`'s summary, "eval": :func:`evaluate`'s
+        result, "wall_s": training + evaluation wall time in seconds}.
+    """
+    jd = Path(job_dir)
+    if (jd / "DONE").is_file():
+        metrics = json.loads((jd / "metrics.json").read_text())
+        if reevaluate:
+            metrics["eval"] = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+            _write_json(jd / "metrics.json", metrics)
+        return metrics
+    t0 = time.perf_counter()
+    tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                      train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+    ev = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+    metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
+    _write_json(jd / "metrics.json", metrics)
+    (jd / "DONE").write_text("done\n")
+    return metrics
+
+
+def _write_json(path: Path, obj) -> None:
+    write_json(path, obj, allow_nan=True, default=numpy_default)
+
+
+def config_dict(mcfg: MethodConfig) -> dict:
+    """Plain dict of a :class:`MethodConfig`."""
+    return C.to_dict(mcfg)

@@ -1,0 +1,270 @@
+"""Reproduce the paper's tables: datasets, jobs, resumable runs, the Markdown report.
+
+:func:`reproduce` runs an :class:`ExperimentConfig` into an output folder::
+
+    OUT/experiment.toml     the configuration (another configuration here -> RunError)
+    OUT/data/<dataset>/     generated datasets (unless --data points elsewhere)
+    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>]/
+        job.toml            what the job is (checked on resume)
+        train/ | stage2/    Trainer run folders (resumable from their checkpoints)
+        metrics.json        both evaluations, written atomically, then
+        DONE                the done-marker: finished jobs are skipped
+    OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
+
+Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
+Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
+first stage, as in the paper). Tables (:data:`TABLES`): main, two_stage, perturbation,
+material, large_room, positions, noise. Sizes (:data:`SIZES`): ``tiny`` (synthetic data,
+no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 cores) and
+``full`` (the paper's 900 positions x 35 walk positions).
+"""
+from __future__ import annotations
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+import numpy as np
+from ..core import config as C
+from ..core.atomic import numpy_default, write_json
+from ..core.errors import RunError
+from .sizes import DatasetSpec, ExperimentConfig, method_config
+
+@dataclass(frozen=True)
+class Job:
+    """One training + evaluation: dataset, method, seed, noise SNR (None = clean), training
+    antenna positions (0 = all)."""
+
+    dataset: DatasetSpec
+    method: str
+    seed: int
+    snr_db: float | None = None
+    positions: int = 0
+
+    @property
+    def key(self) -> str:
+        k = f"{self.method}_s{self.seed}"
+        if self.snr_db is not None:
+            k += f"_snr{self.snr_db:g}"
+        if self.positions:
+            k += f"_n{self.positions}"
+        return k
+
+    def folder(self, out: Path) -> Path:
+        return Path(out) / "jobs" / self.dataset.key / self.key
+
+    def stage1_job(self) -> "Job":
+        return dataclasses.replace(self, method="baseline")
+
+    def record(self) -> dict:
+        return {"dataset": self.dataset.key, "scene": self.dataset.scene, "task": self.dataset.task,
+                "material": self.dataset.material, "method": self.method, "seed": self.seed,
+                "snr_db": "none" if self.snr_db is None else float(self.snr_db), "positions": self.positions}
+
+
+def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:
+    """The jobs of every configured table (a job may serve several tables)."""
+    room, task = cfg.rooms[0], cfg.tasks[0]
+    ref = DatasetSpec(room, task)
+    out: dict[str, list[Job]] = {}
+    for t in cfg.tables:
+        jobs: list[Job] = []
+        for seed in cfg.seeds:
+            if t == "main":
+                jobs += [Job(DatasetSpec(r, k), m, seed) for r in cfg.rooms for k in cfg.tasks
+                         for m in ("baseline", "end_to_end", "ours")]
+            elif t == "two_stage":
+                jobs += [Job(ref, m, seed) for m in ("baseline", "end_to_end", "continued", "ours")]
+            elif t == "perturbation":
+                jobs += [Job(ref, m, seed) for m in ("baseline", "duplicated", "baseline_human", "ours")]
+            elif t == "material":
+                jobs += [Job(DatasetSpec(room, task, mat), m, seed) for mat in cfg.materials for m in ("baseline", "ours")]
+            elif t == "large_room" and cfg.large_room:
+                jobs += [Job(DatasetSpec(cfg.large_room, "rx"), m, seed) for m in ("baseline", "ours")]
+                jobs += [Job(DatasetSpec(room, "rx"), m, seed) for m in ("baseline", "ours")]
+            elif t == "positions":
+                for n in list(cfg.position_counts) + [0]:
+                    jobs += [Job(ref, m, seed, positions=n) for m in ("baseline", "ours")]
+            elif t == "noise":
+                for snr in [None] + list(cfg.snr_db):
+                    jobs += [Job(ref, m, seed, snr_db=snr) for m in ("baseline", "end_to_end", "ours")]
+        out[t] = jobs
+    return out
+
+
+def all_jobs(cfg: ExperimentConfig) -> list[Job]:
+    """Every job once, each Ours after the Baseline it builds on."""
+    seen: dict[str, Job] = {}
+    for jobs in table_jobs(cfg).values():
+        for j in jobs:
+            if j.method == "ours":
+                b = j.stage1_job()
+                seen.setdefault(f"{b.dataset.key}/{b.key}", b)
+            seen.setdefault(f"{j.dataset.key}/{j.key}", j)
+    return list(seen.values())
+
+
+def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
+    d = cfg.data
+    return Path(data_dir) / f"{spec.key}_{cfg.source}_{d.positions}x{d.human_positions}"
+
+
+def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True) -> Path:
+    """Generate the dataset of ``spec`` unless it is complete (resumes a partial one)."""
+    path = dataset_path(spec, cfg, data_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    d = cfg.data
+    if cfg.source == "synthetic":
+        if not (path / "meta.json").is_file():
+            from ..sim import synthetic
+
+            seed = {"tissue": 0, "metal": 1, "concrete": 2}.get(spec.material, 3) + (10 if spec.task == "tx" else 0)
+            synthetic.make_dataset(path, antennas=d.positions, humans=d.human_positions, seed=seed, task=spec.task)
+        return path
+    from ..sim import generate as gen
+    from ..sim.simulate import SolverConfig
+
+    solver = SolverConfig(samples_per_src=d.samples_per_src) if d.samples_per_src else None
+    gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=d.positions, human_positions=d.human_positions,
+                            material=spec.material, seed=data_seed(spec.scene, d.human_positions), solver=solver)
+    gen.generate(path, gcfg, quiet=quiet)
+    return path
+
+
+def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
+    """The first seed in 0..tries-1 for which :func:`rfmitsuba.human.walk` finds a clear walk of
+    ``human_positions`` steps in ``scene`` (the walk sampler gives up on some seeds in small rooms).
+
+    Raises:
+        PlacementError: no seed works.
+    """
+    from ..sim import person as human
+    from ..data.store import resolve_scene
+    from ..core.errors import PlacementError, RfmError
+    from ..sim.geometry import RoomGeometry
+
+    if human_positions < 1:
+        return 0
+    geom = RoomGeometry.from_xml(resolve_scene(scene))
+    for s in range(tries):
+        try:
+            human.walk(geom, n=human_positions, seed=s)
+            return s
+        except RfmError:
+            continue
+    raise PlacementError(f"no clear walk of {human_positions} positions in {scene} for seeds 0..{tries - 1}")
+
+
+def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
+    from ..train.config import config_diff
+
+    f = out / "experiment.toml"
+    if f.is_file():
+        have = C.to_dict(C.load(ExperimentConfig, f))
+        diff = config_diff(have, C.to_dict(cfg))
+        if diff:
+            raise RunError(f"output folder {out} holds another experiment configuration: {'; '.join(diff)}. "
+                           "Use another --out (nothing was changed)")
+    elif out.is_dir() and (out / "jobs").exists():
+        raise RunError(f"{out} holds jobs but no experiment.toml; not an experiment folder (nothing was changed)")
+
+
+def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
+            reevaluate: bool = False) -> dict:
+    """Train and evaluate one job by :func:`rfmitsuba.methods.run_job` (skipped when done, or
+    evaluated again with ``reevaluate``); returns its metrics.
+
+    Raises:
+        RunError: the job folder holds a job of another configuration (``job.json`` differs).
+    """
+    from .methods import config_dict, run_job as methods_run_job
+    from ..train.config import config_diff
+
+    jd = job.folder(out)
+    mcfg = method_config(cfg)
+    if not (jd / "DONE").is_file():
+        want = {"job": job.record(), "method_config": config_dict(mcfg)}
+        jt = jd / "job.json"
+        if jt.is_file():
+            diff = config_diff(json.loads(jt.read_text()), json.loads(json.dumps(want)))
+            if diff:
+                raise RunError(f"job folder {jd} belongs to another configuration: {'; '.join(diff)} "
+                               "(nothing was changed)")
+        jd.mkdir(parents=True, exist_ok=True)
+        _write_json(jt, want)
+    stage1 = None
+    if job.method == "ours":
+        b = job.stage1_job()
+        run_job(b, out, cfg, data_dir, quiet=quiet)
+        stage1 = b.folder(out) / "train"
+    return methods_run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
+                           record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
+                           stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
+
+
+class Stopped(RunError):
+    """Raised by :func:`reproduce` after ``stop_after`` jobs (a simulated kill, for tests)."""
+
+
+def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None = None,
+              stop_after: int | None = None, reevaluate: bool = False, quiet: bool = False) -> Path:
+    """Generate what is missing, run every job not yet done, write the report.
+
+    Args:
+        out: output folder (created; resumes an interrupted run of the same configuration).
+        cfg: the experiment.
+        data_dir: where datasets live (default ``out/data``); existing complete ones are reused.
+        stop_after: raise :class:`Stopped` after this many newly finished jobs (tests).
+        reevaluate: evaluate finished jobs again (after the evaluation changed; no retraining).
+        quiet: no progress bars.
+
+    Returns:
+        path of ``report.md``.
+
+    Raises:
+        RunError: ``out`` holds another configuration (the differing key is named).
+    """
+    from ..core.progress import bar
+
+    out = Path(out)
+    _check_experiment(out, cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    if not (out / "experiment.toml").is_file():
+        C.save(cfg, out / "experiment.toml")
+    data_dir = Path(data_dir) if data_dir else out / "data"
+    t_start = time.perf_counter()
+    jobs = all_jobs(cfg)
+    specs = list(dict.fromkeys(j.dataset for j in jobs))
+    with bar(total=len(specs), desc="datasets", unit="dataset", quiet=quiet) as pb:
+        for spec in specs:
+            ensure_dataset(spec, cfg, data_dir, quiet=True)
+            pb.update(1)
+    done_new = 0
+    results = {}
+    with bar(total=len(jobs), desc="jobs", unit="job", quiet=quiet) as pb:
+        for j in jobs:
+            was_done = (j.folder(out) / "DONE").is_file()
+            results[f"{j.dataset.key}/{j.key}"] = run_job(j, out, cfg, data_dir, quiet=True, reevaluate=reevaluate)
+            pb.update(1)
+            if not was_done:
+                done_new += 1
+                if stop_after is not None and done_new >= stop_after:
+                    raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
+    wall = time.perf_counter() - t_start
+    _write_json(out / "results.json", results)
+    from .report import write_report
+
+    return write_report(out, cfg, results, wall_s=wall)
+
+
+def _write_json(path: Path, obj) -> None:
+    write_json(path, obj, allow_nan=True, default=numpy_default)
+
+
+def mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value; NaN for none)."""
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    if not v:
+        return float("nan"), float("nan")
+    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0

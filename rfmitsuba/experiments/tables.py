@@ -1,0 +1,118 @@
+"""Stage-1 experiments made of several runs: the motivation table and the parsimony curve.
+
+* :func:`motivation_table` - test SSIM against the number of static antenna positions
+  (paper, Table "motivation": 900, 1500, 3600, 6000, 10000 positions). A row with C positions
+  trains on ``round(0.8 * C)`` positions drawn from the dataset's training split (the 80/20 rule
+  of SPEC) and is evaluated on the dataset's whole test split, the same for every row, so rows
+  are comparable. The dataset must hold enough training positions for the largest row.
+* :func:`parsimony_curve` - test SSIM against the number of Gaussians, from runs whose density
+  control is capped at different sizes ("a model no larger than the scene needs").
+
+Each run is an ordinary run folder ``OUT/<name>`` (resumable, evaluated by
+:func:`rfmitsuba.evaluate.evaluate_run`); the table is written to ``OUT/table.md`` and
+``OUT/table.json`` with a plot.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..core import config as C
+from ..core import plots
+from ..core.errors import ConfigError
+from ..train.config import TrainConfig
+from ..data.views import TrainData
+from ..train.trainer import Trainer
+
+MOTIVATION_COUNTS = (900, 1500, 3600, 6000, 10000)
+QUICK_MOTIVATION_COUNTS = (150, 300, 600, 900)
+
+
+def _run_and_eval(cfg: TrainConfig, data: TrainData, run_dir: Path, *, quiet: bool) -> dict:
+    from ..eval.run import evaluate_run
+
+    Trainer(cfg, data, run_dir, quiet=quiet).run()
+    return evaluate_run(run_dir)
+
+
+def _write_table(out: Path, title: str, key: str, rows: list[dict], note: str) -> None:
+    lines = [f"# {title}", "", note, "",
+             f"| {key} | train positions | Gaussians | mean SSIM | median SSIM | NN mean | NN median | train s |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r[key]} | {r['train_positions']} | {r['num_gaussians']} | {r['mean']:.4f} | "
+                     f"{r['median']:.4f} | {r['nn_mean']:.4f} | {r['nn_median']:.4f} | {r['train_time_s']:.0f} |")
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    (out / "table.json").write_text(json.dumps(rows, indent=1))
+
+
+def _row(m: dict) -> dict:
+    return {"mean": m["model"]["mean"], "median": m["model"]["median"], "nn_mean": m["nearest_neighbour"]["mean"],
+            "nn_median": m["nearest_neighbour"]["median"], "num_gaussians": m["num_gaussians"],
+            "num_parameters": m["num_parameters"], "train_time_s": m["train_time_s"],
+            "train_positions": m["train_positions"]}
+
+
+def motivation_table(dataset: str | Path, out: str | Path, *, counts=MOTIVATION_COUNTS,
+                     cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
+    """Train and evaluate one run per number of positions; returns the table rows.
+
+    Args:
+        dataset: dataset folder (empty-room state 0 is used).
+        out: folder for the runs and the table.
+        counts: numbers of static positions (train + test, 80/20).
+        cfg: training configuration of every run (``max_train_positions`` is set per row).
+
+    Raises:
+        ConfigError: the dataset has too few training positions for a row.
+    """
+    cfg = cfg or TrainConfig()
+    data = TrainData.open(dataset, state=cfg.state)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    need = round(0.8 * max(counts))
+    if need > len(data.train):
+        raise ConfigError(f"motivation table: the largest row needs {need} training positions, dataset {dataset} "
+                          f"has {len(data.train)}; generate one with at least {max(counts)} positions")
+    rows = []
+    for c in counts:
+        rc = C.override(cfg, [f"max_train_positions={round(0.8 * c)}"])
+        m = _run_and_eval(rc, data, out / f"positions_{c}", quiet=quiet)
+        rows.append({"positions": c, **_row(m)})
+        _write_table(out, "Test SSIM against the number of static antenna positions", "positions", rows,
+                     f"Dataset `{dataset}`; every row is evaluated on the same {m['test_positions']} held-out "
+                     f"positions; a row with C positions trains on 0.8*C of them. NN = nearest-neighbour floor "
+                     "(from the same training positions).")
+    _plot(out / "motivation.png", rows, "positions", "static antenna positions")
+    return rows
+
+
+def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 2000, 4000, 8000),
+                    cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
+    """Test SSIM against the number of Gaussians: one run per cap on density control
+    (initial Gaussians = min(cap, cfg.field.num_gaussians))."""
+    cfg = cfg or TrainConfig()
+    data = TrainData.open(dataset, state=cfg.state)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for cap in caps:
+        rc = C.override(cfg, [f"density.max_gaussians={cap}",
+                              f"field.num_gaussians={min(cap, cfg.field.num_gaussians)}"])
+        m = _run_and_eval(rc, data, out / f"cap_{cap}", quiet=quiet)
+        rows.append({"cap": cap, **_row(m)})
+        _write_table(out, "Parsimony: test SSIM against the number of Gaussians", "cap", rows,
+                     f"Dataset `{dataset}`; runs differ only in the cap of density control.")
+    _plot(out / "parsimony.png", rows, "num_gaussians", "number of Gaussians")
+    return rows
+
+
+def _plot(path: Path, rows: list[dict], key: str, label: str) -> None:
+    fig, ax = plots.subplots(figsize=(5, 3.5))
+    x = [r[key] for r in rows]
+    ax.plot(x, [r["mean"] for r in rows], "o-", label="model mean")
+    ax.plot(x, [r["median"] for r in rows], "s--", label="model median")
+    ax.plot(x, [r["nn_mean"] for r in rows], "^:", label="nearest neighbour mean")
+    ax.set_xscale("log")
+    plots.label(ax, xlabel=label, ylabel="test SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)

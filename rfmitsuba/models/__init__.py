@@ -1,0 +1,1 @@
+"""Fields: one Field protocol, a registry by name, and one file per model family."""

@@ -1,0 +1,423 @@
+"""Coherent image-source field: the channel as a sum of virtual sources, read out by Bartlett.
+
+Why: a simulated (or measured) PAS is the Bartlett response of the array to the *coherent*
+sum of all paths, ``P = |sum_m w_m h_m|``. Paths that arrive together interfere and draw
+the dark arcs of the PAS; a sum of splats, which adds intensities, cannot draw them, and the
+interference pattern changes every few centimetres, faster than any smooth interpolator of
+the PAS can follow (see README, "Stage 1"). This field models what the array actually sees:
+
+    h_m(x, y) = sum_i  g_i(x, y) * exp(-j k L_i) / L_i * exp(+j k r_m . u_i),
+    L_i = |M_i(y) - x|,  u_i = (M_i(y) - x) / L_i,
+
+with the array centre ``x``, the transmitter ``y``, the image maps ``M_i`` of the room's
+planes (:mod:`rfmitsuba.images`; ``M_0`` = identity is the direct path), the element offsets
+``r_m`` and ``k = 2 pi / lambda``. Propagation phase and direction are exact geometry; what
+is learned is each image's complex gain
+
+    g_i(x, y) = a_i * (1 + s * net(enc(q), e_i, u_i)),
+
+a constant complex amplitude ``a_i`` (reflection coefficients, 1/(4 pi) factors) times a
+position-dependent modulation from a small Dr.Jit network: ``q`` is the moving device's
+position (``x`` in the moving-RX task, ``y`` in the moving-TX task), ``e_i`` a learned
+per-image embedding. The modulation learns where an image is visible (finite faces,
+furniture in the way), the angle dependence of reflection, and what the geometry misses.
+The PAS comes from :func:`rfmitsuba.bartlett.pas`, differentiable end to end.
+
+Both tasks of the SPEC use the same formula: moving RX (``x`` moves, ``y`` = the fixed
+corner transmitter) and moving TX (``y`` moves, ``x`` = the fixed array), by the
+synthetic-array rule of :mod:`rfmitsuba.simulate` (plane-wave phase per element, about the
+array centre).
+
+Parameters (Dr.Jit ``Float`` arrays, :meth:`CoherentField.parameters`): ``amp`` [S*2]
+(re, im per image), ``embed`` [S*E] and ``net.gain`` (packed MLP weights).
+State is plain NumPy (npz, no pickle).
+"""
+from __future__ import annotations
+import json
+from dataclasses import dataclass
+from pathlib import Path
+import numpy as np
+from ..rf import array as antenna
+from ..core import backend as B
+from ..core.errors import ConfigError, RunError
+from ..rf.images import ImageMaps
+
+@dataclass
+class CoherentConfig:
+    """Architecture of a :class:`CoherentField`.
+
+    room_order: reflections on the room's planes alone (image maps up to this order).
+    furniture_order: 0, 1 or 2 (one furniture reflection, alone or with one room reflection).
+    min_face_area: furniture faces smaller than this (m^2) make no image.
+    width / layers: hidden width and hidden layers of the gain network; embed: size of each
+    image's learned embedding; octaves: sine octaves of the position encoding.
+    modulation: scale ``s`` of the network's output (its initial size relative to ``a_i``).
+    init_reflection: initial amplitude of an image is ``init_reflection ** order``.
+    """
+
+    room_order: int = 3
+    furniture_order: int = 2
+    min_face_area: float = 0.05
+    width: int = 32
+    layers: int = 2
+    embed: int = 16
+    octaves: int = 4
+    modulation: float = 0.3
+    init_reflection: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.room_order < 0 or self.furniture_order not in (0, 1, 2):
+            raise ConfigError(f"CoherentConfig: room_order must be >= 0 and furniture_order 0, 1 or 2, got "
+                              f"{self.room_order}, {self.furniture_order}")
+        if self.width < 1 or self.embed < 1 or self.layers < 0 or self.octaves < 0 or self.min_face_area < 0:
+            raise ConfigError("CoherentConfig: width, embed >= 1, layers, octaves, min_face_area >= 0 required")
+        if not (0 < self.init_reflection <= 1) or not (self.modulation > 0):
+            raise ConfigError("CoherentConfig: init_reflection in (0, 1] and modulation > 0 required")
+
+
+FORMAT = "rfmitsuba-coherent-field/1"
+
+
+def _columns(a: np.ndarray) -> list:
+    """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
+    (:func:`rfmitsuba.field.columns`: kernels stay independent of the host arrays' values and
+    alignment, so they compile once)."""
+    from .splat import columns
+
+    return columns(np.asarray(a, np.float32).reshape(len(a), -1))
+
+
+def sin_encoding(x01: np.ndarray, octaves: int) -> np.ndarray:
+    """``[x, sin(2 pi 2^k x), cos(2 pi 2^k x)]`` of inputs mapped to [0, 1] (float [K, D]), with
+    x = x01 / 2 so that the encoding does not alias over the box: float32 [K, D (1 + 2 octaves)]."""
+    x = 0.5 * np.asarray(x01, np.float64)
+    parts = [x]
+    for k in range(octaves):
+        f = 2.0 * np.pi * 2 ** k
+        parts += [np.sin(f * x), np.cos(f * x)]
+    return np.concatenate(parts, axis=1).astype(np.float32)
+
+
+def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) -> list:
+    """Network inputs of every (view b, item i[, family c]) lane, view-major
+    ``(b*n + i)*repeat + c``: the view's inputs (host data float [nb, D], no gradient) followed by
+    the item's learned embedding (``Float`` [n*e], differentiable): D + e ``Float`` arrays.
+
+    The networks run on these lanes directly. (Evaluating a network once per view and gathering
+    its outputs made Dr.Jit 1.5 return wrong gradients for that network's weights once the
+    loss gradient reached it through a scatter.)"""
+    import drjit as dr
+
+    view = np.asarray(view, np.float32)
+    cols = _columns(np.repeat(view, n * repeat, axis=0)) if view.shape[1] else []
+    lane = dr.arange(B.UInt32, len(view) * n * repeat)
+    i = (lane // dr.opaque(B.UInt32, repeat)) % dr.opaque(B.UInt32, n)
+    return cols + [dr.gather(B.Float, embed, i * e + c) for c in range(e)]
+
+
+def _extra_array(extra, nb: int, n: int) -> np.ndarray:
+    """The first ``n`` columns of the per-view extra inputs (float [nb, >= n]): float32 [nb, n]."""
+    if n == 0:
+        return np.zeros((nb, 0), np.float32)
+    if extra is None:
+        raise ConfigError(f"this field needs {n} extra inputs per view (human-position features), got none")
+    e = np.asarray(extra, np.float32).reshape(nb, -1)
+    if e.shape[1] < n or not np.isfinite(e[:, :n]).all():
+        raise ConfigError(f"extra inputs must be finite [B, >= {n}], got shape {e.shape}")
+    return e[:, :n]
+
+
+def _write_points_ply(path: str | Path, points: np.ndarray, magnitude: np.ndarray) -> Path:
+    """Points (float [N, 3] metres) as small isotropic Gaussians (5 cm) in the 3DGS PLY layout, with
+    opacity and signal the magnitude relative to the largest, so a splat viewer shows them."""
+    from .splat import write_ply_arrays
+
+    rel = np.clip(magnitude / max(float(np.max(magnitude)), 1e-30), 1e-6, 1 - 1e-6)
+    n = len(points)
+    return write_ply_arrays(path, points, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
+                            np.log(rel / (1 - rel)), signal=rel)
+
+
+def _cmul(ar, ai, br, bi) -> tuple:
+    """Complex product ``(ar + j ai)(br + j bi)`` of real/imaginary parts: (re, im)."""
+    return ar * br - ai * bi, ar * bi + ai * br
+
+
+def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tuple:
+    """Channel at the 16 elements from T plane-wave terms per view.
+
+    ``h_{b,m} = sum_t w_{b,t} exp(+j k r_m . u_{b,t})``
+
+    Args:
+        wr, wi: ``Float`` [nb*t], complex term weights (view-major); ur: 3 ``Float`` [nb*t], unit
+            arrival directions (world frame = array frame).
+    Returns:
+        (re, im) ``Float`` [nb*16].
+    """
+    import drjit as dr
+
+    M = 16
+    k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
+    e = antenna.element_positions(frequency_hz)
+    lane = dr.arange(B.UInt32, nb * M * t)
+    t_op = dr.opaque(B.UInt32, t)
+    ti = lane % t_op
+    bm = lane // t_op
+    m = bm % M
+    b = bm // M
+    src = b * t_op + ti
+    ex, ey, ez = (dr.gather(B.Float, c, m) for c in _columns(e))
+    ph = k * (ex * dr.gather(B.Float, ur[0], src) + ey * dr.gather(B.Float, ur[1], src)
+              + ez * dr.gather(B.Float, ur[2], src))
+    c, s = dr.cos(ph), dr.sin(ph)
+    a, bb = dr.gather(B.Float, wr, src), dr.gather(B.Float, wi, src)
+    return dr.block_sum(a * c - bb * s, t), dr.block_sum(a * s + bb * c, t)
+
+
+class _CoherentParams:
+    """What both coherent fields share: named parameters (plain ``Float`` arrays in
+    :attr:`params` plus the packed networks of :meth:`_modules`), freezing, and an npz state of
+    the parameters, the geometry arrays (``_geometry_prefix`` + name) and a JSON ``meta``.
+
+    Subclasses define ``_modules``, ``_sizes``, ``_meta``, ``_geometry``, ``_from_state``,
+    ``_format`` and ``_geometry_prefix``.
+    """
+
+    def parameters(self) -> dict:
+        """Name -> Dr.Jit ``Float`` of every parameter."""
+        return {**self.params, **{k: m.weights for k, m in self._modules().items()}}
+
+    def trainable(self) -> dict:
+        return {} if self.frozen else self.parameters()
+
+    def assign(self, values: dict) -> None:
+        """Set parameters from ``values`` (name -> ``Float``), e.g. the optimizer's copies."""
+        mods = self._modules()
+        for k, v in values.items():
+            if k in mods:
+                mods[k].set_weights(v)
+            elif k in self.params:
+                self.params[k] = v
+            else:
+                raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
+
+    def freeze(self) -> None:
+        self.frozen = True
+
+    def load_state_dict(self, state: dict) -> None:
+        """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
+        for k, n in self._sizes().items():
+            if k not in state:
+                raise RunError(f"{type(self).__name__} state lacks {k!r}")
+            v = np.asarray(state[k], np.float32).ravel()
+            if v.shape != (n,) or not np.isfinite(v).all():
+                raise RunError(f"{type(self).__name__} state {k!r}: expected {n} finite values, got {v.shape}")
+            self.params[k] = B.Float(v)
+        for k, m in self._modules().items():
+            if k in state:
+                w = np.asarray(state[k], np.float32).ravel()
+                if w.shape != (m.num_parameters,):
+                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.num_parameters} weights, "
+                                   f"got {w.shape[0]}")
+                m.set_weights(w)
+
+    def state_dict(self) -> dict:
+        """NumPy arrays of everything needed to rebuild the field (``meta`` is a JSON string)."""
+        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.parameters().items()}
+        out.update({f"{self._geometry_prefix}{k}": v for k, v in self._geometry().items()})
+        out["box"] = self.box.copy()
+        out["meta"] = np.asarray(json.dumps({**self._meta(), "seed": self.seed, "name": self.name,
+                                             "frequency_hz": self.frequency_hz, "frozen": self.frozen}))
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict):
+        """Rebuild a field written by :meth:`state_dict` (RunError naming what is missing or wrong)."""
+        try:
+            meta = json.loads(str(state["meta"]))
+            if meta.get("format") != cls._format:
+                raise RunError(f"not a {cls.__name__} state (format {meta.get('format')!r})")
+            n = len(cls._geometry_prefix)
+            f = cls._from_state({k[n:]: state[k] for k in state if k.startswith(cls._geometry_prefix)}, state, meta)
+        except KeyError as e:
+            raise RunError(f"{cls.__name__} state lacks {e}") from None
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
+        from ..core.atomic import write_npz
+
+        return write_npz(Path(path), self.state_dict())
+
+    @classmethod
+    def load(cls, path: str | Path):
+        """Read a field of this class written by :meth:`save`."""
+        from .splat import load_field
+
+        f = load_field(path)
+        if not isinstance(f, cls):
+            raise RunError(f"{path} holds a {type(f).__name__}, not a {cls.__name__}")
+        return f
+
+
+class CoherentField(_CoherentParams):
+    """Image sources with learned complex gains: the static (background) field. See the module
+    docstring.
+
+    Args:
+        maps: the image maps (:func:`rfmitsuba.images.scene_image_maps`).
+        box: float [2, 3] metres, box that maps moving positions into [0, 1] for the encoding.
+        cfg: :class:`CoherentConfig`.
+        frequency_hz: carrier, Hz.
+        seed: weight initialisation; name: the optimizer key prefix of this field.
+        params: stored parameters (name -> float32 array) instead of the initial ones.
+    """
+
+    def __init__(self, maps: ImageMaps, *, box: np.ndarray, cfg: CoherentConfig | None = None,
+                 frequency_hz: float = 2.4e9, seed: int = 0, name: str = "bg", params: dict | None = None,
+                 extra_inputs: int = 0):
+        from .nn import MLP
+
+        B.ensure()
+        self.maps = maps
+        self.cfg = cfg or CoherentConfig()
+        self.frequency_hz = float(frequency_hz)
+        antenna.wavelength(self.frequency_hz)
+        self.box = np.asarray(box, np.float64).reshape(2, 3)
+        if not np.all(self.box[1] > self.box[0]):
+            raise ConfigError(f"CoherentField: box must have hi > lo, got {self.box.tolist()}")
+        self.seed, self.name = int(seed), name
+        self.extra_inputs = int(extra_inputs)
+        c = self.cfg
+        n_in = 3 * (1 + 2 * c.octaves) + self.extra_inputs + c.embed + 3
+        self.gain = MLP(n_in, 2, width=c.width, layers=c.layers, seed=seed + 11, out_bias=[0.0, 0.0])
+        if params is None:
+            a = c.init_reflection ** maps.order.astype(np.float64)
+            params = {"amp": np.stack([a, np.zeros_like(a)], 1).ravel(),
+                      "embed": 0.1 * np.random.default_rng(seed).standard_normal(len(maps) * c.embed)}
+        self.params = {}
+        self.load_state_dict(params)
+        self.frozen = False
+
+    # ---- parameters ------------------------------------------------------------------------
+    @property
+    def num_sources(self) -> int:
+        return len(self.maps)
+
+    #: sources take the place of Gaussians in tables and logs
+    num_gaussians = num_sources
+
+    @property
+    def network_parameters(self) -> int:
+        return self.num_sources * self.cfg.embed + self.gain.num_parameters
+
+    @property
+    def num_parameters(self) -> int:
+        return 2 * self.num_sources + self.network_parameters
+
+    def _modules(self) -> dict:
+        return {"net.gain": self.gain}
+
+    def _sizes(self) -> dict:
+        return {"amp": 2 * self.num_sources, "embed": self.num_sources * self.cfg.embed}
+
+    # ---- evaluation ------------------------------------------------------------------------
+    def _enc(self, q: np.ndarray) -> np.ndarray:
+        """Encoding of the moving device's positions (float [B, 3] metres): float32 [B, D]."""
+        q01 = (np.asarray(q, np.float64).reshape(-1, 3) - self.box[0]) / (self.box[1] - self.box[0])
+        return sin_encoding(q01, self.cfg.octaves)
+
+    def channels(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
+        """Channels at the 16 elements: (re, im) ``Float`` [B*16], differentiable in the parameters.
+
+        Args:
+            x: float [B, 3] array centres; y: float [B, 3] transmitters; q: float [B, 3] the
+                moving device (x or y); all metres.
+            extra: float [B, extra_inputs] more inputs of the gain network (the End-to-End
+                model's human-position features), or None for a field without them.
+            rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
+                orientation), or None for the SPEC's horizontal array (identity).
+        """
+        gr, gi, pr, pi, u = self._terms(x, y, q, extra=extra, rx_to_world=rx_to_world)
+        return sum_terms(*_cmul(gr, gi, pr, pi), u, np.shape(q)[0], self.num_sources, frequency_hz=self.frequency_hz)
+
+    def _terms(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra=None, rx_to_world=None) -> tuple:
+        """Per (view, image) lane ``b*S + i``, each a ``Float`` [B*S]: the complex gain (gr, gi),
+        the propagation factor exp(-jkL)/L (pr, pi) and the 3 components of the arrival direction
+        in the array frame. Arguments as :meth:`channels`.
+
+        Raises:
+            ConfigError: positions of different shapes, or not finite.
+        """
+        import drjit as dr
+
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        if x.shape != y.shape or np.shape(q) != x.shape:
+            raise ConfigError(f"array, transmitter and moving positions must have one shape [B, 3], got {x.shape}, "
+                              f"{y.shape}, {np.shape(q)}")
+        if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(q).all()):
+            raise ConfigError("positions must be finite (a NaN or inf position was given)")
+        nb, S = len(x), self.num_sources
+        k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
+        d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
+        L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
+        u = (d / L[..., None]).reshape(-1, 3)
+        if rx_to_world is not None:  # arrival directions in the array frame: R^T u
+            u = u @ np.asarray(rx_to_world, np.float64).reshape(3, 3)
+        prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
+        view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
+        ucols = _columns(u)
+        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + ucols)
+        lane = dr.arange(B.UInt32, nb * S)
+        i = lane % dr.opaque(B.UInt32, S)
+        ar = dr.gather(B.Float, self.params["amp"], 2 * i)
+        ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
+        sc = self.cfg.modulation
+        gr, gi = _cmul(ar, ai, 1.0 + sc * o[0], sc * o[1])
+        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
+        return gr, gi, pr, pi, ucols
+
+    def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
+               height: int = 90, width: int = 360):
+        """PAS of B views: ``TensorXf`` [B, height, width] (min-max normalised by default)."""
+        from ..rf.bartlett import pas
+
+        hr, hi = self.channels(x, y, q)
+        return pas(hr, hi, frequency_hz=self.frequency_hz, height=height, width=width, normalize=normalize)
+
+    # ---- export and state ------------------------------------------------------------------
+    def source_points(self, *, x: np.ndarray, y: np.ndarray, task: str) -> np.ndarray:
+        """Where the sources are, float64 [S, 3] metres: the images of the transmitter ``y``
+        (task "rx"), or, by reciprocity, the images of the fixed array ``x`` (task "tx")."""
+        if task == "rx":
+            return self.maps.apply(np.asarray(y, np.float64))
+        Ainv = np.transpose(self.maps.A, (0, 2, 1))
+        return np.einsum("sij,sj->si", Ainv, np.asarray(x, np.float64)[None] - self.maps.b)
+
+    def write_ply(self, path: str | Path, *, x: np.ndarray, y: np.ndarray, task: str) -> Path:
+        """The sources as small isotropic Gaussians in the 3DGS PLY layout (opacity = |amp| relative
+        to the largest, signal = the same), so a splat viewer shows the virtual sources."""
+        a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(-1, 2)
+        return _write_points_ply(path, self.source_points(x=x, y=y, task=task), np.hypot(a[:, 0], a[:, 1]))
+
+    _format = FORMAT
+    _geometry_prefix = "maps."
+
+    def _geometry(self) -> dict:
+        return self.maps.to_arrays()
+
+    def _meta(self) -> dict:
+        from ..core.config import to_dict
+
+        return {"format": FORMAT, "config": to_dict(self.cfg), "extra_inputs": self.extra_inputs}
+
+    @classmethod
+    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentField":
+        from ..core.config import from_dict
+
+        return cls(ImageMaps.from_arrays(geometry), box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
+                   frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,
+                   extra_inputs=meta.get("extra_inputs", 0))

@@ -1,0 +1,312 @@
+"""Small Dr.Jit neural networks: encodings, packed MLPs and the EM-feature network.
+
+Everything here runs as Dr.Jit kernels (cooperative vectors, ``drjit.nn``) on the
+active backend, so a network is fused with the splatting kernels in one AD graph.
+
+The EM-feature network of a Gaussian field maps (Gaussian position, antenna
+position[, extra inputs such as a human position]) to each Gaussian's signal and
+attenuation *per view*. It is factorised so that the cost of the wide layers is
+paid once per Gaussian and once per view, and only a small head runs on the
+B*N (view, Gaussian) pairs::
+
+    g_i = MLP_g(enc(p_i))                  # N evaluations
+    a_b = MLP_a(enc(q_b), extra_b)         # B evaluations
+    (s, d)_{b,i} = head(act(g_i + a_b))    # B*N evaluations (view-major, b*N + i)
+
+``g_i + a_b`` is exactly a first linear layer on the concatenated inputs, so the
+network is an ordinary MLP on ``[enc(p_i), enc(q_b), extra_b]``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.errors import ConfigError
+
+
+@dataclass
+class NetConfig:
+    """Architecture of the EM-feature network.
+
+    encoding: positional encoding of the Gaussian position, "sin" (NeRF-style sines), "tri"
+        (triangle waves) or "hashgrid" (multiresolution hash grid, Instant-NGP style).
+    gaussian_octaves / antenna_octaves: octaves of the sine/triangle encodings (0 = raw input only).
+    width: hidden width of every layer; branch_layers: hidden layers of each branch;
+    head_layers: hidden layers of the head that runs on every (view, Gaussian) pair.
+    hash_*: hash-grid settings (levels, features per level, log2 table size, coarsest
+        resolution, growth factor between levels); only used with encoding="hashgrid".
+    signal_bias: initial bias of the signal output (signal = sigmoid(out)), so training
+        starts from a dim field.
+    """
+
+    encoding: Literal["sin", "tri", "hashgrid"] = "sin"
+    gaussian_octaves: int = 6
+    antenna_octaves: int = 6
+    width: int = 64
+    branch_layers: int = 1
+    head_layers: int = 1
+    hash_levels: int = 8
+    hash_features: int = 2
+    hash_log2_size: int = 14
+    hash_base_resolution: int = 4
+    hash_per_level_scale: float = 1.6
+    signal_bias: float = -2.0
+
+    def __post_init__(self) -> None:
+        for name in ("gaussian_octaves", "antenna_octaves", "branch_layers", "head_layers"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"NetConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.width < 1:
+            raise ConfigError(f"NetConfig.width must be >= 1, got {self.width}")
+        if self.encoding == "hashgrid" and (self.hash_levels < 1 or self.hash_features < 1):
+            raise ConfigError("NetConfig: hash_levels and hash_features must be >= 1")
+
+
+def _tensor_type():
+    return B.ensure().TensorXf
+
+
+def encode(inputs: list, *, octaves: int, kind: str = "sin") -> list:
+    """Positional encoding of scalar inputs.
+
+    Args:
+        inputs: list of D ``Float`` arrays of equal size M, values in about [0, 1].
+        octaves: number of frequencies (0 = raw inputs only).
+        kind: "sin" (sin/cos of 2*pi*2^k*x) or "tri" (triangle-wave approximation).
+
+    Returns:
+        list of D * (1 + 2 * octaves) ``Float`` arrays of size M: the raw inputs, then the
+        encodings. The sine encoding has period 1 in x; callers map their inputs into
+        [0, 0.5] so that no two points of the domain alias.
+    """
+    import drjit.nn as nn
+
+    out = list(inputs)
+    if octaves > 0:
+        mod = nn.SinEncode(octaves) if kind == "sin" else nn.TriEncode(octaves)
+        out += list(mod(nn.CoopVec(*inputs)))
+    return out
+
+
+class _EvalGrad:
+    """Identity whose backward pass evaluates the incoming gradients (see :func:`grad_barrier`)."""
+
+    _op = None
+
+    @classmethod
+    def op(cls):
+        if cls._op is None:
+            import drjit as dr
+
+            class EvalGrad(dr.CustomOp):
+                def eval(self, xs):
+                    return [dr.detach(x) for x in xs]
+
+                def forward(self):
+                    self.set_grad_out(self.grad_in("xs"))
+
+                def backward(self):
+                    g = list(self.grad_out())
+                    dr.eval(g)
+                    self.set_grad_in("xs", g)
+
+                def name(self):
+                    return "EvalGrad"
+
+            cls._op = EvalGrad
+        return cls._op
+
+
+def grad_barrier(values: list) -> list:
+    """Identity on a list of ``Float`` arrays whose backward pass evaluates the gradients.
+
+    Dr.Jit 1.5's cooperative-vector backward (LLVM) aborts with "dirty variable" when the
+    gradient arriving at a network output was produced by a scatter (a ``gather`` of the
+    output, or a rasteriser's atomic accumulation); calling this on the outputs of every
+    network avoids it at the cost of one evaluation per network in the backward pass.
+    """
+    import drjit as dr
+
+    return list(dr.custom(_EvalGrad.op(), list(values)))
+
+
+class MLP:
+    """A fully connected network stored as one packed weight buffer.
+
+    Layers: ``n_in -> width (x layers, activation) -> n_out``, LeakyReLU(0.01) between
+    layers, linear output. Weights are Xavier-uniform from a seeded Dr.Jit generator,
+    so equal ``seed`` gives equal weights; ``zero_output`` zeroes the last layer's weights
+    (the network starts as the constant ``out_bias``).
+
+    The single parameter is :attr:`weights` (``Float`` [num_parameters]); assign a new
+    value with :meth:`set_weights` (e.g. the optimizer's copy) before evaluating.
+    """
+
+    def __init__(self, n_in: int, n_out: int, *, width: int, layers: int, seed: int,
+                 out_bias: list[float] | None = None, input_layer: bool = True, zero_output: bool = False):
+        import drjit as dr
+        import drjit.nn as nn
+
+        self.n_in, self.n_out = n_in, n_out
+        mods = []
+        for _ in range(layers):
+            mods += [nn.Linear(-1, width), nn.LeakyReLU(0.01)]
+        mods.append(nn.Linear(-1, n_out))
+        net = nn.Sequential(*mods).alloc(_tensor_type(), n_in, rng=dr.rng(seed=int(seed) + 0x1000))
+        if out_bias is not None:
+            net.layers[-1].bias = _tensor_type()(np.asarray(out_bias, dtype=np.float32))
+        if zero_output:  # the network starts as the constant out_bias (its last layer learns first)
+            net.layers[-1].weights = dr.zeros(_tensor_type(), net.layers[-1].weights.shape)
+        self.net = nn.pack(net, layout="training")
+
+    @property
+    def weights(self):
+        """The packed weights and biases: ``Float`` [num_parameters]."""
+        return self.net["weights"]
+
+    def set_weights(self, value) -> None:
+        """Replace the weights (``Float`` or float32 numpy [num_parameters]); keeps AD links."""
+        n = self.num_parameters
+        if isinstance(value, np.ndarray):
+            if value.shape != (n,):
+                raise ConfigError(f"MLP weights: expected shape ({n},), got {value.shape}")
+            value = B.Float(value.astype(np.float32))
+        import drjit as dr
+
+        self.net["weights"] = value
+        dr.eval(self.net["weights"])  # flush the in-place copy before any kernel reads it
+
+    @property
+    def num_parameters(self) -> int:
+        return int(self.net["weights"].shape[0])
+
+    def __call__(self, inputs: list) -> list:
+        """Evaluate on ``inputs``: list of n_in ``Float`` [M] -> list of n_out ``Float`` [M]."""
+        import drjit.nn as nn
+
+        if len(inputs) != self.n_in:
+            raise ValueError(f"MLP expects {self.n_in} inputs, got {len(inputs)}")
+        return grad_barrier(list(self.net(nn.CoopVec(*inputs))))
+
+
+class HashGrid:
+    """A 3-D multiresolution hash-grid encoding (``drjit.nn.HashGridEncoding``) with one
+    parameter array :attr:`weights` (``Float`` [num_parameters]); inputs in [0, 1]^3."""
+
+    def __init__(self, cfg: NetConfig, *, seed: int):
+        import drjit as dr
+        from drjit.hashgrid import HashGridEncoding
+
+        self.enc = HashGridEncoding(
+            B.Float, 3, n_levels=cfg.hash_levels, n_features_per_level=cfg.hash_features,
+            hashmap_size=2 ** cfg.hash_log2_size, base_resolution=cfg.hash_base_resolution,
+            per_level_scale=cfg.hash_per_level_scale, rng=dr.rng(seed=int(seed) + 0x2000))
+        self.n_out = cfg.hash_levels * cfg.hash_features
+
+    @property
+    def weights(self):
+        return self.enc.data
+
+    def set_weights(self, value) -> None:
+        if isinstance(value, np.ndarray):
+            value = B.Float(value.astype(np.float32))
+        self.enc.data = value
+
+    @property
+    def num_parameters(self) -> int:
+        return int(self.enc.n_params)
+
+    def __call__(self, inputs: list) -> list:
+        return list(self.enc(inputs))
+
+
+class EMNetwork:
+    """EM-feature network: (Gaussian position, antenna position, extra inputs) ->
+    per-view signal, attenuation offset and log-scale offset of every Gaussian.
+
+    Args:
+        cfg: architecture.
+        extra_inputs: number of extra per-view inputs (0 for the background; 3 for a human
+            position in Stage 2), given to :meth:`__call__` already normalised to about [0, 1].
+        seed: weight initialisation seed.
+
+    Parameters (see :meth:`parameters`): ``"gaussian"``, ``"antenna"``, ``"head"`` packed MLP
+    weights, plus ``"hash"`` for the hash-grid encoding.
+    """
+
+    def __init__(self, cfg: NetConfig, *, extra_inputs: int = 0, seed: int = 0):
+        self.cfg = cfg
+        self.extra_inputs = int(extra_inputs)
+        w = cfg.width
+        self.hash = HashGrid(cfg, seed=seed) if cfg.encoding == "hashgrid" else None
+        n_g = (3 + self.hash.n_out) if self.hash else 3 * (1 + 2 * cfg.gaussian_octaves)
+        n_a = 3 * (1 + 2 * cfg.antenna_octaves) + self.extra_inputs
+        self.gaussian = MLP(n_g, w, width=w, layers=cfg.branch_layers, seed=seed + 1)
+        self.antenna = MLP(n_a, w, width=w, layers=cfg.branch_layers, seed=seed + 2)
+        self.head = MLP(w, 3, width=w, layers=cfg.head_layers, seed=seed + 3,
+                        out_bias=[cfg.signal_bias, 0.0, 0.0])
+
+    def modules(self) -> dict:
+        """Name -> module (each has ``weights``, ``set_weights``, ``num_parameters``)."""
+        mods = {"gaussian": self.gaussian, "antenna": self.antenna, "head": self.head}
+        if self.hash is not None:
+            mods["hash"] = self.hash
+        return mods
+
+    @property
+    def num_parameters(self) -> int:
+        return sum(m.num_parameters for m in self.modules().values())
+
+    def gaussian_features(self, pos01: list) -> list:
+        """Per-Gaussian branch: pos01 list of 3 ``Float`` [N] in [0, 1] -> ``width`` ``Float`` [N]."""
+        if self.hash is not None:
+            x = list(pos01) + self.hash(pos01)
+        else:
+            x = encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
+        return self.gaussian(x)
+
+    def antenna_features(self, ant01: list, extra: list | None = None) -> list:
+        """Per-view branch: ant01 list of 3 ``Float`` [B] in [0, 1], extra list of
+        ``extra_inputs`` ``Float`` [B] -> ``width`` ``Float`` [B]."""
+        kind = "tri" if self.cfg.encoding == "tri" else "sin"
+        x = encode([a * 0.5 for a in ant01], octaves=self.cfg.antenna_octaves, kind=kind)
+        extra = list(extra or [])
+        if len(extra) != self.extra_inputs:
+            raise ValueError(f"EMNetwork expects {self.extra_inputs} extra inputs, got {len(extra)}")
+        return self.antenna(x + extra)
+
+    def __call__(self, pos01: list, ant01: list, extra: list | None = None) -> tuple:
+        """Signal and attenuation offsets for every (view, Gaussian) pair.
+
+        Args:
+            pos01: 3 ``Float`` [N], Gaussian positions mapped into [0, 1] (scene box).
+            ant01: 3 ``Float`` [B], antenna positions mapped into [0, 1].
+            extra: ``extra_inputs`` ``Float`` [B] or None.
+
+        Returns:
+            (signal_logit, attenuation_logit, log_scale_offset): ``Float`` [B*N] each,
+            view-major (b*N + i).
+        """
+        import drjit as dr
+
+        n = dr.width(pos01[0])
+        b = dr.width(ant01[0])
+        g = self.gaussian_features(pos01)
+        a = self.antenna_features(ant01, extra)
+        idx = dr.arange(B.UInt32, n * b)
+        n_op = dr.opaque(B.UInt32, n)  # opaque: a new N must not trigger a kernel recompilation
+        gi = idx % n_op
+        bi = idx // n_op
+        h = [dr.gather(B.Float, gg, gi) + dr.gather(B.Float, aa, bi) for gg, aa in zip(g, a)]
+        h = [dr.maximum(x, 0) + 0.01 * dr.minimum(x, 0) for x in h]
+        out = self.head(h)
+        return out[0], out[1], out[2]
+
+
+def config_dict(cfg: NetConfig) -> dict:
+    """Plain dict of a :class:`NetConfig` (for metadata)."""
+    return dataclasses.asdict(cfg)

@@ -1,0 +1,276 @@
+"""Stage 2: a sparse set of "human" Gaussians conditioned on the human position.
+
+A :class:`HumanField` is a :class:`~rfmitsuba.field.GaussianField` whose EM-feature
+network takes the human position as extra per-view input
+
+    F_man: (P(G_man), P(antenna), P(man)) -> signal, attenuation
+
+plus a **deformation network**
+
+    D_man: (P(G_man), P(man)) -> (position offset, rotation offset, log-scale offset)
+
+evaluated for every (view, Gaussian) pair, so the human Gaussians move, turn and grow with
+the person. Rendering (:meth:`HumanField.splats`) returns per-view geometry (size B*N) that
+:meth:`rfmitsuba.field.Splats.concat` joins with a frozen background into one splatting
+call (the paper's linear superposition); only the human field's parameters train.
+
+Positions are in metres (world frame), the human position is given as the feature vector of
+:func:`rfmitsuba.samples.human_features` (NaN-free, already normalised).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.errors import ConfigError, RunError
+from .splat import GAUSSIAN_KEYS, FieldConfig, GaussianField, _logit, columns
+from .nn import MLP, NetConfig, encode
+from ..data.samples import num_human_features
+
+
+@dataclass
+class DeformConfig:
+    """Deformation network: octaves of the Gaussian-position encoding, width and hidden layers;
+    offsets bounded by ``max_offset`` metres (position), ``max_log_scale`` (log-scale) and
+    ``max_rotation`` (quaternion components)."""
+
+    enabled: bool = True
+    octaves: int = 3
+    width: int = 32
+    layers: int = 1
+    max_offset: float = 0.5
+    max_log_scale: float = 1.0
+    max_rotation: float = 0.3
+    gain: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.octaves < 0 or self.width < 1 or self.layers < 0:
+            raise ConfigError("DeformConfig: octaves and layers must be >= 0, width >= 1")
+        if min(self.max_offset, self.max_log_scale, self.max_rotation, self.gain) < 0:
+            raise ConfigError("DeformConfig: bounds and gain must be >= 0")
+
+
+@dataclass
+class HumanConfig:
+    """The human Gaussian set of Stage 2.
+
+    num_gaussians: size of the sparse set; init_radius: horizontal standard deviation (metres)
+    of the initial positions around the training human positions; init_height: (lo, hi)
+    metres above the human's feet; init_scale: initial isotropic scale (metres, or radians
+    with ``field.scale_mode = "angular"``); init_opacity: initial attenuation delta;
+    human_octaves: octaves of the human-position encoding.
+    anchor: "human" - Gaussian positions are stored relative to the human's feet and follow the
+    person (world position = human position + stored position + deformation); "world" - stored
+    positions are world positions (the deformation network alone moves them).
+    """
+
+    num_gaussians: int = 300
+    init_radius: float = 0.4
+    init_height: tuple[float, float] = (0.1, 1.8)
+    init_scale: float = 0.1
+    init_opacity: float = 0.1
+    human_octaves: int = 3
+    anchor: str = "human"
+    net: NetConfig = dc_field(default_factory=lambda: NetConfig(width=32, signal_bias=-4.0))
+    deform: DeformConfig = dc_field(default_factory=DeformConfig)
+
+    def __post_init__(self) -> None:
+        if self.num_gaussians < 1:
+            raise ConfigError(f"HumanConfig.num_gaussians must be >= 1, got {self.num_gaussians}")
+        if self.init_radius < 0 or self.init_scale <= 0 or not 0 < self.init_opacity < 1:
+            raise ConfigError("HumanConfig: init_radius >= 0, init_scale > 0, init_opacity in (0, 1)")
+        if self.anchor not in ("human", "world"):
+            raise ConfigError(f"HumanConfig.anchor must be 'human' or 'world', got {self.anchor!r}")
+
+
+class HumanField(GaussianField):
+    """Human Gaussians with a position-conditioned EM network and a deformation network.
+
+    Args:
+        params: per-Gaussian numpy arrays (as :class:`GaussianField`).
+        box: float [2, 3] metres, normalisation box.
+        hcfg: :class:`HumanConfig`.
+        field_cfg: the field configuration (scale mode of the background it joins).
+        seed: network seed.
+        name: optimizer key prefix.
+    """
+
+    def __init__(self, params: dict, *, box: np.ndarray, hcfg: HumanConfig, field_cfg: FieldConfig,
+                 seed: int = 0, name: str = "human"):
+        import dataclasses
+
+        self.hcfg = hcfg
+        cfg = dataclasses.replace(field_cfg, net=hcfg.net, scale_net=False, num_gaussians=hcfg.num_gaussians)
+        super().__init__(params, box=box, cfg=cfg, extra_inputs=num_human_features(hcfg.human_octaves),
+                         seed=seed, name=name)
+        d = hcfg.deform
+        n_in = 3 * (1 + 2 * d.octaves) + num_human_features(hcfg.human_octaves)
+        self.deform = MLP(n_in, 10, width=d.width, layers=d.layers, seed=seed + 17) if d.enabled else None
+
+    # ---- construction ---------------------------------------------------------------
+    @classmethod
+    def near_walk(cls, human_positions: np.ndarray, *, hcfg: HumanConfig, field_cfg: FieldConfig,
+                  box: np.ndarray, rng: np.random.Generator, seed: int = 0, name: str = "human") -> "HumanField":
+        """Random initial human Gaussians around the (training) human positions.
+
+        Args:
+            human_positions: float [H, 3] metres, feet positions of the training walk.
+            hcfg, field_cfg: configurations; box: float [2, 3] normalisation box (metres).
+            rng: numpy generator (the only randomness of the positions).
+        """
+        hp = np.asarray(human_positions, np.float64).reshape(-1, 3)
+        hp = hp[np.isfinite(hp).all(1)]
+        if len(hp) == 0:
+            raise ConfigError("HumanField.near_walk: no finite human positions to initialise around")
+        n = hcfg.num_gaussians
+        pick = hp[rng.integers(0, len(hp), n)]
+        pts = pick.copy()
+        pts[:, :2] += rng.normal(0.0, hcfg.init_radius, (n, 2))
+        lo_h, hi_h = hcfg.init_height
+        pts[:, 2] += lo_h + rng.random(n) * (hi_h - lo_h)
+        box = np.asarray(box, np.float64).reshape(2, 3)
+        pts = np.clip(pts, box[0] + 1e-3, box[1] - 1e-3)
+        if hcfg.anchor == "human":
+            pts = pts - pick
+        params = {
+            "means": pts.astype(np.float32),
+            "log_scales": np.full((n, 3), np.log(hcfg.init_scale), np.float32),
+            "rotations": np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+            "opacity_logits": np.full(n, _logit(hcfg.init_opacity), np.float32),
+        }
+        return cls(params, box=box, hcfg=hcfg, field_cfg=field_cfg, seed=seed, name=name)
+
+    # ---- parameters -----------------------------------------------------------------
+    def parameters(self) -> dict:
+        """Per-Gaussian arrays, ``net.<module>`` and ``deform.mlp`` weights."""
+        out = super().parameters()
+        if self.deform is not None:
+            out["deform.mlp"] = self.deform.weights
+        return out
+
+    @property
+    def num_parameters(self) -> int:
+        return super().num_parameters + (self.deform.num_parameters if self.deform is not None else 0)
+
+    def assign(self, values: dict) -> None:
+        rest = {}
+        for k, v in values.items():
+            if k == "deform.mlp" and self.deform is not None:
+                self.deform.set_weights(v)
+            else:
+                rest[k] = v
+        super().assign(rest)
+
+    def freeze(self) -> None:
+        import drjit as dr
+
+        super().freeze()
+        if self.deform is not None:
+            self.deform.set_weights(dr.detach(self.deform.weights))
+
+    # ---- evaluation -----------------------------------------------------------------
+    def splats(self, antenna_pos: np.ndarray, *, extra: np.ndarray | None = None,
+               view_pos: np.ndarray | None = None):
+        """Human Gaussians for B views.
+
+        Args:
+            antenna_pos: float [B, 3] metres (moving antenna per view).
+            extra: float32 [B, num_human_features + 3]: :func:`rfmitsuba.samples.human_features`
+                followed by the human position in metres (``SampleData.features(..., raw=True)``).
+            view_pos: float [B, 3] metres, array position per view (default antenna_pos).
+
+        Returns:
+            :class:`rfmitsuba.field.Splats` with every array of size B*N (view-major).
+        """
+        import drjit as dr
+
+        from .splat import Splats
+
+        if extra is None:
+            raise ValueError(f"human field {self.name!r} needs the human inputs of every view")
+        nf = self.extra_inputs
+        e_all = np.asarray(extra, np.float32).reshape(len(np.asarray(antenna_pos).reshape(-1, 3)), -1)
+        if e_all.shape[1] != nf + 3:
+            raise ValueError(f"human field {self.name!r}: extra must be [B, {nf} + 3] (features, position), "
+                             f"got {e_all.shape}")
+        e, hpos = e_all[:, :nf], e_all[:, nf:]
+        s = super().splats(antenna_pos, extra=e, view_pos=view_pos)
+        n, nb = s.n, s.b
+        idx = dr.arange(B.UInt32, n * nb)
+        n_op = dr.opaque(B.UInt32, n)
+        gi, bi = idx % n_op, idx // n_op
+        means = s.means
+        if self.hcfg.anchor == "human":
+            hp = columns(hpos)
+            shift = dr.gather(B.Array3f, B.Array3f(hp[0], hp[1], hp[2]), bi)
+            m_world = dr.gather(B.Array3f, means, gi) + shift
+        else:
+            m_world = dr.gather(B.Array3f, means, gi)
+        if self.deform is None:
+            ls = dr.gather(B.Array3f, s.log_scales, gi) if dr.width(s.log_scales) == n else s.log_scales
+            return Splats(means=m_world, log_scales=ls, rotations=dr.gather(B.Array4f, s.rotations, gi),
+                          opacities=s.opacities, signals=s.signals, n=n, b=nb)
+        d = self.hcfg.deform
+        lo = self.box[0].astype(np.float32)
+        ext = (self.box[1] - self.box[0]).astype(np.float32)
+        if self.hcfg.anchor == "human":
+            pos01 = [means[k] / float(ext[k]) * 0.5 + 0.25 for k in range(3)]
+        else:
+            pos01 = [(means[k] - float(lo[k])) / float(ext[k]) * 0.5 for k in range(3)]
+        enc = encode(pos01, octaves=d.octaves, kind="sin")
+        ex = columns(e)
+        inputs = [dr.gather(B.Float, x, gi) for x in enc] + [dr.gather(B.Float, x, bi) for x in ex]
+        out = self.deform(inputs)
+        t = [dr.tanh(d.gain * o) for o in out]
+        m = m_world + d.max_offset * B.Array3f(t[0], t[1], t[2])
+        q = (dr.gather(B.Array4f, s.rotations, gi) if dr.width(s.rotations) == n else s.rotations) \
+            + d.max_rotation * B.Array4f(t[3], t[4], t[5], t[6])
+        q = q / dr.sqrt(dr.squared_norm(q) + 1e-12)
+        ls = dr.gather(B.Array3f, s.log_scales, gi) if dr.width(s.log_scales) == n else s.log_scales
+        ls = ls + d.max_log_scale * B.Array3f(t[7], t[8], t[9])
+        return Splats(means=m, log_scales=ls, rotations=q, opacities=s.opacities, signals=s.signals, n=n, b=nb)
+
+    # ---- state ----------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        from ..core.config import to_dict
+
+        out = super().state_dict()
+        if self.deform is not None:
+            out["deform.mlp"] = np.array(self.deform.weights.numpy(), dtype=np.float32, copy=True)
+        meta = json.loads(str(out["meta"]))
+        meta.update({"format": "rfmitsuba-human-field/1", "human_config": to_dict(self.hcfg)})
+        out["meta"] = np.array(json.dumps(meta))
+        return out
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        if self.deform is not None:
+            if "deform.mlp" not in state:
+                raise RunError("human field state has no deformation weights 'deform.mlp'")
+            w = np.asarray(state["deform.mlp"], np.float32)
+            if w.shape != (self.deform.num_parameters,):
+                raise RunError(f"human field state 'deform.mlp' has {w.shape[0]} weights, "
+                               f"this network needs {self.deform.num_parameters}")
+            self.deform.set_weights(w)
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> "HumanField":
+        from ..core.config import from_dict
+
+        if "meta" not in state:
+            raise RunError("human field state has no 'meta' entry")
+        meta = json.loads(str(state["meta"]))
+        if meta.get("format") != "rfmitsuba-human-field/1":
+            raise RunError(f"not a human field state (format {meta.get('format')!r})")
+        hcfg = from_dict(HumanConfig, meta["human_config"])
+        fcfg = from_dict(FieldConfig, meta["config"])
+        g = {k: state[k] for k in GAUSSIAN_KEYS}
+        f = cls(g, box=state["box"], hcfg=hcfg, field_cfg=fcfg, seed=meta["seed"], name=meta["name"])
+        f.load_state_dict(state)
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+

@@ -1,0 +1,75 @@
+"""Power Angular Spectrum (SPEC): Bartlett beamformer of the 4x4 horizontal array.
+
+Layout: image [90, 360] at 1 degree, row ``i`` = elevation ``(i + 1) * res``
+degrees above the array plane, column ``j`` = azimuth ``j * res`` degrees from
++x towards +y (array frame).
+
+Value: ``P(el, az) = | sum_m conj(v_m(el, az)) h_m | / M`` with the element's
+plane-wave response ``v_m = exp(+j 2 pi / lambda * r_m . d(el, az))`` and
+``d = (cos el cos az, cos el sin az, sin el)``. The sign of the exponent is
+the one that makes the peak point at the source for Sionna RT's channels
+(``a exp(-j 2 pi f tau)``, see :mod:`rfmitsuba.antenna`); SPEC's written
+``a_m = exp(-j ...)`` is the complex conjugate convention and would put every
+peak 180 degrees away in azimuth.
+
+All K images come from one complex matrix product ``[pixels, 16] x [16, K]``.
+"""
+from __future__ import annotations
+import numpy as np
+from . import array as antenna
+from ..core.errors import ConfigError
+from .grid import angle_grid, directions
+
+def beamformer(*, frequency_hz: float, positions: np.ndarray | None = None,
+               resolution_deg: float = 1.0) -> np.ndarray:
+    """Bartlett weights conj(v_m(pixel)) / M: complex64 [H*W, M]."""
+    pos = antenna.element_positions(frequency_hz) if positions is None else np.asarray(positions, np.float64)
+    k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
+    d = directions(resolution_deg=resolution_deg).reshape(-1, 3)
+    return (np.exp(-1j * k * (d @ pos.T)) / pos.shape[0]).astype(np.complex64)
+
+
+def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray | None = None,
+             resolution_deg: float = 1.0, batch: int = 256) -> np.ndarray:
+    """Bartlett PAS of K channels.
+
+    Args:
+        channels: complex [K, M] narrowband channel per element (M = 16).
+        frequency_hz: carrier, Hz.
+        positions: element offsets float [M, 3], metres (default: the SPEC 4x4 URA).
+        resolution_deg: angular step (1 -> [90, 360] images).
+        batch: images per matrix product (bounds memory).
+    Returns:
+        float32 [K, H, W], raw linear amplitude.
+    """
+    h = np.asarray(channels)
+    if h.ndim != 2:
+        raise ConfigError(f"channels must be [K, M], got shape {h.shape}")
+    if not np.isfinite(h).all():
+        raise ConfigError("channels contain NaN or inf")
+    B = beamformer(frequency_hz=frequency_hz, positions=positions, resolution_deg=resolution_deg)
+    if h.shape[1] != B.shape[1]:
+        raise ConfigError(f"channels have {h.shape[1]} elements, the array has {B.shape[1]}")
+    el, _ = angle_grid(resolution_deg=resolution_deg)
+    out = np.empty((h.shape[0], *el.shape), np.float32)
+    hc = h.astype(np.complex64)
+    for s in range(0, h.shape[0], batch):
+        blk = B @ hc[s:s + batch].T  # [pixels, 16] x [16, k]
+        out[s:s + batch] = np.abs(blk).T.reshape(-1, *el.shape)
+    return out
+
+
+def normalize(pas: np.ndarray) -> np.ndarray:
+    """Per-image min-max to [0, 1]: float32 of the same shape [..., H, W]; constant images give 0."""
+    p = np.asarray(pas, np.float32)
+    lo = p.min(axis=(-2, -1), keepdims=True)
+    hi = p.max(axis=(-2, -1), keepdims=True)
+    span = hi - lo
+    return np.where(span > 0, (p - lo) / np.where(span > 0, span, 1), 0).astype(np.float32)
+
+
+def peak_direction(pas: np.ndarray, *, resolution_deg: float = 1.0) -> tuple[float, float]:
+    """(elevation, azimuth) in radians of the brightest pixel of one image [H, W]."""
+    i, j = np.unravel_index(int(np.argmax(pas)), np.shape(pas))
+    el, az = angle_grid(resolution_deg=resolution_deg)
+    return float(el[i, j]), float(az[i, j])

@@ -1,0 +1,257 @@
+"""The on-disk PAS dataset: folder layout, atomic per-state chunks, splits.
+
+Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
+
+    meta.json          configuration, reproducibility record, units
+    split.json         antenna / human train-test indices and their seed
+    antenna_pos.npy    float32 [A, 3], metres, world frame
+    chunks/00000/      state 0: the empty room
+        pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
+        channel.npy    complex64 [A, 16], narrowband channel per element
+        chunk.json     sha256 of both arrays (checked by Dataset.verify)
+    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
+
+Each chunk folder is written under a temporary name and renamed when
+complete, so a folder named ``chunks/<state:05d>`` is either whole or was
+damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
+``k = state * A + antenna``.
+
+Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
+datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+"""
+from __future__ import annotations
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+import numpy as np
+from ..core.errors import DatasetError, PlacementError
+from ..data.store import Dataset, _scene_record, _write_json, base_meta, check_chunk, chunk_name, prepare_folder, remove_stale_tmp, resolve_scene, write_chunk
+from ..data.split import make_split
+
+@dataclass
+class GenerateConfig:
+    """What :func:`generate` simulates (every field is recorded in meta.json).
+
+    Heights (``z_range``, ``corner_height``) are metres above the floor.
+    """
+
+    scene: str = "bedroom"
+    task: str = "rx"
+    positions: int = 900
+    human_positions: int = 35
+    material: str = "tissue"
+    seed: int = 0
+    frequency_hz: float = 2.4e9
+    z_range: tuple[float, float] = (0.5, 2.0)
+    #: distance of antenna positions to walls and furniture, metres
+    clearance: float = 0.15
+    #: extra horizontal distance of antenna positions (below head height) to every walk position, metres
+    human_margin: float = 0.15
+    corner_inset: float = 0.3
+    corner_height: float = 2.0
+    walk_duration_s: float = 60.0
+    #: material scattering coefficient set after loading when diffuse reflection is on
+    scattering_coefficient: float = 0.3
+    solver: "Any" = None  # simulate.SolverConfig; None -> defaults for the room size
+
+
+QUICK = {"positions": 36, "human_positions": 4, "samples_per_src": 20_000}
+
+
+def quick_config(scene: str = "bedroom", **overrides) -> GenerateConfig:
+    """The ``--quick`` configuration: 36 positions x (1 + 4) states at 2e4 samples per source."""
+    from .simulate import SolverConfig
+
+    # the walk keeps the full walk's step (60 s / 35 positions), so its straight steps stay short
+    kw = {"scene": scene, "positions": QUICK["positions"], "human_positions": QUICK["human_positions"],
+          "walk_duration_s": 60.0 * QUICK["human_positions"] / 35,
+          "solver": SolverConfig(samples_per_src=QUICK["samples_per_src"])}
+    kw.update(overrides)
+    return GenerateConfig(**kw)
+
+
+def place_antennas(geometry, n: int, *, rng: np.random.Generator, z_range: tuple[float, float],
+                   clearance: float, walk_positions: np.ndarray, body_radius: float, body_height: float,
+                   avoid: np.ndarray | None = None) -> np.ndarray:
+    """``n`` antenna positions in the free volume, float64 [n, 3], metres.
+
+    Never inside furniture (``clearance`` from walls and furniture), never inside the
+    human at any walk position (horizontal distance > ``body_radius`` unless above
+    ``body_height``), and at least 0.3 m from ``avoid`` (the fixed device, float [3]).
+    """
+    out: list[np.ndarray] = []
+    got = 0
+    walk_xy = np.asarray(walk_positions, np.float64).reshape(-1, 3)
+    for _ in range(100):
+        c = geometry.sample_free(max(64, 2 * n), rng=rng, z_range=z_range, clearance=clearance)
+        ok = np.ones(len(c), bool)
+        if len(walk_xy):
+            dxy = np.linalg.norm(c[:, None, :2] - walk_xy[None, :, :2], axis=-1)
+            below = c[:, None, 2] < walk_xy[None, :, 2] + body_height
+            ok &= ~np.any((dxy < body_radius) & below, axis=1)
+        if avoid is not None:
+            ok &= np.linalg.norm(c - np.asarray(avoid, np.float64), axis=1) > 0.3
+        out.append(c[ok])
+        got += int(ok.sum())
+        if got >= n:
+            break
+    if got < n:
+        raise PlacementError(f"found only {got} of {n} antenna positions clear of furniture and the walk")
+    return np.concatenate(out)[:n]
+
+
+def default_solver(geometry, *, quick: bool = False):
+    """SolverConfig for a room: 1e5 samples per source, 3e5 for rooms over 50 m^2 floor (SPEC facts)."""
+    from .simulate import SolverConfig
+
+    area = float(np.prod(geometry.size[:2]))
+    samples = 300_000 if area > 50 else 100_000
+    if quick:
+        samples = QUICK["samples_per_src"]
+    return SolverConfig(samples_per_src=samples)
+
+
+def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quiet: bool = False,
+             stop_after: int | None = None) -> Dataset:
+    """Simulate a dataset into folder ``out``, resuming from the first missing chunk.
+
+    Args:
+        out: dataset folder (created; an existing one must hold the same configuration).
+        cfg: :class:`GenerateConfig`.
+        repair: re-simulate chunks that fail the full (sha256) check instead of raising.
+        quiet: no progress bar.
+        stop_after: simulate at most this many states, then return (for tests of resuming).
+    Returns:
+        The dataset, opened (only if complete; else the partially written one unchecked).
+    Raises:
+        DatasetError: ``out`` holds another configuration (the differing key is named) or a
+            damaged chunk (named) and ``repair`` is off.
+        PlacementError: bad positions; SceneError: unknown or broken scene.
+    """
+    import time
+
+    from . import person as human
+    from ..core import progress
+    from .geometry import RoomGeometry
+    from .simulate import Simulator, SolverConfig, versions
+
+    from ..core import config as _config
+    from ..core.errors import ConfigError
+
+    if cfg.task not in ("rx", "tx"):
+        raise ConfigError(f"task must be 'rx' or 'tx', got {cfg.task!r}")
+    if cfg.positions < 1 or cfg.human_positions < 0:
+        raise ConfigError(f"need positions >= 1 and human_positions >= 0, got {cfg.positions}, {cfg.human_positions}")
+    if cfg.material not in human.PERTURBER_MATERIALS:
+        raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(human.PERTURBER_MATERIALS)}")
+    t_start = time.perf_counter()
+    xml = resolve_scene(cfg.scene)
+    geom = RoomGeometry.from_xml(xml)
+    solver = cfg.solver if cfg.solver is not None else default_solver(geom)
+    if isinstance(solver, dict):
+        solver = _config.from_dict(SolverConfig, solver)
+    solver.check()
+    fixed = geom.corner(inset=cfg.corner_inset, height=cfg.corner_height)
+    if cfg.human_positions:
+        walk = human.walk(geom, n=cfg.human_positions, duration_s=cfg.walk_duration_s, seed=cfg.seed)
+        walk_pos, walk_head = np.asarray(walk.positions), np.asarray(walk.headings)
+    else:
+        walk_pos, walk_head = np.zeros((0, 3)), np.zeros(0)
+    body_r = human.radius() + cfg.human_margin
+    ant = place_antennas(geom, cfg.positions, rng=np.random.default_rng([cfg.seed, 1]), z_range=cfg.z_range,
+                         clearance=cfg.clearance, walk_positions=walk_pos, body_radius=body_r,
+                         body_height=human.HEIGHT + 0.1, avoid=fixed)
+    geom.check_points(ant, what="antenna")
+    ant32 = ant.astype(np.float32)
+    plugin, params = human.PERTURBER_MATERIALS[cfg.material]
+    extra = {
+        "scene": _scene_record(xml),
+        "generate": {k: v for k, v in _config.to_dict(_replace(cfg, solver=None)).items() if k != "solver"},
+        "solver": _config.to_dict(solver),
+        "seeds": {"antenna_positions": [cfg.seed, 1], "walk": cfg.seed, "split": cfg.seed, "solver": solver.seed},
+        "human": {"headings_rad": walk_head.tolist(), "height_m": human.HEIGHT, "width_m": human.WIDTH,
+                  "material": cfg.material, "material_plugin": plugin, "material_params": params,
+                  "placement": "feet at human_positions, facing headings_rad (about +z)"},
+        "fixed_device": "isotropic TX" if cfg.task == "rx" else "4x4 array",
+        "moving_device": "4x4 array" if cfg.task == "rx" else "isotropic TX",
+        "reciprocity": "one solve: TX at fixed_pos, isotropic RX at each antenna position; "
+                       + ("arrival directions at the antenna positions" if cfg.task == "rx" else
+                          "departure directions at fixed_pos") + " give the array channel",
+        "versions": versions(),
+    }
+    meta = base_meta(task=cfg.task, frequency_hz=cfg.frequency_hz, num_antennas=cfg.positions,
+                     human_positions=walk_pos, fixed_pos=fixed, extra=extra)
+    split = make_split(cfg.positions, cfg.human_positions, seed=cfg.seed)
+    root = prepare_folder(out, meta, antenna_pos=ant32, split=split)
+    remove_stale_tmp(root)
+    S = 1 + cfg.human_positions
+    todo = []
+    for s in range(S):
+        if not (root / "chunks" / chunk_name(s)).exists():
+            todo.append(s)
+            continue
+        try:
+            check_chunk(root, s, cfg.positions, full=repair)
+        except DatasetError as e:
+            if not repair:
+                raise DatasetError(f"{e}; run generate with --repair to simulate it again") from None
+            todo.append(s)
+    if stop_after is not None:
+        todo = todo[:stop_after]
+    timing = {"states": len(todo), "solver_s": 0.0, "pas_s": 0.0, "write_s": 0.0}
+    if todo:
+        sim = Simulator(xml, fixed_pos=fixed, frequency_hz=cfg.frequency_hz, solver=solver)
+        if solver.diffuse_reflection:
+            sim.set_scattering(cfg.scattering_coefficient)
+        # positions as float32, the precision they are stored with
+        sim.set_positions(ant32.astype(np.float64))
+        faces = None
+        with progress.bar(len(todo), desc=f"{xml.stem} {cfg.task}", unit="state", quiet=quiet) as pb:
+            for s in todo:
+                if s == 0:
+                    sim.set_human(None)
+                else:
+                    mesh = human.human_mesh(walk_pos[s - 1], float(walk_head[s - 1]))
+                    if faces is None:
+                        faces = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).faces)
+                        first = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).vertices)
+                        sim.set_human(first, faces, material=human.radio_material(cfg.material,
+                                                                                  name=f"rfm-human-{cfg.material}"))
+                    sim.set_human(np.asarray(mesh.vertices))
+                t0 = sim.timing.solver_s
+                paths = sim.solve()
+                timing["solver_s"] += sim.timing.solver_s - t0
+                t1 = time.perf_counter()
+                from ..rf import bartlett_ref as _pas
+
+                h = paths.channels(cfg.task, frequency_hz=cfg.frequency_hz)
+                img = _pas.bartlett(h, frequency_hz=cfg.frequency_hz)
+                t2 = time.perf_counter()
+                write_chunk(root, s, pas=img, channel=h)
+                timing["write_s"] += time.perf_counter() - t2
+                timing["pas_s"] += t2 - t1
+                pb.update(1)
+    timing["total_s"] = time.perf_counter() - t_start
+    timing["outside_solver_share"] = 1 - timing["solver_s"] / timing["total_s"] if timing["total_s"] else 0.0
+    _append_timing(root, timing)
+    missing = [s for s in range(S) if not (root / "chunks" / chunk_name(s)).exists()]
+    return Dataset(root, check=not missing)
+
+
+def _replace(cfg, **kw):
+    import dataclasses
+
+    return dataclasses.replace(cfg, **kw)
+
+
+def _append_timing(root: Path, timing: dict) -> None:
+    f = root / "timing.json"
+    runs = []
+    if f.exists():
+        try:
+            runs = json.loads(f.read_text())
+        except ValueError:
+            runs = []
+    runs.append(timing)
+    _write_json(f, runs)

@@ -1,0 +1,1 @@
+"""Training: configuration, the loop and run folder, the loss, density strategies."""

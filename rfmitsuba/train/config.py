@@ -1,0 +1,128 @@
+"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+
+* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
+  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
+* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
+  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
+* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
+  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
+  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
+  same result, a progress bar, and the run folder.
+
+Run folder layout::
+
+    config.toml      the TrainConfig (a run folder of another config is refused)
+    run.json         dataset path, task, split sizes, package versions
+    split.json       train / validation / test antenna indices
+    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    checkpoint/      latest resumable state (written atomically)
+    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/gaussians.ply, final/network.npz, final/summary.json
+
+Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
+(view = the fixed array, network input = transmitter position).
+"""
+from __future__ import annotations
+import math
+from dataclasses import dataclass, field as dc_field
+from typing import Literal
+from ..core import config as C
+from ..models.coherent import CoherentConfig
+from .density import DensityConfig
+from ..core.errors import ConfigError
+from ..models.splat import FieldConfig
+
+@dataclass
+class OptimConfig:
+    """Adam learning rates (per step). ``*_final`` values are reached at the last iteration by
+    exponential decay; the others are constant."""
+
+    lr_means: float = 2e-3
+    lr_means_final: float = 2e-5
+    lr_log_scales: float = 5e-3
+    lr_rotations: float = 1e-3
+    lr_opacity: float = 2e-2
+    lr_net: float = 2e-3
+    lr_net_final: float = 2e-4
+    #: complex image amplitudes of the coherent model (model = "coherent")
+    lr_amp: float = 1e-2
+    lr_amp_final: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for k, v in vars(self).items():
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"OptimConfig.{k} must be a finite number >= 0, got {v!r}")
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (besides the dataset).
+
+    iterations: optimizer steps; batch_views: PAS per step; downsample: train on
+    (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
+    resolution); seed: all randomness; val_fraction / val_max: training positions held out
+    for validation (never test positions); val_every / checkpoint_every / log_every: steps;
+    time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
+    schedules then also advance with the share of this time used);
+    max_train_positions: use only this many training positions (0 = all; motivation table);
+    state: dataset state to train on (0 = empty room).
+    model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
+    "coherent" (image sources summed coherently and read out by the Bartlett beamformer,
+    :mod:`rfmitsuba.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
+    scene: the room (built-in scene name or XML path) for a dataset that names none, e.g. a
+    NeRF2 folder measured in a room you have modelled ("" = the dataset's own scene).
+    """
+
+    iterations: int = 3000
+    batch_views: int = 4
+    downsample: int = 1
+    seed: int = 0
+    val_fraction: float = 0.05
+    val_max: int = 24
+    val_every: int = 250
+    checkpoint_every: int = 250
+    log_every: int = 25
+    time_limit_s: float = 0.0
+    max_train_positions: int = 0
+    state: int = 0
+    model: Literal["splat", "coherent"] = "splat"
+    scene: str = ""
+    field: FieldConfig = dc_field(default_factory=FieldConfig)
+    coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
+    density: DensityConfig = dc_field(default_factory=DensityConfig)
+    optim: OptimConfig = dc_field(default_factory=OptimConfig)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.batch_views < 1:
+            raise ConfigError("TrainConfig: iterations and batch_views must be >= 1")
+        if self.downsample not in (1, 2, 3, 5, 6, 9, 10):
+            raise ConfigError(f"TrainConfig.downsample must divide 90 and 360 (1, 2, 3, 5, 6, 9, 10), got {self.downsample}")
+        if not 0 <= self.val_fraction < 0.5:
+            raise ConfigError(f"TrainConfig.val_fraction must be in [0, 0.5), got {self.val_fraction}")
+        for k in ("val_every", "checkpoint_every", "log_every"):
+            if getattr(self, k) < 1:
+                raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
+        if self.model not in ("splat", "coherent"):
+            raise ConfigError(f"TrainConfig.model must be 'splat' or 'coherent', got {self.model!r}")
+        if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
+            raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
+
+
+def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
+    """A small, fast variant (for --quick and smoke tests): 300 steps, 600 Gaussians, half resolution."""
+    cfg = cfg or TrainConfig()
+    return C.override(cfg, ["iterations=300", "downsample=2", "val_every=100", "checkpoint_every=100",
+                            "field.num_gaussians=600", "density.start=100", "density.every=50",
+                            "density.max_gaussians=2000", "density.reset_every=0"])
+
+
+def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted keys where two (nested) config dicts differ, with both values."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += config_diff(va, vb, f"{prefix}{k}.")
+        elif va != vb:
+            out.append(f"{prefix}{k} (run has {va!r}, requested {vb!r})")
+    return out

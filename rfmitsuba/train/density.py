@@ -1,0 +1,305 @@
+"""Adaptive density control of a Gaussian field (3DGS / gsplat style), as a strategy object.
+
+The trainer calls the hooks of :class:`DensityStrategy`:
+
+* :meth:`~DensityStrategy.after_backward` every step: accumulates the norm of each
+  Gaussian's position gradient (our renderer takes world-space means, so this is the
+  gradient of the loss with respect to the 3-D mean, summed over the views of the step)
+  and how often the Gaussian received any gradient;
+* :meth:`~DensityStrategy.step_end` after the optimizer step: every ``every`` steps in
+  [start, stop) clones small Gaussians and splits large ones whose mean gradient exceeds
+  ``grad_threshold`` (largest first, at most ``max_growth`` * N new ones, never more than
+  ``max_gaussians`` in all), prunes Gaussians whose attenuation delta stays below
+  ``prune_opacity`` in every probe view or whose largest scale exceeds ``prune_scale`` metres,
+  and every ``reset_every`` steps lowers every attenuation delta to ``reset_opacity``;
+* :meth:`~DensityStrategy.on_validation` after each validation: growth stops for good once
+  validation SSIM has not improved by ``min_improvement`` for ``patience`` validations
+  (a model no larger than the scene needs).
+
+Optimizer moments of kept Gaussians are kept; new Gaussians start with zero moments.
+All randomness comes from the numpy generator the trainer passes in.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.errors import ConfigError
+from ..models.splat import GAUSSIAN_KEYS, GaussianField
+
+
+@dataclass
+class DensityConfig:
+    """Adaptive density control settings (steps are optimizer iterations; lengths in metres)."""
+
+    enabled: bool = True
+    start: int = 200
+    stop: int = 100000
+    every: int = 100
+    grad_threshold: float = 2e-4
+    max_growth: float = 0.3
+    max_gaussians: int = 20000
+    split_scale: float = 0.05
+    prune_opacity: float = 0.005
+    prune_scale: float = 1.5
+    reset_every: int = 1500
+    reset_opacity: float = 0.02
+    patience: int = 3
+    min_improvement: float = 0.002
+
+    def __post_init__(self) -> None:
+        if self.every < 1:
+            raise ConfigError(f"DensityConfig.every must be >= 1, got {self.every}")
+        if not 0 <= self.max_growth <= 4:
+            raise ConfigError(f"DensityConfig.max_growth must be in [0, 4], got {self.max_growth}")
+        if self.max_gaussians < 1:
+            raise ConfigError(f"DensityConfig.max_gaussians must be >= 1, got {self.max_gaussians}")
+        if not 0 < self.reset_opacity < 1 or not 0 <= self.prune_opacity < 1:
+            raise ConfigError("DensityConfig: reset_opacity must be in (0, 1), prune_opacity in [0, 1)")
+
+
+def _logit(p: float) -> float:
+    return float(np.log(p / (1 - p)))
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of quaternions q float [N, 4] (w, x, y, z; any norm) -> [N, 3, 3]."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True).clip(1e-12)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)
+
+
+class DensityStrategy:
+    """Clone / split / prune / reset for one :class:`GaussianField` (see module docstring).
+
+    Args:
+        cfg: settings.
+        prefix: the field's key prefix in the optimizer (``"<field.name>."``).
+    """
+
+    def __init__(self, cfg: DensityConfig, *, prefix: str = "bg."):
+        self.cfg = cfg
+        self.prefix = prefix
+        self.grad_sum = None  # Float [N], accumulated position-gradient norm
+        self.count = None  # Float [N], steps with a non-zero gradient
+        self.growth_stopped = False
+        self.best_val = -np.inf
+        self.since_best = 0
+        self.history: list[dict] = []
+
+    # ---- hooks ------------------------------------------------------------------------
+    def after_backward(self, field: GaussianField) -> None:
+        """Accumulate statistics from the gradients of the current step."""
+        import drjit as dr
+
+        if not self.cfg.enabled:
+            return
+        g = dr.grad(field.params["means"])
+        n = field.num_gaussians
+        if dr.width(g) != 3 * n:
+            g = dr.zeros(B.Float, 3 * n)
+        g3 = dr.unravel(B.Array3f, g)
+        norm = dr.norm(g3)
+        if self.grad_sum is None or dr.width(self.grad_sum) != n:
+            self.grad_sum = dr.zeros(B.Float, n)
+            self.count = dr.zeros(B.Float, n)
+        self.grad_sum = dr.detach(self.grad_sum + norm)
+        self.count = dr.detach(self.count + dr.select(norm > 0, 1.0, 0.0))
+        dr.schedule(self.grad_sum, self.count)
+
+    def on_validation(self, step: int, val_ssim: float) -> None:
+        """Record a validation SSIM; stops growth after ``patience`` non-improving ones."""
+        if val_ssim > self.best_val + self.cfg.min_improvement:
+            self.best_val = float(val_ssim)
+            self.since_best = 0
+        else:
+            self.since_best += 1
+            if step >= self.cfg.start and self.since_best >= self.cfg.patience and not self.growth_stopped:
+                self.growth_stopped = True
+                self.history.append({"step": step, "event": "growth stopped", "val_ssim": float(val_ssim)})
+
+    def step_end(self, step: int, field: GaussianField, opt, *, rng: np.random.Generator,
+                 probe_opacity=None) -> bool:
+        """Densify / prune / reset after optimizer step ``step`` (1-based count of steps done).
+
+        Args:
+            step: number of optimizer steps taken so far.
+            field: the field (its parameters are the optimizer's values).
+            opt: the ``drjit.opt.Adam`` holding ``prefix + key`` entries.
+            rng: numpy generator for split sampling.
+            probe_opacity: callable () -> float32 [N] largest attenuation delta of every
+                Gaussian over some probe views (for pruning); None = the view-independent part.
+
+        Returns:
+            True when the Gaussian set changed (size or values outside the optimizer step).
+        """
+        c = self.cfg
+        if not c.enabled:
+            return False
+        changed = False
+        if c.start <= step < c.stop and step % c.every == 0 and self.grad_sum is not None:
+            changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_opacity=probe_opacity)
+        if c.reset_every > 0 and step % c.reset_every == 0 and step < c.stop:
+            self._reset_opacity(field, opt)
+            changed = True
+        return changed
+
+    # ---- operations -------------------------------------------------------------------
+    def _densify_and_prune(self, step, field, opt, *, rng, probe_opacity) -> bool:
+        c = self.cfg
+        g = field.gaussians_numpy()
+        n = len(g["opacity_logits"])
+        gsum = np.asarray(self.grad_sum.numpy(), dtype=np.float64)
+        cnt = np.asarray(self.count.numpy(), dtype=np.float64)
+        avg = np.where(cnt > 0, gsum / np.maximum(cnt, 1), 0.0)
+        scale_max = np.exp(g["log_scales"].max(axis=1))
+
+        # -- prune
+        if probe_opacity is not None:
+            op = np.asarray(probe_opacity(), dtype=np.float64)
+        else:
+            op = 1 / (1 + np.exp(-g["opacity_logits"].astype(np.float64)))
+        prune = (op < c.prune_opacity) | (scale_max > c.prune_scale) | ~np.isfinite(g["means"]).all(1)
+        if prune.all():  # never delete everything
+            prune[np.argmax(op)] = False
+
+        # -- grow
+        new_rows = {k: [] for k in GAUSSIAN_KEYS}
+        split_src = np.zeros(n, bool)
+        n_clone = n_split = 0
+        if not self.growth_stopped:
+            room = c.max_gaussians - int((~prune).sum())
+            budget = int(min(c.max_growth * n, max(room, 0)))
+            cand = np.flatnonzero((avg > c.grad_threshold) & ~prune)
+            cand = cand[np.argsort(-avg[cand], kind="stable")]
+            picked = []
+            used = 0
+            for i in cand:  # a split adds one Gaussian net (two new, one removed), a clone one
+                if used + 1 > budget:
+                    break
+                picked.append(i)
+                used += 1
+            picked = np.asarray(picked, dtype=np.int64)
+            big = scale_max[picked] > c.split_scale
+            clone_idx, split_idx = picked[~big], picked[big]
+            n_clone, n_split = len(clone_idx), len(split_idx)
+            for k in GAUSSIAN_KEYS:
+                new_rows[k].append(g[k][clone_idx])
+            if n_split:
+                R = quat_to_matrix(g["rotations"][split_idx].astype(np.float64))
+                s = np.exp(g["log_scales"][split_idx].astype(np.float64))
+                for _ in range(2):
+                    z = rng.standard_normal((n_split, 3)) * s
+                    pos = g["means"][split_idx] + np.einsum("nij,nj->ni", R, z)
+                    new_rows["means"].append(pos.astype(np.float32))
+                    new_rows["log_scales"].append((g["log_scales"][split_idx] - np.log(1.6)).astype(np.float32))
+                    new_rows["rotations"].append(g["rotations"][split_idx])
+                    new_rows["opacity_logits"].append(g["opacity_logits"][split_idx])
+                split_src[split_idx] = True
+
+        keep = np.flatnonzero(~prune & ~split_src)
+        n_new = sum(len(a) for a in new_rows["opacity_logits"])
+        if len(keep) == n and n_new == 0:
+            self._clear_stats(n)
+            return False
+        arrays = {k: np.concatenate([g[k][keep]] + new_rows[k]) for k in GAUSSIAN_KEYS}
+        self._apply(field, opt, arrays, keep, n_new)
+        self.history.append({"step": step, "event": "densify", "before": n, "after": len(keep) + n_new,
+                             "cloned": n_clone, "split": n_split, "pruned": int(prune.sum())})
+        return True
+
+    def _reset_opacity(self, field, opt) -> None:
+        import drjit as dr
+
+        key = self.prefix + "opacity_logits"
+        cur = opt[key] if key in opt else field.params["opacity_logits"]
+        new = dr.minimum(dr.detach(cur), _logit(self.cfg.reset_opacity))
+        if key in opt:
+            opt[key] = new
+            opt.reset(key)
+            field.assign({"opacity_logits": opt[key]})
+        else:
+            field.params["opacity_logits"] = new
+        n = field.num_gaussians
+        self.history.append({"event": "reset opacity", "n": n})
+
+    def _apply(self, field: GaussianField, opt, arrays: dict, keep: np.ndarray, n_new: int) -> None:
+        """Install the new Gaussian set in the field and the optimizer, remapping Adam moments:
+        kept rows keep their moments, new rows start from zero."""
+        import drjit as dr
+
+        field.set_gaussians(arrays)
+        for k, d in GAUSSIAN_KEYS.items():
+            key = self.prefix + k
+            if key not in opt:
+                continue
+            value, promoted, lr, extra = opt.state[key]
+            t, m, v, vmax = extra
+            idx = (keep[:, None] * d + np.arange(d)[None, :]).ravel()
+
+            def remap(x):
+                x = np.asarray(x.numpy(), dtype=np.float32)
+                return B.Float(np.concatenate([x[idx], np.zeros(n_new * d, np.float32)]))
+
+            new_val = B.Float(arrays[k].ravel())
+            dr.enable_grad(new_val)
+            opt.state[key] = (new_val, promoted, lr, (t, remap(m), remap(v), None if vmax is None else remap(vmax)))
+            field.params[k] = new_val
+        self._clear_stats(len(keep) + n_new)
+
+    def _clear_stats(self, n: int) -> None:
+        import drjit as dr
+
+        self.grad_sum = dr.zeros(B.Float, n)
+        self.count = dr.zeros(B.Float, n)
+
+    # ---- state ------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """numpy state for checkpoints."""
+        out = {"growth_stopped": np.array(self.growth_stopped), "best_val": np.array(self.best_val),
+               "since_best": np.array(self.since_best)}
+        if self.grad_sum is not None:
+            out["grad_sum"] = np.array(self.grad_sum.numpy(), dtype=np.float32, copy=True)
+            out["count"] = np.array(self.count.numpy(), dtype=np.float32, copy=True)
+        return out
+
+    def load_state_dict(self, state: dict) -> None:
+        self.growth_stopped = bool(state["growth_stopped"])
+        self.best_val = float(state["best_val"])
+        self.since_best = int(state["since_best"])
+        if "grad_sum" in state:
+            self.grad_sum = B.Float(np.asarray(state["grad_sum"], np.float32))
+            self.count = B.Float(np.asarray(state["count"], np.float32))
+        else:
+            self.grad_sum = self.count = None
+
+
+class NoDensity:
+    """The density-control hooks for a model without adaptive density (the coherent field:
+    its sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
+
+    growth_stopped = False
+
+    def __init__(self) -> None:
+        self.history: list[dict] = []
+
+    def after_backward(self, field) -> None:
+        return None
+
+    def on_validation(self, step: int, val_ssim: float) -> None:
+        return None
+
+    def step_end(self, step: int, field, opt, *, rng=None, probe_opacity=None) -> bool:
+        return False
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        return None

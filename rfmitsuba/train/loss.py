@@ -1,0 +1,168 @@
+"""Structural similarity (SSIM) in Dr.Jit, and the training loss.
+
+:func:`ssim` reproduces ``skimage.metrics.structural_similarity(pred, gt,
+data_range=1.0)`` for 2D images with its defaults: a 7x7 uniform window,
+``K1 = 0.01``, ``K2 = 0.03``, sample covariance (``49/48``), and the mean of the
+SSIM map over the image cropped by 3 pixels on each side. The crop removes
+every position whose window touches the border, so skimage's reflective
+padding never enters: the map is computed on "valid" 7x7 windows only, by
+two separable box sums (gathers; a ``dr.CustomOp`` whose adjoint is again a
+box sum, so the backward pass needs no atomic scatter-additions).
+
+:func:`loss` is the training loss ``0.8 * L1 + 0.2 * (1 - SSIM)`` (paper,
+Section "Model Training"), averaged over a batch [B, H, W].
+:func:`ssim_np` is the SPEC metric protocol itself (skimage, float64).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from ..core import backend as B
+from ..core.errors import ImageError
+
+#: Window side, pixels, and the constants of skimage's defaults.
+WIN = 7
+K1, K2 = 0.01, 0.03
+#: Weight of the SSIM term in the training loss (lambda in the paper).
+LAMBDA = 0.2
+
+
+def _flat(x, name):
+    """TensorXf [B, H, W] or [H, W] (or numpy) -> (Float [B*H*W], (B, H, W))."""
+    if not dr.is_tensor_v(x):
+        x = B.TensorXf(np.asarray(x, dtype=np.float32))
+    shape = tuple(x.shape)
+    if len(shape) == 2:
+        shape = (1,) + shape
+    if len(shape) != 3:
+        raise ImageError(f"{name}: expected shape [B, H, W] or [H, W], got {tuple(x.shape)}")
+    return x.array, shape
+
+
+class _BoxSum(dr.CustomOp):
+    """Sums over 7 consecutive elements along one axis of several arrays at once.
+
+    Each input is a flat Float holding [outer, length, inner] (row-major); the
+    output holds [outer, length - 6, inner]. The adjoint is again a box sum
+    (over the gradient, clipped at the ends), so both passes are gathers with
+    no atomic scatter-additions.
+    """
+
+    def eval(self, x0, x1, x2, x3, x4, outer, length, inner):
+        self.dims = (outer, length, inner)
+        lo = length - WIN + 1
+        k = dr.arange(B.UInt32, outer * lo * inner)
+        o = k // (lo * inner)
+        rest = k - o * (lo * inner)
+        base = o * (length * inner) + rest  # (o, i, c) -> ((o*length + i)*inner + c)
+        return tuple(sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN))
+                     for x in (x0, x1, x2, x3, x4))
+
+    def forward(self):
+        raise NotImplementedError("SSIM supports reverse-mode differentiation only")
+
+    def backward(self):
+        outer, length, inner = self.dims
+        lo = length - WIN + 1
+        k = dr.arange(B.UInt32, outer * length * inner)
+        o = k // (length * inner)
+        rest = k - o * (length * inner)
+        i = B.Int32(rest // inner)
+        c = rest - B.UInt32(i) * inner
+        grads = self.grad_out()
+        dr.eval(grads)  # one kernel for all five incoming gradients
+        totals = [B.Float(0.0) for _ in range(5)]
+        for d in range(WIN):
+            j = i - d
+            ok = (j >= 0) & (j < lo)
+            idx = (o * lo + B.UInt32(dr.maximum(j, 0))) * inner + c
+            for t, g in enumerate(grads):
+                totals[t] += dr.gather(B.Float, g, idx, ok)
+        dr.eval(totals)  # one kernel for all five
+        for name, total in zip(("x0", "x1", "x2", "x3", "x4"), totals):
+            self.set_grad_in(name, total)
+
+    def name(self):
+        return "ssim.BoxSum"
+
+
+def _box(values, views, height, width):
+    """Sums over every valid 7x7 window: Float [B*H*W] -> Float [B*(H-6)*(W-6)]."""
+    h = dr.custom(_BoxSum, *values, views * height, width, 1)  # along rows
+    return dr.custom(_BoxSum, *h, views, height, width - WIN + 1)  # along columns
+
+
+def ssim(pred, gt):
+    """Mean SSIM of each image pair (skimage defaults, data_range = 1).
+
+    Args:
+        pred, gt: TensorXf (or numpy) [B, H, W] or [H, W], values nominally in
+            [0, 1]; H, W >= 7.
+
+    Returns:
+        Float [B], differentiable with respect to both inputs.
+    """
+    x, shape = _flat(pred, "pred")
+    y, shape_gt = _flat(gt, "gt")
+    if shape != shape_gt:
+        raise ImageError(f"pred and gt differ in shape: {shape} vs {shape_gt}")
+    views, height, width = shape
+    if height < WIN or width < WIN:
+        raise ImageError(f"SSIM needs images of at least {WIN}x{WIN} pixels, got {height}x{width}")
+    # A constant shift leaves SSIM's variances unchanged and keeps float32 sums
+    # of squares small (less cancellation in E[x^2] - E[x]^2).
+    xs, ys = x - 0.5, y - 0.5
+    sx, sy, sxx, syy, sxy = _box([xs, ys, xs * xs, ys * ys, xs * ys], views, height, width)
+    n = float(WIN * WIN)
+    mx, my = sx / n, sy / n
+    norm = n / (n - 1.0)
+    vx = norm * (sxx / n - mx * mx)
+    vy = norm * (syy / n - my * my)
+    vxy = norm * (sxy / n - mx * my)
+    ux, uy = mx + 0.5, my + 0.5
+    c1, c2 = K1 * K1, K2 * K2
+    s = ((2.0 * ux * uy + c1) * (2.0 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
+    count = (height - WIN + 1) * (width - WIN + 1)
+    return dr.block_sum(s, count) / count
+
+
+def loss(pred, gt):
+    """Training loss ``0.8 * mean|pred - gt| + 0.2 * (1 - mean SSIM)``.
+
+    Args:
+        pred, gt: TensorXf [B, H, W] (or [H, W]), normalised PAS.
+
+    Returns:
+        Float of size 1, differentiable.
+    """
+    x, shape = _flat(pred, "pred")
+    y, shape_gt = _flat(gt, "gt")
+    if shape != shape_gt:
+        raise ImageError(f"pred and gt differ in shape: {shape} vs {shape_gt}")
+    # Means as sums times opaque reciprocals: a literal 1/size would be compiled
+    # into the kernels, and a different batch size would recompile them.
+    inv_pixels = dr.opaque(B.Float, 1.0 / dr.width(x))
+    inv_views = dr.opaque(B.Float, 1.0 / shape[0])
+    l1 = dr.sum(dr.abs(x - y)) * inv_pixels
+    return (1.0 - LAMBDA) * l1 + LAMBDA * (1.0 - dr.sum(ssim(pred, gt)) * inv_views)
+
+
+def ssim_np(pred, gt) -> np.ndarray | float:
+    """The SPEC metric: skimage SSIM (data_range = 1) per image, float64.
+
+    Args:
+        pred, gt: numpy [B, H, W] or [H, W].
+
+    Returns:
+        float64 [B] (or a float for one [H, W] pair).
+    """
+    from skimage.metrics import structural_similarity
+
+    p = np.asarray(pred, dtype=np.float64)
+    g = np.asarray(gt, dtype=np.float64)
+    if p.shape != g.shape or p.ndim not in (2, 3):
+        raise ImageError(f"pred and gt must both be [B, H, W] or [H, W]; got {p.shape} and {g.shape}")
+    if p.ndim == 2:
+        return float(structural_similarity(p, g, data_range=1.0))
+    return np.array([structural_similarity(a, b, data_range=1.0) for a, b in zip(p, g)])

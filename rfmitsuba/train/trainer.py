@@ -1,0 +1,544 @@
+"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+
+* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
+  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
+* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
+  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
+* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
+  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
+  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
+  same result, a progress bar, and the run folder.
+
+Run folder layout::
+
+    config.toml      the TrainConfig (a run folder of another config is refused)
+    run.json         dataset path, task, split sizes, package versions
+    split.json       train / validation / test antenna indices
+    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    checkpoint/      latest resumable state (written atomically)
+    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/gaussians.ply, final/network.npz, final/summary.json
+
+Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
+(view = the fixed array, network input = transmitter position).
+"""
+from __future__ import annotations
+import json
+import math
+import os
+import shutil
+import time
+from pathlib import Path
+import numpy as np
+from ..core import backend as B
+from ..core import config as C
+from ..core.atomic import write_json
+from ..models.coherent_person import COHERENT_FIELDS
+from ..models.coherent import CoherentField
+from .density import DensityStrategy, NoDensity
+from ..core.errors import ConfigError, RunError
+from ..models.splat import GaussianField, load_field, write_ply
+from ..rf.bartlett_ref import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
+from ..rf.grid import PAS_SHAPE
+from .config import TrainConfig, config_diff
+from ..data.views import TrainData
+
+def _lr(v0: float, v1: float | None, t: float) -> float:
+    if v1 is None or v0 <= 0 or v1 <= 0:
+        return v0
+    return float(v0 * (v1 / v0) ** min(max(t, 0.0), 1.0))
+
+
+def _versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for p in ("rfmitsuba", "drjit", "numpy"):
+        try:
+            out[p] = version(p)
+        except PackageNotFoundError:
+            out[p] = None
+    return out
+
+
+def _write_json(path: Path, obj) -> None:
+    write_json(path, obj, allow_nan=True)
+
+
+def load_loss():
+    """The training loss ``loss(pred, gt) -> Float`` (0.8*L1 + 0.2*(1-SSIM), rfmitsuba.ssim)."""
+    from .loss import loss
+
+    return loss
+
+
+def load_render():
+    """The splatting renderer (rfmitsuba.splat.render)."""
+    from ..splat import render
+
+    return render
+
+
+class Trainer:
+    """Train a :class:`GaussianField` on a :class:`TrainData` into a run folder.
+
+    Args:
+        cfg: the configuration.
+        data: the data.
+        run_dir: the run folder (created; an existing one must hold the same config and dataset,
+            and is then resumed from its checkpoint).
+        frozen: already trained fields rendered together with the trained one (their
+            parameters are not optimised), e.g. a frozen background in Stage 2.
+        extra: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
+            of the trained field (Stage 2: the human position, scaled to about [0, 1]), or None.
+        extra_inputs: E, the number of those inputs (the trained field's network takes them).
+        quiet: no progress bar.
+        name: the trained field's name (its optimizer keys are ``name + "." + key``).
+        field_factory: callable (trainer, rng) -> the field to train (default
+            :meth:`init_field`: Stage-1 initialisation from the scene), e.g. Stage 2's human field.
+
+    Keys of a field's parameters that contain a dot (``net.<module>``, ``deform.<module>``) are
+    network weights and get the network learning rate.
+
+    Use :meth:`run`; afterwards :attr:`field` is the trained field.
+    """
+
+    def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
+                 extra=None, extra_inputs: int = 0, quiet: bool = False, name: str = "bg",
+                 field_factory=None):
+        self.cfg = cfg
+        self.extra = extra
+        self.extra_inputs = int(extra_inputs)
+        self.data = data
+        self.run_dir = Path(run_dir)
+        self.frozen = list(frozen or [])
+        self.field_factory = field_factory
+        self.quiet = quiet
+        self.name = name
+        self.prefix = name + "."
+        self.h, self.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+        self._check_run_dir()
+
+    # ---- run folder ---------------------------------------------------------------------
+    def _check_run_dir(self) -> None:
+        rd = self.run_dir
+        want = C.to_dict(self.cfg)
+        cfg_file = rd / "config.toml"
+        if rd.exists() and not rd.is_dir():
+            raise RunError(f"run folder {rd} exists and is not a folder")
+        if rd.is_dir() and any(rd.iterdir()):
+            if not cfg_file.is_file():
+                raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
+            try:
+                have = C.to_dict(C.load(TrainConfig, cfg_file))
+            except ConfigError as e:
+                raise RunError(f"{cfg_file}: unreadable run config ({e}); nothing was changed") from None
+            diff = config_diff(have, want)
+            if diff:
+                raise RunError(f"run folder {rd} belongs to another configuration: {'; '.join(diff)}. "
+                               "Use another --out; nothing was changed")
+            rj = rd / "run.json"
+            if rj.is_file():
+                old = json.loads(rj.read_text()).get("dataset")
+                if old and Path(old).resolve() != self.data.path.resolve():
+                    raise RunError(f"run folder {rd} was trained on dataset {old}, not {self.data.path}; "
+                                   "nothing was changed")
+
+    def _init_run_dir(self, split: dict) -> None:
+        rd = self.run_dir
+        rd.mkdir(parents=True, exist_ok=True)
+        if not (rd / "config.toml").exists():
+            C.save(self.cfg, rd / "config.toml")
+        if not (rd / "run.json").exists():
+            _write_json(rd / "run.json", {
+                "format": "rfmitsuba-run/1", "dataset": str(self.data.path.resolve()), "task": self.data.task,
+                "state": self.data.state, "scene_xml": str(self.data.scene_xml) if self.data.scene_xml else None,
+                "image": [self.h, self.w], "versions": _versions(),
+                "sizes": {k: len(v) for k, v in split.items()}})
+        if not (rd / "split.json").exists():
+            _write_json(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
+
+    # ---- setup ----------------------------------------------------------------------------
+    def _make_split(self, rng: np.random.Generator) -> dict:
+        cfg = self.cfg
+        train = np.array(self.data.train)
+        if cfg.max_train_positions and cfg.max_train_positions < len(train):
+            train = np.sort(rng.choice(train, cfg.max_train_positions, replace=False))
+        n_val = int(round(cfg.val_fraction * len(train)))
+        n_val = min(n_val, cfg.val_max, len(train) - 1)
+        val = np.sort(rng.choice(train, n_val, replace=False)) if n_val > 0 else np.zeros(0, np.int64)
+        fit = np.setdiff1d(train, val)
+        return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
+
+    def _init_field(self, rng: np.random.Generator) -> GaussianField:
+        if self.field_factory is not None:
+            return self.field_factory(self, rng)
+        return self.init_field(rng)
+
+    def init_field(self, rng: np.random.Generator) -> GaussianField | CoherentField:
+        """The Stage-1 initial field, taking ``extra_inputs`` extra per-view network inputs:
+        Gaussians from scene mesh points or random in the bounds (model "splat"), or the
+        scene's image sources (model "coherent")."""
+        if self.cfg.model == "coherent":
+            return self.init_coherent()
+        fc = self.cfg.field
+        meshes = self.data.meshes(self.scene_xml()) if fc.init == "mesh" else None
+        if fc.init == "mesh" and meshes is None:
+            raise ConfigError(f"field.init = 'mesh' but dataset {self.data.path} names no scene; "
+                              "use --set field.init=\"random\"")
+        bounds = self.data.bounds
+        if meshes:
+            allv = np.concatenate([v for v, _ in meshes])
+            bounds = (np.minimum(bounds[0], allv.min(0)), np.maximum(bounds[1], allv.max(0)))
+        else:
+            pad = 0.5
+            bounds = (bounds[0] - pad, bounds[1] + pad)
+        return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
+                                        extra_inputs=self.extra_inputs, seed=self.cfg.seed, name=self.name)
+
+    def scene_xml(self) -> Path | None:
+        """The room's XML: ``cfg.scene`` when set, else the dataset's scene (None when neither)."""
+        if self.cfg.scene:
+            from ..data.store import resolve_scene
+
+            return resolve_scene(self.cfg.scene)
+        return self.data.scene_xml
+
+    def init_coherent(self) -> CoherentField:
+        """A :class:`CoherentField` on the image sources of the dataset's scene."""
+        from ..sim.geometry import RoomGeometry
+        from ..rf.images import scene_image_maps
+
+        xml = self.scene_xml()
+        if xml is None:
+            raise ConfigError(f"model = 'coherent' needs the scene geometry, but dataset {self.data.path} names no "
+                              "scene (NeRF2 folders): give one with --set scene=NAME_OR_XML, or use model = 'splat'")
+        c = self.cfg.coherent
+        geo = RoomGeometry.from_xml(xml)
+        maps = scene_image_maps(geo, room_order=c.room_order, furniture_order=c.furniture_order,
+                                min_face_area=c.min_face_area)
+        lo, hi = geo.bounds
+        return CoherentField(maps, box=np.stack([lo, hi]), cfg=c, frequency_hz=self.data.frequency_hz,
+                             seed=self.cfg.seed, name=self.name, extra_inputs=self.extra_inputs)
+
+    def _lrs(self, step: int, train_time: float = 0.0) -> dict:
+        """Learning rates of step ``step``: the schedule's progress is the larger of the share of
+        iterations done and, with a time limit, the share of training time used (so a run stopped
+        by its time limit ends with its final learning rates, not half-way down the schedule)."""
+        o = self.cfg.optim
+        t = step / max(self.cfg.iterations - 1, 1)
+        if self.cfg.time_limit_s:
+            t = min(1.0, max(t, train_time / self.cfg.time_limit_s))
+        net = _lr(o.lr_net, o.lr_net_final, t)
+        means = _lr(o.lr_means, o.lr_means_final, t)
+        return {"means": means, "log_scales": o.lr_log_scales, "rotations": o.lr_rotations,
+                "opacity_logits": o.lr_opacity, "net": net,
+                "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
+
+    # ---- rendering -------------------------------------------------------------------------
+    def render(self, field: GaussianField, idx: np.ndarray, *, h: int | None = None, w: int | None = None):
+        """Render the trained field (and the frozen ones) at antenna indices ``idx``:
+        TensorXf [K, h, w] (default the training resolution)."""
+        from ..models.splat import Splats
+
+        h, w = h or self.h, w or self.w
+        if isinstance(field, COHERENT_FIELDS):
+            return self._render_coherent(field, idx, h=h, w=w)
+        render = load_render()
+        vp = self.data.view_pos[idx]
+        sets = [self._splats(f, idx) for f in self.frozen] + [self._splats(field, idx)]
+        s = Splats.concat(sets)
+        if field.cfg.readout == "bartlett":
+            from ..rf.readout import BartlettReadout
+
+            ha, wa = field.cfg.arrival_grid
+            arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                         rx_to_world=self.data.rx_to_world, height=ha, width=wa, num_gaussians=s.n)
+            return BartlettReadout(ha, wa, h, w)(arr)
+        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
+                      rx_to_world=self.data.rx_to_world, height=h, width=w, num_gaussians=s.n)
+
+    def _render_coherent(self, field, idx: np.ndarray, *, h: int, w: int):
+        """Coherent fields (the frozen ones and the trained one): min-max normalised PAS [K, h, w]."""
+        from ..models.coherent_person import render_fields
+
+        x, y, q = self.data.positions(idx)
+
+        def extra(f):
+            return self.extra(idx) if (self.extra is not None and f.extra_inputs) else None
+
+        return render_fields(self.frozen + [field], x, y, q, extra=extra, frequency_hz=self.data.frequency_hz,
+                             height=h, width=w, rx_to_world=self.data.rx_to_world)
+
+    def _splats(self, field: GaussianField, idx: np.ndarray):
+        """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
+        ex = self.extra(idx) if (self.extra is not None and field.extra_inputs) else None
+        return field.splats(self.data.antenna_pos[idx], view_pos=self.data.view_pos[idx], extra=ex)
+
+    def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
+                batch: int = 8) -> np.ndarray:
+        """Predicted PAS (not normalised) at antenna indices: float32 [K, h, w]."""
+        import drjit as dr
+
+        out = []
+        for i in range(0, len(idx), batch):
+            with dr.suspend_grad():
+                img = self.render(field, np.asarray(idx[i:i + batch]), h=h, w=w)
+            out.append(np.array(img.numpy(), dtype=np.float32).reshape(-1, h, w))
+        return np.concatenate(out) if out else np.zeros((0, h, w), np.float32)
+
+    def validate(self, field: GaussianField, val: np.ndarray, gt: np.ndarray) -> float:
+        """Mean SSIM (SPEC protocol, at the training resolution) over the validation positions."""
+        from skimage.metrics import structural_similarity
+
+        if len(val) == 0:
+            return float("nan")
+        pred = minmax(self.predict(field, val, h=self.h, w=self.w, batch=self.cfg.batch_views * 2))
+        return float(np.mean([structural_similarity(p, g, data_range=1.0) for p, g in zip(pred, gt)]))
+
+    # ---- checkpoints ------------------------------------------------------------------------
+    def _save_checkpoint(self, step, field, opt, strategy, rng, train_time, val_hist) -> None:
+        rd = self.run_dir
+        tmp = rd / "checkpoint.tmp"
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir()
+        arrays = {f"field/{k}": v for k, v in field.state_dict().items()}
+        for key, (value, promoted, lr, extra) in opt.state.items():
+            t, m, v, _ = extra
+            arrays[f"opt/{key}/value"] = np.array(value.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/m"] = np.array(m.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/v"] = np.array(v.numpy(), dtype=np.float32, copy=True)
+            arrays[f"opt/{key}/t"] = np.array(np.asarray(t.numpy()).ravel()[0] if hasattr(t, "numpy") else t)
+        arrays.update({f"density/{k}": v for k, v in strategy.state_dict().items()})
+        np.savez(tmp / "state.npz", **arrays)
+        _write_json(tmp / "meta.json", {"step": step, "rng": rng.bit_generator.state, "train_time_s": train_time,
+                                        "val_history": val_hist, "density_history": strategy.history})
+        final = rd / "checkpoint"
+        old = rd / "checkpoint.old"
+        if old.exists():
+            shutil.rmtree(old)
+        if final.exists():
+            final.rename(old)
+        tmp.rename(final)
+        if old.exists():
+            shutil.rmtree(old)
+
+    def _load_checkpoint(self, field, opt, strategy, rng):
+        import drjit as dr
+
+        ck = self.run_dir / "checkpoint"
+        if not (ck / "meta.json").is_file():
+            old = self.run_dir / "checkpoint.old"
+            if (old / "meta.json").is_file():  # killed between the two renames
+                old.rename(ck)
+            else:
+                return None
+        meta = json.loads((ck / "meta.json").read_text())
+        with np.load(ck / "state.npz", allow_pickle=False) as z:
+            st = {k: z[k] for k in z.files}
+        fs = {k[len("field/"):]: v for k, v in st.items() if k.startswith("field/")}
+        field.load_state_dict(fs)
+        for key in list(opt.state.keys()):
+            value = B.Float(st[f"opt/{key}/value"])
+            dr.enable_grad(value)
+            _, promoted, lr, _ = opt.state[key]
+            t = B.UInt32(int(st[f"opt/{key}/t"]))
+            opt.state[key] = (value, promoted, lr, (t, B.Float(st[f"opt/{key}/m"]), B.Float(st[f"opt/{key}/v"]), None))
+        strategy.load_state_dict({k[len("density/"):]: v for k, v in st.items() if k.startswith("density/")})
+        strategy.history = list(meta.get("density_history", []))
+        rng.bit_generator.state = meta["rng"]
+        return meta
+
+    # ---- main loop --------------------------------------------------------------------------
+    def run(self, *, stop_at: int | None = None) -> dict:
+        """Train (or resume) to ``cfg.iterations`` steps; returns the summary dict.
+
+        Args:
+            stop_at: stop after this many steps as if interrupted (no final files; the latest
+                checkpoint stays), for tests of resuming.
+        """
+        import drjit as dr
+        from drjit.opt import Adam
+
+        B.ensure()
+        cfg = self.cfg
+        summary_file = self.run_dir / "final" / "summary.json"
+        if summary_file.is_file():
+            return json.loads(summary_file.read_text())
+        rng = np.random.default_rng(cfg.seed)
+        split = self._make_split(rng)
+        self._init_run_dir(split)
+        field = self._init_field(rng)
+        self.field = field
+        loss_fn = load_loss()
+        d = cfg.downsample
+        gt_fit = self.data.pas(split["fit"], d=d)
+        gt_val = self.data.pas(split["val"], d=d)
+        fit = split["fit"]
+        probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
+
+        opt = Adam(lr=1e-3)
+        for k, v in field.trainable().items():
+            opt[self.prefix + k] = v
+        strategy = NoDensity() if isinstance(field, COHERENT_FIELDS) else DensityStrategy(cfg.density, prefix=self.prefix)
+
+        meta = self._load_checkpoint(field, opt, strategy, rng)
+        start = meta["step"] if meta else 0
+        train_time = meta["train_time_s"] if meta else 0.0
+        val_hist = meta["val_history"] if meta else []
+        self._trim_log(start)
+        self._pull(field, opt)
+
+        def probe_opacity():
+            with dr.suspend_grad():
+                s = self._splats(field, probe)
+                op = np.asarray(s.opacities.numpy(), dtype=np.float32).reshape(len(probe), -1)
+            return op.max(axis=0)
+
+        from ..core.progress import bar
+
+        pbar = bar(total=cfg.iterations, desc=f"train {self.run_dir.name}", unit="step", quiet=self.quiet,
+                   initial=start)
+        log_loss, log_n = 0.0, 0
+        last_val = val_hist[-1]["val_ssim"] if val_hist else float("nan")
+        stopped = "iterations"
+        step = start
+        t_last = time.perf_counter()
+        try:
+            while step < cfg.iterations:
+                if stop_at is not None and step >= stop_at:
+                    stopped = "stop_at"
+                    break
+                if cfg.time_limit_s and train_time >= cfg.time_limit_s:
+                    stopped = "time_limit"
+                    break
+                lrs = self._lrs(step, train_time)
+                for k in list(opt.keys()):
+                    short = k[len(self.prefix):]
+                    opt.set_learning_rate({k: lrs["net"] if "." in short else lrs[short]})
+                pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
+                idx = fit[pick]
+                pred = self.render(field, idx)
+                gt = B.TensorXf(gt_fit[pick])
+                loss = loss_fn(pred, gt)
+                dr.backward(loss)
+                strategy.after_backward(field)
+                opt.step()
+                self._pull(field, opt)
+                lv = float(np.asarray(loss.numpy()).ravel()[0])
+                if not math.isfinite(lv):
+                    raise RunError(f"loss became {lv} at step {step + 1}; lower the learning rates "
+                                   f"(checkpoint of step {start} kept)")
+                step += 1
+                changed = strategy.step_end(step, field, opt, rng=rng, probe_opacity=probe_opacity)
+                if changed:
+                    self._pull(field, opt)
+                log_loss += lv
+                log_n += 1
+                now = time.perf_counter()
+                train_time += now - t_last
+                t_last = now
+                row = None
+                if step % cfg.val_every == 0 or step == cfg.iterations:
+                    last_val = self.validate(field, split["val"], gt_val)
+                    strategy.on_validation(step, last_val)
+                    val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_gaussians,
+                                     "time_s": train_time})
+                    row = {"val_ssim": last_val}
+                    t_last = time.perf_counter()  # validation is not training time
+                if step % cfg.log_every == 0 or row is not None:
+                    self._log({"step": step, "loss": log_loss / max(log_n, 1), "n_gaussians": field.num_gaussians,
+                               "time_s": round(train_time, 3), **(row or {})})
+                    log_loss, log_n = 0.0, 0
+                pbar.update(1)
+                pbar.set_postfix(loss=f"{lv:.4f}", val_ssim=f"{last_val:.3f}", n=field.num_gaussians)
+                if step % cfg.checkpoint_every == 0:
+                    self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
+                    t_last = time.perf_counter()
+        finally:
+            pbar.close()
+        if stopped == "stop_at":
+            return {"stopped": "stop_at", "step": step}
+        if step % cfg.checkpoint_every != 0:
+            self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
+        return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
+
+    def _pull(self, field: GaussianField, opt) -> None:
+        vals = {k[len(self.prefix):]: opt[k] for k in opt.keys() if k.startswith(self.prefix)}
+        if vals:
+            field.assign(vals)
+
+    def _log(self, row: dict) -> None:
+        with open(self.run_dir / "log.jsonl", "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+    def _trim_log(self, step: int) -> None:
+        """Drop log rows after ``step`` (written by an interrupted run after its last checkpoint)."""
+        p = self.run_dir / "log.jsonl"
+        if not p.is_file():
+            return
+        rows = [ln for ln in p.read_text().splitlines() if ln.strip() and json.loads(ln)["step"] <= step]
+        tmp = p.with_name(p.name + ".tmp")
+        tmp.write_text("".join(r + "\n" for r in rows))
+        tmp.replace(p)
+
+    def _finish(self, field, split, step, train_time, val_hist, stopped, strategy) -> dict:
+        fd = self.run_dir / "final"
+        fd.mkdir(exist_ok=True)
+        field.save(fd / "field.npz")
+        if isinstance(field, COHERENT_FIELDS):
+            x, y, _ = self.data.positions(split["fit"][:1])
+            field.write_ply(fd / "sources.ply", x=x[0], y=y[0], task=self.data.task)
+        else:
+            self._write_gaussians(field, split, fd)
+        summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time, "model": self.cfg.model,
+                   "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
+                   "network_parameters": field.network_parameters,
+                   "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
+                   "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
+                   "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
+                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
+                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+        _write_json(fd / "summary.json", summary)
+        return summary
+
+    def _write_gaussians(self, field: GaussianField, split: dict, fd: Path) -> None:
+        """PLY of the Gaussians (with their mean signal over training views) and the network weights."""
+        import drjit as dr
+
+        probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
+        with dr.suspend_grad():
+            s = self._splats(field, probe)
+            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
+        write_ply(fd / "gaussians.ply", field, signal=sig)
+        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
+
+
+def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
+    """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``.
+
+    Returns the summary dict (also in ``out/final/summary.json``)."""
+    cfg = cfg or TrainConfig()
+    data = TrainData.open(dataset, state=cfg.state)
+    return Trainer(cfg, data, out, quiet=quiet).run()
+
+
+def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField, Trainer]:
+    """Open a finished run: (config, data, trained field, a Trainer for rendering)."""
+    rd = Path(run_dir)
+    if not (rd / "config.toml").is_file() or not (rd / "run.json").is_file():
+        raise RunError(f"{rd} is not a run folder (no config.toml / run.json)")
+    cfg = C.load(TrainConfig, rd / "config.toml")
+    info = json.loads((rd / "run.json").read_text())
+    data = TrainData.open(info["dataset"], state=cfg.state)
+    fpath = rd / "final" / "field.npz"
+    if not fpath.is_file():
+        raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")
+    field = load_field(fpath)
+    tr = Trainer.__new__(Trainer)
+    tr.cfg, tr.data, tr.run_dir, tr.frozen, tr.quiet, tr.name, tr.prefix = cfg, data, rd, [], True, field.name, field.name + "."
+    tr.extra = None
+    tr.h, tr.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+    tr.field = field
+    return cfg, data, field, tr
