@@ -15,11 +15,11 @@ BOX = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.5]])
 
 def known_field(seed: int = 7, n: int = 30):
     """A random ground-truth field: n Gaussians of 0.3 m, opacity 0.5, network seed ``seed``."""
-    from rfmitsuba.models.splat import FieldConfig, GaussianField
+    from rfmitsuba.models.splat import FieldConfig, SplatField
 
     rng = np.random.default_rng(seed)
     pts = rng.uniform(BOX[0], BOX[1], (n, 3))
-    return GaussianField.from_points(pts, cfg=FieldConfig(init_scale=0.3, init_opacity=0.5), box=BOX, seed=seed)
+    return SplatField.from_points(pts, cfg=FieldConfig(init_scale=0.3, init_opacity=0.5), box=BOX, seed=seed)
 
 
 def render_pas(field, antenna_pos: np.ndarray, view_pos: np.ndarray) -> np.ndarray:

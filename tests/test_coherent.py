@@ -101,16 +101,16 @@ def test_gradients_match_finite_differences(variant):
 def human_point_on_the_direct_path(x, y):
     """A human field with one scattering point at the middle of the direct segment x -> y, only its
     first path family (direct in, direct out) switched on, and networks that output 0."""
-    from rfmitsuba.models.coherent_person import CoherentHumanConfig, CoherentHumanField, scatter_paths
+    from rfmitsuba.models.coherent_person import CoherentPersonConfig, CoherentPersonField, scatter_paths
     from rfmitsuba.data.samples import num_human_features
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
-    cfg = CoherentHumanConfig(num_points=1)
+    cfg = CoherentPersonConfig(num_points=1)
     paths = scatter_paths(maps, 1)
     C = len(paths["pre_b"])
     amp = np.zeros(2 * C, np.float32)
     amp[:2] = (0.2, 0.1)
-    h = CoherentHumanField(paths, box=BOX, cfg=cfg, frequency_hz=F, params={
+    h = CoherentPersonField(paths, box=BOX, cfg=cfg, frequency_hz=F, params={
         "offsets": np.array([0.0, 0.0, 0.0], np.float32), "amp": amp, "embed": np.zeros(cfg.embed, np.float32)})
     for m in (h.gain, h.deform):
         _zero(m)
@@ -134,8 +134,8 @@ def test_a_scatterer_on_the_direct_path_has_its_length_and_direction(variant):
 
 def test_state_round_trips_and_load_field(variant, tmp_path):
     from rfmitsuba.models.coherent import CoherentField
-    from rfmitsuba.models.coherent_person import CoherentHumanField
-    from rfmitsuba.models.splat import load_field
+    from rfmitsuba.models.coherent_person import CoherentPersonField
+    from rfmitsuba.models.base import load_field
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=2, furniture_order=0)
     f = CoherentField(maps, box=BOX, frequency_hz=F, seed=4)
@@ -145,12 +145,12 @@ def test_state_round_trips_and_load_field(variant, tmp_path):
     g = load_field(tmp_path / "f.npz")
     assert isinstance(g, CoherentField) and g.num_sources == 25
     np.testing.assert_allclose(_h(g.channels(x, y, x)), _h(f.channels(x, y, x)), rtol=1e-6)
-    hum = CoherentHumanField.for_background(f, seed=2)
+    hum = CoherentPersonField.for_background(f, seed=2)
     _, extra = human_point_on_the_direct_path(x[0], y[0])
     extra = np.concatenate([np.zeros((1, extra.shape[1] - 3)), [[2.0, 1.5, 0.0]]], 1)
     hum.save(tmp_path / "h.npz")
     h2 = load_field(tmp_path / "h.npz")
-    assert isinstance(h2, CoherentHumanField)
+    assert isinstance(h2, CoherentPersonField)
     np.testing.assert_allclose(_h(h2.channels(x, y, x, extra=extra)), _h(hum.channels(x, y, x, extra=extra)),
                                rtol=1e-5, atol=1e-9)
     # a damaged state names what is wrong
@@ -203,14 +203,14 @@ def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
     """The perturbation field adds nothing before training (its network's last layer is zero), is
     saved with its background, and loads back to the same channels."""
     from rfmitsuba.models.coherent import CoherentField
-    from rfmitsuba.models.coherent_person import CoherentHumanConfig, CoherentPerturbField
-    from rfmitsuba.models.splat import load_field
+    from rfmitsuba.models.coherent_person import CoherentPersonConfig, CoherentPerturbField
+    from rfmitsuba.models.base import load_field
     from rfmitsuba.data.samples import num_human_features
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     bg = CoherentField(maps, box=BOX, frequency_hz=F, seed=1)
     bg.freeze()
-    p = CoherentPerturbField(bg, cfg=CoherentHumanConfig(kind="perturb"), seed=0)
+    p = CoherentPerturbField(bg, cfg=CoherentPersonConfig(kind="perturb"), seed=0)
     x, y = np.array([[1.0, 0.8, 1.1]]), np.array([[3.6, 2.6, 2.0]])
     extra = np.concatenate([np.ones((1, num_human_features(3))), [[2.0, 1.5, 0.0]]], 1)
     assert np.abs(_h(p.channels(x, y, x, extra=extra))).max() == 0.0

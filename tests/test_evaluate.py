@@ -14,7 +14,7 @@ def _img(seed, h=20, w=30):
 def test_ssim_images_is_skimage_per_image():
     from skimage.metrics import structural_similarity
 
-    from rfmitsuba.eval.metrics import ssim_images
+    from rfmitsuba.core.ssim import ssim_images
 
     a = np.stack([_img(0), _img(1)])
     b = np.stack([_img(0), _img(2)])
@@ -42,7 +42,8 @@ def test_nearest_index_with_and_without_human():
 def test_floors_on_hand_made_cases():
     """Test image k equals training image k, placed at the training position plus 1 cm: the
     nearest-neighbour floor is exactly 1; the mean-image floor compares with the normalised mean."""
-    from rfmitsuba.eval.metrics import floors, ssim_images
+    from rfmitsuba.core.ssim import ssim_images
+    from rfmitsuba.eval.metrics import floors
     from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     train = minmax(np.stack([_img(i) for i in range(4)]))

@@ -52,12 +52,12 @@ def test_scene_meshes_of_the_bedroom_and_missing_file(tmp_path):
 
 
 def _field(n=6, **kw):
-    from rfmitsuba.models.splat import FieldConfig, GaussianField
+    from rfmitsuba.models.splat import FieldConfig, SplatField
     from rfmitsuba.models.nn import NetConfig
 
     cfg = FieldConfig(init_scale=0.2, net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1), **kw)
     pts = np.random.default_rng(0).uniform(0, 3, (n, 3))
-    return GaussianField.from_points(pts, cfg=cfg, box=np.array([[0, 0, 0], [3, 3, 3.0]]), seed=4)
+    return SplatField.from_points(pts, cfg=cfg, box=np.array([[0, 0, 0], [3, 3, 3.0]]), seed=4)
 
 
 def test_splats_layout_and_ranges(variant):
@@ -85,11 +85,11 @@ def test_angular_scale_mode_scales_with_distance(variant):
 
 
 def test_state_dict_round_trip_and_freeze(variant, tmp_path):
-    from rfmitsuba.models.splat import GaussianField
+    from rfmitsuba.models.splat import SplatField
 
     f = _field()
     f.save(tmp_path / "f.npz")
-    g = GaussianField.load(tmp_path / "f.npz")
+    g = SplatField.load(tmp_path / "f.npz")
     ap = np.array([[1.0, 2, 1]])
     a, b = f.splats(ap), g.splats(ap)
     np.testing.assert_array_equal(a.signals.numpy(), b.signals.numpy())

@@ -11,7 +11,8 @@ import trimesh
 from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba import scenes
 from rfmitsuba.core.errors import PlacementError, SceneError
-from rfmitsuba.sim.geometry import RoomGeometry, kind_of, object_of
+from rfmitsuba.sim.geometry import RoomGeometry
+from rfmitsuba.data.scene_xml import kind_of, object_of
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +112,7 @@ def test_to_world_transforms_match_mitsuba(variant, tmp_path):
         <transform name="to_world"><matrix value="0 -1 0 3  1 0 0 -1  0 0 1 0.5  0 0 0 1"/></transform></shape>
     """
     p = write_xml(tmp_path, body)
-    from rfmitsuba.sim.geometry import read_shapes
+    from rfmitsuba.data.scene_xml import read_shapes
 
     ours = {s.id: s.mesh for s in read_shapes(p)}
     scene = mi.load_file(str(p))

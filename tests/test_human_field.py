@@ -8,14 +8,14 @@ from rfmitsuba.core.errors import ConfigError
 
 
 def _fields(variant, *, anchor="human"):
-    from rfmitsuba.models.splat import FieldConfig, GaussianField
-    from rfmitsuba.models.splat_person import HumanConfig, HumanField
+    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat_person import SplatPersonConfig, SplatPersonField
 
     rng = np.random.default_rng(0)
     box = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.8]])
-    bg = GaussianField.initialize(cfg=FieldConfig(init="random", num_gaussians=40), rng=rng, bounds=(box[0], box[1]))
+    bg = SplatField.initialize(cfg=FieldConfig(init="random", num_gaussians=40), rng=rng, bounds=(box[0], box[1]))
     walk = np.array([[1.0, 1.0, 0.0], [2.0, 1.5, 0.0], [3.0, 2.0, 0.0]])
-    hf = HumanField.near_walk(walk, hcfg=HumanConfig(num_gaussians=12, anchor=anchor), field_cfg=bg.cfg, box=box,
+    hf = SplatPersonField.near_walk(walk, hcfg=SplatPersonConfig(num_gaussians=12, anchor=anchor), field_cfg=bg.cfg, box=box,
                               rng=rng, seed=3)
     return bg, hf, box
 
@@ -57,7 +57,7 @@ def test_deformation_network_gets_human_position(variant):
 
 
 def test_bad_inputs(variant):
-    from rfmitsuba.models.splat_person import HumanConfig
+    from rfmitsuba.models.splat_person import SplatPersonConfig
 
     bg, hf, box = _fields(variant)
     with pytest.raises(ValueError, match="human"):
@@ -65,15 +65,15 @@ def test_bad_inputs(variant):
     with pytest.raises(ValueError, match=r"\[B, 22 \+ 3\]"):
         hf.splats(np.zeros((1, 3)) + 1, extra=np.zeros((1, 5), np.float32))
     with pytest.raises(ConfigError, match="anchor"):
-        HumanConfig(anchor="nowhere")
+        SplatPersonConfig(anchor="nowhere")
 
 
 def test_state_round_trip(variant, tmp_path):
-    from rfmitsuba.models.splat_person import HumanField
+    from rfmitsuba.models.splat_person import SplatPersonField
 
     bg, hf, box = _fields(variant)
     hf.save(tmp_path / "h.npz")
-    back = HumanField.load(tmp_path / "h.npz")
+    back = SplatPersonField.load(tmp_path / "h.npz")
     ant = np.array([[2.0, 2.0, 1.2]])
     x = _inputs(box, [[2.0, 1.5, 0.0]])
     a, b = hf.splats(ant, extra=x), back.splats(ant, extra=x)
@@ -85,16 +85,16 @@ def test_state_round_trip(variant, tmp_path):
 def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp_path):
     """Train Stage 2 for a few steps on top of a background: its arrays and file do not change."""
     from rfmitsuba.experiments import methods
-    from rfmitsuba.models.splat import GaussianField
+    from rfmitsuba.models.splat import SplatField
 
     mcfg = methods_config(stage1=20, stage2=12)
     methods.train_method("baseline", synthetic_ds, tmp_path / "b", mcfg=mcfg, seed=0)
     f = tmp_path / "b" / "train" / "final" / "field.npz"
     before_bytes = f.read_bytes()
-    before = GaussianField.load(f).state_dict()
+    before = SplatField.load(f).state_dict()
     methods.train_method("ours", synthetic_ds, tmp_path / "o", mcfg=mcfg, seed=0, stage1_dir=tmp_path / "b" / "train")
     assert f.read_bytes() == before_bytes
-    model = methods.Model.load("ours", tmp_path / "o")
+    model = methods.load_model("ours", tmp_path / "o")
     after = model.fields[0].state_dict()
     for k, v in before.items():
         if k != "meta":
@@ -105,11 +105,11 @@ def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp
 
 def methods_config(*, stage1, stage2):
     from rfmitsuba.core import config as C
-    from rfmitsuba.models.splat_person import HumanConfig
+    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.experiments.methods import MethodConfig
     from rfmitsuba.train.config import TrainConfig
 
     s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
                                     f"checkpoint_every={stage1}", "field.init='random'", "field.num_gaussians=150",
                                     "density.enabled=false"])
-    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=HumanConfig(num_gaussians=48))
+    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=48))

@@ -5,18 +5,19 @@ import numpy as np
 import pytest
 
 from rfmitsuba.core.errors import ConfigError
+from rfmitsuba.models.base import FieldSet
 
 
 def _mcfg(stage1, stage2):
     from rfmitsuba.core import config as C
-    from rfmitsuba.models.splat_person import HumanConfig
+    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.experiments.methods import MethodConfig
     from rfmitsuba.train.config import TrainConfig
 
     s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
                                     f"checkpoint_every={stage1}", "field.init='random'", "field.num_gaussians=200",
                                     "density.enabled=false"])
-    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=HumanConfig(num_gaussians=60))
+    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=60))
 
 
 def test_registry_and_budgets():
@@ -48,8 +49,8 @@ def test_two_stage_beats_frozen_background(trained, synthetic_ds):
     from rfmitsuba.experiments import methods
     from rfmitsuba.eval import dynamic_static
 
-    ours = dynamic_static.evaluate(methods.Model.load("ours", trained / "ours"), synthetic_ds)
-    bg = dynamic_static.evaluate(methods.Model.load("baseline", trained / "baseline"), synthetic_ds)
+    ours = dynamic_static.evaluate(methods.load_model("ours", trained / "ours"), synthetic_ds)
+    bg = dynamic_static.evaluate(methods.load_model("baseline", trained / "baseline"), synthetic_ds)
     assert ours["dynamic"]["model"]["mean"] > bg["dynamic"]["model"]["mean"] + 0.03
     # static: the human Gaussians are off in the empty room -> exactly the background
     assert ours["static"]["model"]["mean"] == bg["static"]["model"]["mean"]
@@ -64,11 +65,11 @@ def test_affected_subset_matches_a_direct_count(trained, synthetic_ds):
     antenna is below 0.9, recounted here sample by sample."""
     from rfmitsuba.experiments import methods
     from rfmitsuba.eval import dynamic_static
-    from rfmitsuba.eval.metrics import ssim_images
+    from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data.samples import SampleData
 
-    ours = dynamic_static.evaluate(methods.Model.load("ours", trained / "ours"), synthetic_ds)
-    bg = dynamic_static.evaluate(methods.Model.load("baseline", trained / "baseline"), synthetic_ds)
+    ours = dynamic_static.evaluate(methods.load_model("ours", trained / "ours"), synthetic_ds)
+    bg = dynamic_static.evaluate(methods.load_model("baseline", trained / "baseline"), synthetic_ds)
     data = SampleData.open_samples(synthetic_ds, states="all")
     test = dynamic_static.test_sets(data)["dynamic_test"]
     empty = [int(np.flatnonzero((data.antennas == a) & (data.states == 0))[0]) for a in data.antennas[test]]
@@ -92,7 +93,7 @@ def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
     mc = _mcfg(10, 5)
     s = methods.train_method("end_to_end", synthetic_ds, tmp_path / "e", mcfg=mc, seed=1)
     assert s["steps"] == 15
-    model = methods.Model.load("end_to_end", tmp_path / "e")
+    model = methods.load_model("end_to_end", tmp_path / "e")
     assert model.fields[0].extra_inputs > 0
     data = SampleData.open_samples(synthetic_ds, states="all")
     a = data.antennas
@@ -132,26 +133,26 @@ def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dat
     from rfmitsuba.experiments import methods
     from rfmitsuba.eval import dynamic_static
     from rfmitsuba.models.coherent import CoherentField
-    from rfmitsuba.models.coherent_person import CoherentHumanField, CoherentPerturbField
-    from rfmitsuba.eval.metrics import ssim_images
+    from rfmitsuba.models.coherent_person import CoherentPersonField, CoherentPerturbField
+    from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data.samples import SampleData
     from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     mc = _coherent_mcfg(150, 150, kind)
     r = methods.train_method("ours", quick_dataset.path, tmp_path / "ours", mcfg=mc, seed=0)
     assert r["steps"] == 300
-    model = methods.Model.load("ours", tmp_path / "ours")
+    model = methods.load_model("ours", tmp_path / "ours")
     bg, hf = model.fields
     assert isinstance(bg, CoherentField)
-    assert isinstance(hf, CoherentPerturbField if kind == "perturb" else CoherentHumanField)
+    assert isinstance(hf, CoherentPerturbField if kind == "perturb" else CoherentPersonField)
     data = SampleData.open_samples(quick_dataset.path, states="all")
     sel = dynamic_static.test_sets(data)["dynamic_train"]
     gt = data.pas(sel)
     with_person = ssim_images(minmax(model.render(data, sel)), gt).mean()
-    alone = ssim_images(minmax(methods.Model([bg]).render(data, sel)), gt).mean()
+    alone = ssim_images(minmax(FieldSet([bg]).render(data, sel)), gt).mean()
     assert with_person > alone + 0.005, (with_person, alone)
     ev = dynamic_static.evaluate(model, quick_dataset.path)
-    ev_bg = dynamic_static.evaluate(methods.Model([bg]), quick_dataset.path)
+    ev_bg = dynamic_static.evaluate(FieldSet([bg]), quick_dataset.path)
     assert ev["static"]["model"]["mean"] == pytest.approx(ev_bg["static"]["model"]["mean"], abs=1e-6)
     assert ev["dynamic"]["nearest_neighbour"]["n"] == ev["dynamic"]["model"]["n"] > 0
 
@@ -163,7 +164,7 @@ def test_coherent_end_to_end_takes_the_human_features(quick_dataset, tmp_path):
 
     mc = _coherent_mcfg(20, 10)
     methods.train_method("end_to_end", quick_dataset.path, tmp_path / "e2e", mcfg=mc, seed=0)
-    model = methods.Model.load("end_to_end", tmp_path / "e2e")
+    model = methods.load_model("end_to_end", tmp_path / "e2e")
     assert model.fields[0].extra_inputs == num_human_features(mc.human.human_octaves)
     ev = dynamic_static.evaluate(model, quick_dataset.path)
     assert 0 < ev["dynamic"]["model"]["mean"] <= 1 and ev["render_ms_per_pas"] > 0

@@ -7,13 +7,13 @@ import pytest
 
 def test_human_perturbs_the_pas(synthetic_ds):
     from rfmitsuba.data.store import open_dataset
-    from rfmitsuba.train.loss import ssim_np
+    from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     ds = open_dataset(synthetic_ds)
     assert ds.num_states == 7 and ds.num_antennas == 30
     empty, human = minmax(np.asarray(ds.pas(0))), minmax(np.asarray(ds.pas(3)))
-    s = ssim_np(human, empty)
+    s = ssim_images(human, empty)
     assert 0.3 < s.mean() < 0.99  # a visible but not overwhelming perturbation
 
 

@@ -50,7 +50,7 @@ def test_config_round_trip_and_unknown_option():
 
 
 def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
-    from rfmitsuba.models.splat import GaussianField, read_ply
+    from rfmitsuba.models.splat import SplatField, read_ply
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.trainer import Trainer
 
@@ -67,7 +67,7 @@ def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
     split = json.loads((run / "split.json").read_text())
     assert not set(split["test"]) & set(split["train"])
     assert set(split["val"]) <= set(split["train"]) and not set(split["val"]) & set(split["fit"])
-    f = GaussianField.load(run / "final" / "field.npz")
+    f = SplatField.load(run / "final" / "field.npz")
     assert len(read_ply(run / "final" / "gaussians.ply")["x"]) == f.num_gaussians == s["num_gaussians"]
 
 
@@ -204,13 +204,13 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
 def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
     """What Stage 2 does: load and freeze a trained background, train a second set with an extra
     network input rendered in the same call; the background does not change."""
-    from rfmitsuba.models.splat import GaussianField
+    from rfmitsuba.models.splat import SplatField
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
     Trainer(tiny_cfg(iterations=10), data, tmp_path / "bg", quiet=True).run()
-    bg = GaussianField.load(tmp_path / "bg" / "final" / "field.npz")
+    bg = SplatField.load(tmp_path / "bg" / "final" / "field.npz")
     bg.freeze()
     before = bg.state_dict()
     human = np.array([1.0, 2.0, 0.0])

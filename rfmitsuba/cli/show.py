@@ -22,9 +22,8 @@ def register(sub) -> None:
 
 def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
     """Per-image SSIM (SPEC protocol) between the empty-room PAS and each human-present PAS: float64 [S-1, A]."""
-    from skimage.metrics import structural_similarity
-
     from ..core import progress
+    from ..core.ssim import ssim_images
     from ..rf.bartlett_ref import normalize
 
     empty = normalize(np.asarray(ds.pas(0)))
@@ -32,7 +31,7 @@ def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
     with progress.bar(ds.num_states - 1, desc="SSIM empty vs human", unit="state", quiet=quiet) as pb:
         for s in range(1, ds.num_states):
             hum = normalize(np.asarray(ds.pas(s)))
-            out[s - 1] = [structural_similarity(hum[i], empty[i], data_range=1.0) for i in range(ds.num_antennas)]
+            out[s - 1] = ssim_images(hum, empty)
             pb.update(1)
     return out
 

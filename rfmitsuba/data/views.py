@@ -16,7 +16,7 @@ Run folder layout::
     split.json       train / validation / test antenna indices
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
     checkpoint/      latest resumable state (written atomically)
-    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/field.npz  the trained field (rfmitsuba.field.SplatField.load)
     final/gaussians.ply, final/network.npz, final/summary.json
 
 Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
@@ -175,7 +175,7 @@ class TrainData:
         scene_xml = scene_xml or self.scene_xml
         if scene_xml is None:
             return None
-        from ..sim.geometry import RoomGeometry
+        from .scene_xml import read_shapes
 
-        geo = RoomGeometry.from_xml(scene_xml)
-        return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64)) for sh in geo.shapes]
+        return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64))
+                for sh in read_shapes(scene_xml)]

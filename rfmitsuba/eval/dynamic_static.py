@@ -60,7 +60,8 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
         per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
         evaluation on the PAS the person changes most (:func:`_affected`).
     """
-    from .metrics import floors, ssim_images, stats
+    from ..core.ssim import ssim_images
+    from .metrics import floors, stats
 
     data = SampleData.open_samples(dataset, states="all")
     sets = test_sets(data)
@@ -116,7 +117,8 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
         PAS ("empty_room" = the empty room's true PAS used as the prediction: what a perfect
         background model scores), "threshold", "fraction" (affected / all dynamic test PAS)}.
     """
-    from .metrics import ssim_images, stats
+    from ..core.ssim import ssim_images
+    from .metrics import stats
 
     empty = {int(a): int(k) for k, a in enumerate(data.antennas) if data.states[k] == 0}
     ref = np.array([empty.get(int(a), -1) for a in data.antennas[test]])

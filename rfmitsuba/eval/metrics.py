@@ -15,24 +15,7 @@ nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
 from __future__ import annotations
 import numpy as np
 from ..rf.bartlett_ref import normalize as minmax
-
-def ssim_images(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """SSIM per image pair (skimage, data_range=1, default 7x7 window).
-
-    Args:
-        pred, gt: float [K, H, W], already min-max normalised to [0, 1].
-
-    Returns:
-        float64 [K].
-    """
-    from skimage.metrics import structural_similarity
-
-    pred = np.asarray(pred, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
-    if pred.shape != gt.shape or pred.ndim != 3:
-        raise ValueError(f"ssim_images: pred {pred.shape} and gt {gt.shape} must both be [K, H, W]")
-    return np.array([structural_similarity(p, g, data_range=1.0) for p, g in zip(pred, gt)], dtype=np.float64)
-
+from ..core.ssim import ssim_images
 
 def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
                   query_human: np.ndarray | None = None) -> np.ndarray:
@@ -88,3 +71,11 @@ def stats(x: np.ndarray) -> dict:
     x = np.asarray(x, np.float64)
     return {"mean": float(x.mean()), "median": float(np.median(x)), "p10": float(np.percentile(x, 10)),
             "min": float(x.min()), "n": int(len(x))}
+
+
+def mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value; NaN for none)."""
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    if not v:
+        return float("nan"), float("nan")
+    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0

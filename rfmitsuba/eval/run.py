@@ -21,7 +21,8 @@ import numpy as np
 from ..core.errors import RunError
 from ..rf.bartlett_ref import normalize as minmax
 from .figures import plot_cdf, plot_grid, plot_time
-from .metrics import floors, ssim_images, stats
+from ..core.ssim import ssim_images
+from .metrics import floors, stats
 
 def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) -> dict:
     """Evaluate a finished run on its test split (full 90 x 360 resolution) and write ``RUN/eval``.
@@ -35,13 +36,14 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     from ..train.trainer import load_run
 
     rd = Path(run_dir)
-    cfg, data, field, tr = load_run(rd)
+    cfg, data, renderer = load_run(rd)
+    field = renderer.fields[0]
     split = json.loads((rd / "split.json").read_text())
     train_idx = np.asarray(split["train"], np.int64)
     test_idx = np.asarray(split["test"], np.int64)
     gt_test = data.pas(test_idx)
     t0 = time.perf_counter()
-    pred = tr.predict(field, test_idx, h=90, w=360, batch=batch)
+    pred = renderer.render(data, test_idx, batch=batch)
     render_s = time.perf_counter() - t0
     if not np.isfinite(pred).all():
         raise RunError(f"{rd}: the model renders non-finite values")
@@ -55,7 +57,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "model": stats(model_ssim), "nearest_neighbour": stats(fl["nearest_neighbour"]),
         "mean_image": stats(fl["mean_image"]),
         "beats_nearest_neighbour": bool(model_ssim.mean() > fl["nearest_neighbour"].mean()),
-        "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
+        "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
         "network_parameters": field.network_parameters,
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),

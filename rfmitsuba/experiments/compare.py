@@ -127,7 +127,7 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 
 
 def _ms(values, digits: int = 3) -> str:
-    """``mean ± std`` of finite values (reproduce.mean_std), the value alone for one, n/a for none."""
+    """``mean ± std`` of finite values (rfmitsuba.eval.metrics.mean_std), the value alone for one, n/a for none."""
     from ..eval.metrics import mean_std
 
     v = [float(x) for x in values if x is not None]

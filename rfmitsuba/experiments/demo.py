@@ -59,8 +59,8 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
     from ..models.coherent import CoherentConfig
     from ..train.density import DensityConfig
     from ..models.splat import FieldConfig
-    from ..models.splat_person import HumanConfig
-    from .methods import MethodConfig, Model, train_method
+    from ..models.splat_person import SplatPersonConfig
+    from .methods import MethodConfig, load_model, train_method
     from ..eval.dynamic_static import evaluate
     from ..train.config import TrainConfig
 
@@ -97,14 +97,14 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
                                                every=max(1, cfg.stage1_iterations // 8),
                                                max_gaussians=3 * cfg.num_gaussians))
     mcfg = MethodConfig(stage1=s1, stage2_iterations=cfg.stage2_iterations,
-                        human=HumanConfig(num_gaussians=cfg.human_gaussians))
+                        human=SplatPersonConfig(num_gaussians=cfg.human_gaussians))
     C.save(mcfg, out / "method_config.toml") if not (out / "method_config.toml").exists() else None
     res = {}
     for m in ("baseline", "ours", "end_to_end"):
         t1 = time.perf_counter()
         tr = train_method(m, dataset, out / m, mcfg=mcfg, seed=cfg.seed, quiet=quiet,
                           stage1_dir=(out / "baseline" / "train") if m == "ours" else None)
-        ev = evaluate(Model.load(m, out / m), dataset, keep=True)
+        ev = evaluate(load_model(m, out / m), dataset, keep=True)
         res[m] = {"train": tr, "eval": ev, "wall_s": time.perf_counter() - t1}
     _plots(out, res)
     lines = [f"# rfmitsuba demo: Baseline vs Ours vs End-to-End ({model} model)", "",

@@ -29,23 +29,26 @@ Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
   the antenna position among empty-room training samples.
 """
 from __future__ import annotations
+
 import dataclasses
 import json
 import time
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
+
 import numpy as np
+
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.errors import ConfigError, RunError
-from ..models.coherent_person import HUMAN_FIELDS, CoherentHumanConfig, CoherentHumanField, CoherentPerturbField
-from ..models.coherent import CoherentField
-from ..models.splat import Splats, load_field
-from ..models.splat_person import HumanConfig, HumanField
 from ..data.samples import SampleData, num_human_features
+from ..eval.dynamic_static import evaluate
+from ..models.base import FieldSet, field_class, load_field
+from ..models.coherent_person import CoherentPersonConfig
+from ..models.splat_person import SplatPersonConfig
 from ..train.config import OptimConfig, TrainConfig
 from ..train.trainer import Trainer
-from ..eval.dynamic_static import evaluate
+
 
 @dataclass(frozen=True)
 class Method:
@@ -93,8 +96,8 @@ class MethodConfig:
 
     stage1: TrainConfig = dc_field(default_factory=TrainConfig)
     stage2_iterations: int = 1000
-    human: HumanConfig = dc_field(default_factory=HumanConfig)
-    coherent_human: CoherentHumanConfig = dc_field(default_factory=CoherentHumanConfig)
+    human: SplatPersonConfig = dc_field(default_factory=SplatPersonConfig)
+    coherent_human: CoherentPersonConfig = dc_field(default_factory=CoherentPersonConfig)
     stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
         lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
         lr_net=1e-2, lr_net_final=1e-3))
@@ -129,6 +132,21 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
         dup = 1 + len(open_dataset(dataset).split.human_train)
     return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,
                                    noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
+
+
+def person_kind(mcfg: MethodConfig, bg) -> str:
+    """The registered kind of Stage 2's person field on background ``bg``: "splat_person" on a
+    splat background; on a coherent one "coherent_perturb" or "coherent_person" by
+    ``mcfg.coherent_human.kind`` ("perturb" or "scatter")."""
+    if bg.family == "splat":
+        return "splat_person"
+    return "coherent_perturb" if mcfg.coherent_human.kind == "perturb" else "coherent_person"
+
+
+def person_config(mcfg: MethodConfig, bg):
+    """The Stage-2 person configuration of ``bg``'s family: ``mcfg.human`` (splat) or
+    ``mcfg.coherent_human`` (coherent)."""
+    return mcfg.human if bg.family == "splat" else mcfg.coherent_human
 
 
 def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
@@ -176,20 +194,13 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     bg.freeze()
     data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
-    if isinstance(bg, CoherentField):
-        oct_ = mcfg.coherent_human.human_octaves
+    pcfg = person_config(mcfg, bg)
+    oct_ = pcfg.human_octaves
+    person_cls = field_class(person_kind(mcfg, bg))
+    walk = np.unique(data.human_pos[data.train], axis=0)
 
-        def factory(tr, rng):
-            if mcfg.coherent_human.kind == "perturb":
-                return CoherentPerturbField(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
-            return CoherentHumanField.for_background(bg, cfg=mcfg.coherent_human, seed=seed, name="human")
-    else:
-        oct_ = mcfg.human.human_octaves
-        walk = np.unique(data.human_pos[data.train], axis=0)
-
-        def factory(tr, rng):
-            return HumanField.near_walk(walk, hcfg=mcfg.human, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed,
-                                        name="human")
+    def factory(tr, rng):
+        return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="human")
 
     tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
                  extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
@@ -201,90 +212,24 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
             "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")]}
 
 
-@dataclass
-class Model:
-    """Trained fields rendered together. ``fields``: list of GaussianField, or of coherent fields
-    (:class:`~rfmitsuba.coherent.CoherentField`, whose channels add); a person's field
-    (:class:`HumanField`, :data:`~rfmitsuba.coherent.HUMAN_FIELDS`) is rendered only
-    where a person is present; ``octaves``: human encoding octaves of fields with extra inputs."""
-
-    fields: list
-    octaves: int = 3
-
-    @classmethod
-    def load(cls, name: str, job_dir: str | Path, *, octaves: int = 3) -> "Model":
-        """The trained model of method ``name`` in job folder ``job_dir``."""
-        m = get_method(name)
-        jd = Path(job_dir)
-        if not m.two_stage:
-            return cls([load_field(jd / "train" / "final" / "field.npz")], octaves=octaves)
-        info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
-        if info is None:
-            raise RunError(f"{jd}: no stage1.json; the two-stage job has not run")
-        bg = load_field(Path(info["stage1_dir"]) / "final" / "field.npz")
-        bg.freeze()
-        hf = load_field(jd / "stage2" / "final" / "field.npz")
-        hf.freeze()
-        if isinstance(hf, HUMAN_FIELDS):
-            octaves = hf.cfg.human_octaves
-        return cls([bg, hf], octaves=octaves)
-
-    @property
-    def num_gaussians(self) -> int:
-        return sum(f.num_gaussians for f in self.fields)
-
-    def render(self, data: SampleData, idx: np.ndarray, *, batch: int = 8, h: int = 90, w: int = 360) -> np.ndarray:
-        """Raw predicted PAS at samples ``idx`` of ``data``: float32 [K, h, w].
-
-        Human fields are left out for empty-room samples (state 0); fields with extra inputs get
-        :meth:`SampleData.features` (all zeros for the empty room)."""
-        import drjit as dr
-
-        from ..splat import render
-
-        idx = np.asarray(idx, np.int64)
-        out = np.zeros((len(idx), h, w), np.float32)
-        empty = data.states[idx] == 0
-        human = (HumanField, *HUMAN_FIELDS)
-        coherent = isinstance(self.fields[0], CoherentField)
-        for group in (np.flatnonzero(empty), np.flatnonzero(~empty)):
-            for i in range(0, len(group), batch):
-                sel = group[i:i + batch]
-                k = idx[sel]
-                if coherent:
-                    out[sel] = self._render_coherent(data, k, human=not empty[sel[0]], h=h, w=w)
-                    continue
-                ap, vp = data.antenna_pos[k], data.view_pos[k]
-                sets = []
-                for f in self.fields:
-                    if isinstance(f, human) and empty[sel[0]]:
-                        continue
-                    kw = {"extra": data.features(k, octaves=self.octaves, raw=isinstance(f, HumanField))} \
-                        if f.extra_inputs else {}
-                    sets.append(f.splats(ap, view_pos=vp, **kw))
-                s = Splats.concat(sets)
-                with dr.suspend_grad():
-                    img = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
-                                 rx_to_world=data.rx_to_world, height=h, width=w, num_gaussians=s.n)
-                out[sel] = np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
-        return out
-
-    def _render_coherent(self, data: SampleData, k: np.ndarray, *, human: bool, h: int, w: int) -> np.ndarray:
-        """Coherent fields: channels added (the person's field only with a person), one Bartlett readout."""
-        import drjit as dr
-
-        from ..models.coherent_person import render_fields
-
-        x, y, q = data.positions(k)
-        fields = [f for f in self.fields if human or not isinstance(f, HUMAN_FIELDS)]
-
-        def extra(f):
-            return data.features(k, octaves=self.octaves, raw=isinstance(f, HUMAN_FIELDS)) if f.extra_inputs else None
-
-        with dr.suspend_grad():
-            img = render_fields(fields, x, y, q, extra=extra, frequency_hz=data.frequency_hz, height=h, width=w,
-                                normalize=False, rx_to_world=data.rx_to_world)
-        return np.asarray(img.numpy(), np.float32).reshape(-1, h, w)
+def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
+    """The trained model of method ``name`` in job folder ``job_dir``: a
+    :class:`~rfmitsuba.models.base.FieldSet` (the background, then the person field of a
+    two-stage method). ``octaves``: the person-feature octaves of the End-to-End model."""
+    m = get_method(name)
+    jd = Path(job_dir)
+    if not m.two_stage:
+        f = load_field(jd / "train" / "final" / "field.npz")
+        f.freeze()
+        return FieldSet([f], octaves=octaves)
+    info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
+    if info is None:
+        raise RunError(f"{jd}: no stage1.json; the two-stage job has not run")
+    bg = load_field(Path(info["stage1_dir"]) / "final" / "field.npz")
+    bg.freeze()
+    hf = load_field(jd / "stage2" / "final" / "field.npz")
+    hf.freeze()
+    return FieldSet([bg, hf], octaves=octaves)
 
 
 def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
@@ -313,13 +258,13 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     if (jd / "DONE").is_file():
         metrics = json.loads((jd / "metrics.json").read_text())
         if reevaluate:
-            metrics["eval"] = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), dataset)
             _write_json(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                       train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
-    ev = evaluate(Model.load(name, jd, octaves=mcfg.human.human_octaves), dataset)
+    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), dataset)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     _write_json(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")

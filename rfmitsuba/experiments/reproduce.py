@@ -260,11 +260,3 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 
 def _write_json(path: Path, obj) -> None:
     write_json(path, obj, allow_nan=True, default=numpy_default)
-
-
-def mean_std(values: list[float]) -> tuple[float, float]:
-    """Mean and sample standard deviation (0 for one value; NaN for none)."""
-    v = [x for x in values if x is not None and math.isfinite(x)]
-    if not v:
-        return float("nan"), float("nan")
-    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0

@@ -137,7 +137,7 @@ def method_config(cfg: ExperimentConfig):
     """The :class:`rfmitsuba.methods.MethodConfig` of an experiment's training sizes."""
     from ..models.splat import FieldConfig
     from ..train.density import DensityConfig
-    from ..models.splat_person import HumanConfig
+    from ..models.splat_person import SplatPersonConfig
     from .methods import MethodConfig
     from ..train.config import TrainConfig
 
@@ -151,4 +151,4 @@ def method_config(cfg: ExperimentConfig):
                                            start=max(1, t.stage1_iterations // 4),
                                            every=max(1, t.stage1_iterations // 8)))
     return MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
-                        human=HumanConfig(num_gaussians=t.human_gaussians))
+                        human=SplatPersonConfig(num_gaussians=t.human_gaussians))

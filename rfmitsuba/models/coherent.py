@@ -41,6 +41,7 @@ from ..rf import array as antenna
 from ..core import backend as B
 from ..core.errors import ConfigError, RunError
 from ..rf.images import ImageMaps
+from .base import Field, Views, register
 
 @dataclass
 class CoherentConfig:
@@ -174,21 +175,21 @@ def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tupl
     return dr.block_sum(a * c - bb * s, t), dr.block_sum(a * s + bb * c, t)
 
 
-class _CoherentParams:
-    """What both coherent fields share: named parameters (plain ``Float`` arrays in
+class CoherentFamily(Field):
+    """What every coherent field shares: named parameters (plain ``Float`` arrays in
     :attr:`params` plus the packed networks of :meth:`_modules`), freezing, and an npz state of
     the parameters, the geometry arrays (``_geometry_prefix`` + name) and a JSON ``meta``.
 
     Subclasses define ``_modules``, ``_sizes``, ``_meta``, ``_geometry``, ``_from_state``,
-    ``_format`` and ``_geometry_prefix``.
+    ``kind``, ``format`` and ``_geometry_prefix``.
+
+    Coherent fields render together by adding their channels before one Bartlett read-out
+    (:meth:`render_family`).
     """
 
     def parameters(self) -> dict:
         """Name -> Dr.Jit ``Float`` of every parameter."""
         return {**self.params, **{k: m.weights for k, m in self._modules().items()}}
-
-    def trainable(self) -> dict:
-        return {} if self.frozen else self.parameters()
 
     def assign(self, values: dict) -> None:
         """Set parameters from ``values`` (name -> ``Float``), e.g. the optimizer's copies."""
@@ -201,8 +202,17 @@ class _CoherentParams:
             else:
                 raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
 
+    family = "coherent"
+
     def freeze(self) -> None:
+        """Exclude every parameter from training (values detached)."""
+        import drjit as dr
+
         self.frozen = True
+        for k in list(self.params):
+            self.params[k] = dr.detach(self.params[k])
+        for m in self._modules().values():
+            m.set_weights(dr.detach(m.weights))
 
     def load_state_dict(self, state: dict) -> None:
         """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
@@ -235,7 +245,7 @@ class _CoherentParams:
         """Rebuild a field written by :meth:`state_dict` (RunError naming what is missing or wrong)."""
         try:
             meta = json.loads(str(state["meta"]))
-            if meta.get("format") != cls._format:
+            if meta.get("format") != cls.format:
                 raise RunError(f"not a {cls.__name__} state (format {meta.get('format')!r})")
             n = len(cls._geometry_prefix)
             f = cls._from_state({k[n:]: state[k] for k in state if k.startswith(cls._geometry_prefix)}, state, meta)
@@ -245,24 +255,26 @@ class _CoherentParams:
             f.freeze()
         return f
 
-    def save(self, path: str | Path) -> Path:
-        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
-        from ..core.atomic import write_npz
-
-        return write_npz(Path(path), self.state_dict())
-
     @classmethod
-    def load(cls, path: str | Path):
-        """Read a field of this class written by :meth:`save`."""
-        from .splat import load_field
+    def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
+        """PAS of coherent fields together: their channels add (linear superposition), then one
+        Bartlett read-out (:func:`rfmitsuba.rf.bartlett.bartlett`).
 
-        f = load_field(path)
-        if not isinstance(f, cls):
-            raise RunError(f"{path} holds a {type(f).__name__}, not a {cls.__name__}")
-        return f
+        Returns:
+            ``TensorXf`` [B, height, width], min-max normalised per image when ``normalize``.
+        """
+        from ..rf.bartlett import bartlett
+
+        hr = hi = None
+        for f in fields:
+            fr, fi = f.channels(views.view_pos, views.transmitter, views.antenna_pos, extra=views.extra(f),
+                                rx_to_world=views.rx_to_world)
+            hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+        return bartlett(hr, hi, frequency_hz=views.frequency_hz, height=height, width=width, normalize=normalize)
 
 
-class CoherentField(_CoherentParams):
+@register
+class CoherentField(CoherentFamily):
     """Image sources with learned complex gains: the static (background) field. See the module
     docstring.
 
@@ -301,13 +313,40 @@ class CoherentField(_CoherentParams):
         self.load_state_dict(params)
         self.frozen = False
 
+    @classmethod
+    def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator | None = None,
+                     extra_inputs: int = 0, name: str = "bg") -> "CoherentField":
+        """The Stage-1 initial field of a training configuration: the image sources of the
+        room's planes (``cfg.coherent``: orders, smallest face), gains at their initial values.
+
+        Args:
+            cfg: the :class:`~rfmitsuba.train.config.TrainConfig` (``coherent``, ``seed``).
+            data: the :class:`~rfmitsuba.data.views.TrainData` (its path and carrier).
+            scene_xml: the room's XML (ConfigError when None: this model needs the room).
+            rng: unused (the initialisation is deterministic in ``cfg.seed``); extra_inputs, name:
+                as :class:`CoherentField`.
+        """
+        from ..rf.images import scene_image_maps
+        from ..sim.geometry import RoomGeometry
+
+        if scene_xml is None:
+            raise ConfigError(f"model = 'coherent' needs the scene geometry, but dataset {data.path} names no "
+                              "scene (NeRF2 folders): give one with --set scene=NAME_OR_XML, or use model = 'splat'")
+        c = cfg.coherent
+        geo = RoomGeometry.from_xml(scene_xml)
+        maps = scene_image_maps(geo, room_order=c.room_order, furniture_order=c.furniture_order,
+                                min_face_area=c.min_face_area)
+        lo, hi = geo.bounds
+        return cls(maps, box=np.stack([lo, hi]), cfg=c, frequency_hz=data.frequency_hz,
+                   seed=cfg.seed, name=name, extra_inputs=extra_inputs)
+
     # ---- parameters ------------------------------------------------------------------------
     @property
     def num_sources(self) -> int:
         return len(self.maps)
 
-    #: sources take the place of Gaussians in tables and logs
-    num_gaussians = num_sources
+    #: the image sources are this field's primitives
+    num_primitives = num_sources
 
     @property
     def network_parameters(self) -> int:
@@ -383,10 +422,10 @@ class CoherentField(_CoherentParams):
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
         """PAS of B views: ``TensorXf`` [B, height, width] (min-max normalised by default)."""
-        from ..rf.bartlett import pas
+        from ..rf.bartlett import bartlett
 
         hr, hi = self.channels(x, y, q)
-        return pas(hr, hi, frequency_hz=self.frequency_hz, height=height, width=width, normalize=normalize)
+        return bartlett(hr, hi, frequency_hz=self.frequency_hz, height=height, width=width, normalize=normalize)
 
     # ---- export and state ------------------------------------------------------------------
     def source_points(self, *, x: np.ndarray, y: np.ndarray, task: str) -> np.ndarray:
@@ -397,13 +436,19 @@ class CoherentField(_CoherentParams):
         Ainv = np.transpose(self.maps.A, (0, 2, 1))
         return np.einsum("sij,sj->si", Ainv, np.asarray(x, np.float64)[None] - self.maps.b)
 
+    def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
+        """``sources.ply`` in ``folder``: the sources (:meth:`write_ply`) seen from the first view."""
+        return [self.write_ply(Path(folder) / "sources.ply", x=views.view_pos[0], y=views.transmitter[0],
+                               task=views.task)]
+
     def write_ply(self, path: str | Path, *, x: np.ndarray, y: np.ndarray, task: str) -> Path:
         """The sources as small isotropic Gaussians in the 3DGS PLY layout (opacity = |amp| relative
         to the largest, signal = the same), so a splat viewer shows the virtual sources."""
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(-1, 2)
         return _write_points_ply(path, self.source_points(x=x, y=y, task=task), np.hypot(a[:, 0], a[:, 1]))
 
-    _format = FORMAT
+    kind = "coherent"
+    format = FORMAT
     _geometry_prefix = "maps."
 
     def _geometry(self) -> dict:

@@ -40,14 +40,15 @@ from ..rf import array as antenna
 from ..core import backend as B
 from ..core.errors import ConfigError
 from ..rf.images import ImageMaps
-from .coherent import CoherentField, _CoherentParams, _cmul, _columns, _pair_inputs, _write_points_ply, sin_encoding, sum_terms
+from .base import Views, register
+from .coherent import CoherentFamily, CoherentField, _cmul, _columns, _pair_inputs, _write_points_ply, sin_encoding, sum_terms
 
 HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
 
 
 @dataclass
-class CoherentHumanConfig:
-    """The Stage-2 human scatterers of a coherent model (:class:`CoherentHumanField`).
+class CoherentPersonConfig:
+    """The Stage-2 human scatterers of a coherent model (:class:`CoherentPersonField`).
 
     num_points: scattering points that move with the person; init_radius / init_height: their
     initial horizontal radius and (lo, hi) height, metres, around the feet position;
@@ -59,7 +60,7 @@ class CoherentHumanConfig:
     background's direct path; modulation: scale of the gain network's output;
     scatter_order: most wall reflections on the path before and after the person (0 or 1);
     scatter_furniture: also paths that meet a furniture face before or after the person.
-    kind: "scatter" (:class:`CoherentHumanField`, scattering points that move with the person)
+    kind: "scatter" (:class:`CoherentPersonField`, scattering points that move with the person)
     or "perturb" (:class:`CoherentPerturbField`, the person changes the background's own paths;
     uses human_octaves, width, layers, embed, modulation; the position encoding is the background's).
     """
@@ -81,13 +82,13 @@ class CoherentHumanConfig:
 
     def __post_init__(self) -> None:
         if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
-            raise ConfigError("CoherentHumanConfig: num_points, width, embed >= 1 and octaves, layers >= 0 required")
+            raise ConfigError("CoherentPersonConfig: num_points, width, embed >= 1 and octaves, layers >= 0 required")
         if self.kind not in ("scatter", "perturb"):
-            raise ConfigError(f"CoherentHumanConfig.kind must be 'scatter' or 'perturb', got {self.kind!r}")
+            raise ConfigError(f"CoherentPersonConfig.kind must be 'scatter' or 'perturb', got {self.kind!r}")
         if self.scatter_order not in (0, 1):
-            raise ConfigError(f"CoherentHumanConfig.scatter_order must be 0 or 1, got {self.scatter_order}")
+            raise ConfigError(f"CoherentPersonConfig.scatter_order must be 0 or 1, got {self.scatter_order}")
         if self.init_radius < 0 or self.max_offset < 0 or not self.init_amplitude > 0:
-            raise ConfigError("CoherentHumanConfig: init_radius, max_offset >= 0 and init_amplitude > 0 required")
+            raise ConfigError("CoherentPersonConfig: init_radius, max_offset >= 0 and init_amplitude > 0 required")
 
 
 def scatter_paths(maps: ImageMaps, order: int, *, furniture: bool = True) -> dict:
@@ -113,7 +114,8 @@ def scatter_paths(maps: ImageMaps, order: int, *, furniture: bool = True) -> dic
             (("pre_A", pre_A), ("pre_b", pre_b), ("post_A", post_A), ("post_b", post_b))}
 
 
-class CoherentHumanField(_CoherentParams):
+@register
+class CoherentPersonField(CoherentFamily):
     """Stage 2 of the coherent model: scattering points that move with the person.
 
     Each of K points sits at ``s = h + o_k + D(h)_k`` (feet position ``h``, learned offset
@@ -131,7 +133,7 @@ class CoherentHumanField(_CoherentParams):
 
     Args:
         paths: :func:`scatter_paths` arrays; box: float [2, 3] metres (encoding box);
-        cfg: :class:`CoherentHumanConfig`; frequency_hz: carrier; reference_amplitude: |amp| of
+        cfg: :class:`CoherentPersonConfig`; frequency_hz: carrier; reference_amplitude: |amp| of
         the background's direct path (scales the initial amplitudes); seed; name;
         params: stored parameters instead of the initial ones.
 
@@ -140,14 +142,14 @@ class CoherentHumanField(_CoherentParams):
     :meth:`rfmitsuba.samples.SampleData.features` with ``raw=True`` gives them.
     """
 
-    def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentHumanConfig | None = None,
+    def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentPersonConfig | None = None,
                  frequency_hz: float = 2.4e9, reference_amplitude: float = 1.0, seed: int = 0,
                  name: str = "human", params: dict | None = None):
         from .nn import MLP
         from ..data.samples import num_human_features
 
         B.ensure()
-        self.cfg = cfg or CoherentHumanConfig(kind="scatter")
+        self.cfg = cfg or CoherentPersonConfig(kind="scatter")
         self.paths = {k: np.asarray(v, np.float64) for k, v in paths.items()}
         self.frequency_hz = float(frequency_hz)
         self.box = np.asarray(box, np.float64).reshape(2, 3)
@@ -176,7 +178,7 @@ class CoherentHumanField(_CoherentParams):
         self.frozen = False
 
     num_paths = property(lambda self: len(self.paths["pre_b"]))
-    num_gaussians = property(lambda self: self.cfg.num_points)
+    num_primitives = property(lambda self: self.cfg.num_points)
     network_parameters = property(lambda self: self.cfg.num_points * self.cfg.embed
                                   + sum(m.num_parameters for m in self._modules().values()))
     num_parameters = property(lambda self: self.cfg.num_points * (3 + 2 * self.num_paths) + self.network_parameters)
@@ -257,7 +259,18 @@ class CoherentHumanField(_CoherentParams):
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(len(off), -1, 2)
         return _write_points_ply(path, off, np.hypot(a[..., 0], a[..., 1]).mean(axis=1))
 
-    _format = HUMAN_FORMAT
+    kind = "coherent_person"
+    format = HUMAN_FORMAT
+    person = True
+
+    @property
+    def feature_octaves(self) -> int:
+        return self.cfg.human_octaves
+
+    def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
+        """``sources.ply`` in ``folder``: the scattering points (:meth:`write_ply`)."""
+        return [self.write_ply(Path(folder) / "sources.ply")]
+
     _geometry_prefix = "paths."
 
     def _geometry(self) -> dict:
@@ -269,19 +282,20 @@ class CoherentHumanField(_CoherentParams):
         return {"format": HUMAN_FORMAT, "config": to_dict(self.cfg), "reference_amplitude": self.reference_amplitude}
 
     @classmethod
-    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentHumanField":
+    def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPersonField":
         from ..core.config import from_dict
 
-        return cls(geometry, box=state["box"], cfg=from_dict(CoherentHumanConfig, meta["config"]),
+        return cls(geometry, box=state["box"], cfg=from_dict(CoherentPersonConfig, meta["config"]),
                    frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
                    seed=meta["seed"], name=meta.get("name", "human"), params=state)
 
     @classmethod
-    def for_background(cls, bg: CoherentField, *, cfg: CoherentHumanConfig | None = None, seed: int = 0,
-                       name: str = "human") -> "CoherentHumanField":
+    def for_background(cls, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
+                       name: str = "human", walk: np.ndarray | None = None,
+                       rng: np.random.Generator | None = None) -> "CoherentPersonField":
         """A fresh human field on a trained background: its image maps, box and frequency, and
-        initial amplitudes relative to its direct path."""
-        cfg = cfg or CoherentHumanConfig(kind="scatter")
+        initial amplitudes relative to its direct path (``walk`` and ``rng`` are not needed)."""
+        cfg = cfg or CoherentPersonConfig(kind="scatter")
         a = np.asarray(bg.params["amp"].numpy(), np.float64).reshape(-1, 2)
         direct = int(np.flatnonzero(bg.maps.order == 0)[0]) if (bg.maps.order == 0).any() else int(np.argmax(
             np.hypot(a[:, 0], a[:, 1])))
@@ -321,7 +335,8 @@ def leg_features(maps: ImageMaps, x: np.ndarray, y: np.ndarray, person: np.ndarr
     return np.stack(out, -1).reshape(-1, 4).astype(np.float32)
 
 
-class CoherentPerturbField(_CoherentParams):
+@register
+class CoherentPerturbField(CoherentFamily):
     """Stage 2 of the coherent model as a perturbation of the background's own paths.
 
     The person mostly shadows paths (and bends them a little). This field adds, for every image
@@ -339,16 +354,26 @@ class CoherentPerturbField(_CoherentParams):
     Per-view input ``extra``: float [B, F + 3] (human features, then the feet position in metres).
     """
 
-    _format = "rfmitsuba-coherent-perturb-field/1"
+    kind = "coherent_perturb"
+    format = "rfmitsuba-coherent-perturb-field/1"
+    person = True
+
+    @property
+    def feature_octaves(self) -> int:
+        return self.cfg.human_octaves
+
+    def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
+        """Nothing: this field has no points of its own."""
+        return []
     _geometry_prefix = "bg."
 
-    def __init__(self, bg: CoherentField, *, cfg: CoherentHumanConfig | None = None, seed: int = 0,
+    def __init__(self, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
                  name: str = "human", params: dict | None = None):
         from .nn import MLP
         from ..data.samples import num_human_features
 
         self.bg = bg
-        self.cfg = cfg or CoherentHumanConfig()
+        self.cfg = cfg or CoherentPersonConfig()
         self.box, self.frequency_hz = bg.box, bg.frequency_hz
         self.seed, self.name = int(seed), name
         c = self.cfg
@@ -362,9 +387,17 @@ class CoherentPerturbField(_CoherentParams):
         self.load_state_dict(params)
         self.frozen = False
 
-    num_gaussians = property(lambda self: 0)
+    num_primitives = property(lambda self: 0)
     network_parameters = property(lambda self: self.bg.num_sources * self.cfg.embed + self.net.num_parameters)
     num_parameters = network_parameters
+
+    @classmethod
+    def for_background(cls, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
+                       name: str = "human", walk: np.ndarray | None = None,
+                       rng: np.random.Generator | None = None) -> "CoherentPerturbField":
+        """A fresh (zero) perturbation of a trained background's paths (``walk`` and ``rng`` are
+        not needed)."""
+        return cls(bg, cfg=cfg, seed=seed, name=name)
 
     def _modules(self) -> dict:
         return {"net.perturb": self.net}
@@ -393,17 +426,13 @@ class CoherentPerturbField(_CoherentParams):
         wr, wi = _cmul(gr, gi, sc * o[0], sc * o[1])
         return sum_terms(*_cmul(wr, wi, pr, pi), u, nb, S, frequency_hz=self.frequency_hz)
 
-    def write_ply(self, path: str | Path, **_) -> Path:
-        """Nothing to place: this field has no points of its own (returns the path unwritten)."""
-        return Path(path)
-
     def _geometry(self) -> dict:
         return self.bg.state_dict()
 
     def _meta(self) -> dict:
         from ..core.config import to_dict
 
-        return {"format": self._format, "config": to_dict(self.cfg)}
+        return {"format": self.format, "config": to_dict(self.cfg)}
 
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPerturbField":
@@ -411,36 +440,5 @@ class CoherentPerturbField(_CoherentParams):
 
         bg = CoherentField.from_state_dict(geometry)
         bg.freeze()
-        return cls(bg, cfg=from_dict(CoherentHumanConfig, meta["config"]), seed=meta["seed"],
+        return cls(bg, cfg=from_dict(CoherentPersonConfig, meta["config"]), seed=meta["seed"],
                    name=meta.get("name", "human"), params=state)
-
-
-def render_fields(fields: list, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, extra, frequency_hz: float,
-                  height: int = 90, width: int = 360, normalize: bool = True, rx_to_world=None):
-    """PAS of coherent fields together: their channels add (linear superposition), then one
-    Bartlett readout (:func:`rfmitsuba.bartlett.pas`).
-
-    Args:
-        fields: coherent fields (a frozen background, a Stage-2 person field, ...).
-        x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
-        extra: callable field -> that field's per-view extra inputs (or None).
-        frequency_hz: carrier; height, width: PAS grid; normalize: per-image min-max;
-        rx_to_world: the array frame (None = the SPEC's horizontal array).
-    Returns:
-        ``TensorXf`` [B, height, width].
-    """
-    from ..rf.bartlett import pas
-
-    hr = hi = None
-    for f in fields:
-        fr, fi = f.channels(x, y, q, extra=extra(f), rx_to_world=rx_to_world)
-        hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
-    return pas(hr, hi, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize)
-
-
-#: the coherent field classes (rendered by adding channels, then one Bartlett readout)
-COHERENT_FIELDS = (CoherentField, CoherentHumanField, CoherentPerturbField)
-
-
-#: the Stage-2 person fields (rendered only where a person is present)
-HUMAN_FIELDS = (CoherentHumanField, CoherentPerturbField)

@@ -1,6 +1,6 @@
 """A set of 3-D Gaussians with an EM-feature network: the radio field model.
 
-A :class:`GaussianField` owns
+A :class:`SplatField` owns
 
 * per-Gaussian parameters (flat ``Float`` arrays, row-major per Gaussian):
   ``means`` [N*3] metres (world frame), ``log_scales`` [N*3] natural log of metres,
@@ -10,7 +10,7 @@ A :class:`GaussianField` owns
 * a fixed normalisation box (``box`` [2, 3], metres) mapping world positions into [0, 1]
   for the encodings.
 
-:meth:`GaussianField.splats` evaluates the network for a batch of B views and returns
+:meth:`SplatField.splats` evaluates the network for a batch of B views and returns
 a :class:`Splats` bundle in the argument layout of :func:`rfmitsuba.splat.render`:
 geometry of size N (shared by all views) and signal/opacity of size B*N (per view,
 view-major index ``b*N + i``). :meth:`Splats.concat` joins several sets (e.g. a frozen
@@ -32,6 +32,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.errors import ConfigError, RunError, SceneError
 from .nn import EMNetwork, NetConfig
+from .base import Field, Views, register
 
 #: Per-Gaussian parameters and their number of components.
 GAUSSIAN_KEYS = {"means": 3, "log_scales": 3, "rotations": 4, "opacity_logits": 1}
@@ -91,7 +92,7 @@ def scene_meshes(xml_path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     """Triangle meshes of a Mitsuba scene XML, in world coordinates.
 
     Args:
-        xml_path: path of the scene XML; read by :func:`rfmitsuba.geometry.read_shapes`
+        xml_path: path of the scene XML; read by :func:`rfmitsuba.data.scene_xml.read_shapes`
             (ply/obj shapes, ``to_world`` transforms, ``$name`` defaults).
 
     Returns:
@@ -100,7 +101,7 @@ def scene_meshes(xml_path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     Raises:
         SceneError: missing file, malformed XML, missing mesh file, or no mesh.
     """
-    from ..sim.geometry import read_shapes
+    from ..data.scene_xml import read_shapes
 
     meshes = [(np.asarray(s.mesh.vertices, dtype=np.float64), np.asarray(s.mesh.faces, dtype=np.int64))
               for s in read_shapes(xml_path)]
@@ -228,8 +229,9 @@ class Splats:
 
 # --------------------------------------------------------------------------- the field
 
-class GaussianField:
-    """Gaussian set + EM-feature network (see module docstring).
+@register
+class SplatField(Field):
+    """Gaussian set + EM-feature network (see module docstring): the paper's model family.
 
     Build with :meth:`from_points`, :meth:`initialize` or :meth:`load`.
 
@@ -242,6 +244,12 @@ class GaussianField:
         name: prefix of this field's keys in an optimizer (e.g. "bg", "human").
     """
 
+    kind = "splat"
+    family = "splat"
+    format = "rfmitsuba-field/1"
+    #: adaptive density control (clone, split, prune) applies
+    densify = True
+
     def __init__(self, params: dict, *, box: np.ndarray, cfg: FieldConfig, extra_inputs: int = 0,
                  seed: int = 0, name: str = "bg"):
         self.cfg = cfg
@@ -250,7 +258,7 @@ class GaussianField:
         self.seed = int(seed)
         self.box = np.asarray(box, dtype=np.float64).reshape(2, 3)
         if not np.all(self.box[1] > self.box[0]):
-            raise ConfigError(f"GaussianField: box {self.box.tolist()} is empty")
+            raise ConfigError(f"SplatField: box {self.box.tolist()} is empty")
         self.net = EMNetwork(cfg.net, extra_inputs=extra_inputs, seed=seed)
         self.params: dict = {}
         self.frozen = False
@@ -259,13 +267,13 @@ class GaussianField:
     # ---- construction ---------------------------------------------------------------
     @classmethod
     def from_points(cls, points: np.ndarray, *, cfg: FieldConfig, box: np.ndarray | None = None,
-                    extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "GaussianField":
+                    extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "SplatField":
         """Gaussians centred on ``points`` (float [N, 3] metres), isotropic scale (cfg.init_scale
         or the 3-NN rule), identity rotation, opacity cfg.init_opacity. ``box`` defaults to the
         points' bounds plus cfg.box_margin."""
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
-            raise ConfigError(f"GaussianField.from_points: points must be finite [N, 3], got {points.shape}")
+            raise ConfigError(f"SplatField.from_points: points must be finite [N, 3], got {points.shape}")
         n = len(points)
         if cfg.init_scale > 0:
             s = np.full(n, cfg.init_scale)
@@ -286,7 +294,7 @@ class GaussianField:
     @classmethod
     def initialize(cls, *, cfg: FieldConfig, rng: np.random.Generator, meshes=None,
                    bounds: tuple | None = None, source: np.ndarray | None = None,
-                   extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "GaussianField":
+                   extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "SplatField":
         """Initial field from scene meshes (cfg.init == "mesh") or uniform in ``bounds``.
 
         Args:
@@ -317,12 +325,45 @@ class GaussianField:
         box = np.stack([np.minimum(lo, pts.min(0)) - cfg.box_margin, np.maximum(hi, pts.max(0)) + cfg.box_margin])
         return cls.from_points(pts, cfg=cfg, box=box, extra_inputs=extra_inputs, seed=seed, name=name)
 
+    @classmethod
+    def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator, extra_inputs: int = 0,
+                     name: str = "bg") -> "SplatField":
+        """The Stage-1 initial field of a training configuration: Gaussians on the scene's mesh
+        surfaces (``cfg.field.init == "mesh"``) or random in the known bounds padded by 0.5 m.
+
+        Args:
+            cfg: the :class:`~rfmitsuba.train.config.TrainConfig` (``field``, ``seed``).
+            data: the :class:`~rfmitsuba.data.views.TrainData` (bounds, meshes, the fixed source).
+            scene_xml: the room's XML, or None when it is unknown.
+            rng: initialisation randomness; extra_inputs: extra per-view network inputs; name:
+                optimizer key prefix.
+        """
+        fc = cfg.field
+        meshes = data.meshes(scene_xml) if fc.init == "mesh" else None
+        if fc.init == "mesh" and meshes is None:
+            raise ConfigError(f"field.init = 'mesh' but dataset {data.path} names no scene; "
+                              "use --set field.init=\"random\"")
+        bounds = data.bounds
+        if meshes:
+            allv = np.concatenate([v for v, _ in meshes])
+            bounds = (np.minimum(bounds[0], allv.min(0)), np.maximum(bounds[1], allv.max(0)))
+        else:
+            pad = 0.5
+            bounds = (bounds[0] - pad, bounds[1] + pad)
+        return cls.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=data.source,
+                              extra_inputs=extra_inputs, seed=cfg.seed, name=name)
+
     # ---- parameters -----------------------------------------------------------------
     @property
     def num_gaussians(self) -> int:
         import drjit as dr
 
         return dr.width(self.params["opacity_logits"])
+
+    @property
+    def num_primitives(self) -> int:
+        """Gaussians."""
+        return self.num_gaussians
 
     @property
     def network_parameters(self) -> int:
@@ -341,10 +382,6 @@ class GaussianField:
             out[f"net.{k}"] = m.weights
         return out
 
-    def trainable(self) -> dict:
-        """Parameters the optimizer may change (empty after :meth:`freeze`)."""
-        return {} if self.frozen else self.parameters()
-
     def assign(self, values: dict) -> None:
         """Set parameters from ``key -> Float`` (e.g. an optimizer's current values, which keeps
         the AD link so that gradients reach the optimizer). Unknown keys are an error."""
@@ -355,7 +392,7 @@ class GaussianField:
             elif k.startswith("net.") and k[4:] in mods:
                 mods[k[4:]].set_weights(v)
             else:
-                raise KeyError(f"GaussianField has no parameter {k!r}")
+                raise KeyError(f"SplatField has no parameter {k!r}")
 
     def freeze(self) -> None:
         """Exclude every parameter from training (values detached)."""
@@ -380,17 +417,17 @@ class GaussianField:
         n = None
         for k, d in GAUSSIAN_KEYS.items():
             if k not in arrays:
-                raise ConfigError(f"GaussianField: missing per-Gaussian array {k!r}")
+                raise ConfigError(f"SplatField: missing per-Gaussian array {k!r}")
             a = np.asarray(arrays[k], dtype=np.float32)
             m = a.shape[0]
             if (d > 1 and a.shape != (m, d)) or (d == 1 and a.shape != (m,)) or (n is not None and m != n):
-                raise ConfigError(f"GaussianField: array {k!r} has shape {a.shape}, expected ({n or 'N'}, {d})")
+                raise ConfigError(f"SplatField: array {k!r} has shape {a.shape}, expected ({n or 'N'}, {d})")
             if not np.isfinite(a).all():
-                raise ConfigError(f"GaussianField: array {k!r} has non-finite values")
+                raise ConfigError(f"SplatField: array {k!r} has non-finite values")
             n = m
             self.params[k] = B.Float(a.ravel())
         if n == 0:
-            raise ConfigError("GaussianField: no Gaussians")
+            raise ConfigError("SplatField: no Gaussians")
 
     # ---- evaluation -----------------------------------------------------------------
     def normalize(self, p: np.ndarray) -> np.ndarray:
@@ -467,7 +504,7 @@ class GaussianField:
         for k, m in self.net.modules().items():
             out[f"net.{k}"] = np.array(m.weights.numpy(), dtype=np.float32, copy=True)
         out["box"] = self.box.copy()
-        meta = {"format": "rfmitsuba-field/1", "config": to_dict(self.cfg), "extra_inputs": self.extra_inputs,
+        meta = {"format": self.format, "config": to_dict(self.cfg), "extra_inputs": self.extra_inputs,
                 "seed": self.seed, "name": self.name, "frozen": self.frozen}
         out["meta"] = np.array(json.dumps(meta))
         return out
@@ -489,7 +526,7 @@ class GaussianField:
             self.box = np.asarray(state["box"], dtype=np.float64).reshape(2, 3)
 
     @classmethod
-    def from_state_dict(cls, state: dict) -> "GaussianField":
+    def from_state_dict(cls, state: dict) -> "SplatField":
         """Rebuild a field (architecture from the stored metadata)."""
         from ..core.config import from_dict
 
@@ -507,50 +544,47 @@ class GaussianField:
             f.freeze()
         return f
 
-    def save(self, path: str | Path) -> Path:
-        """Write :meth:`state_dict` to an ``.npz`` file atomically."""
-        from ..core.atomic import write_npz
-
-        return write_npz(path, self.state_dict())
-
+    # ---- rendering and export ---------------------------------------------------------
     @classmethod
-    def load(cls, path: str | Path) -> "GaussianField":
-        """Read a field written by :meth:`save`."""
-        path = Path(path)
-        if not path.is_file():
-            raise RunError(f"field file {path} does not exist")
-        with np.load(path, allow_pickle=False) as z:
-            state = {k: z[k] for k in z.files}
-        return cls.from_state_dict(state)
+    def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
+        """Splat fields together: their Gaussians for every view are joined (:meth:`Splats.concat`)
+        and rasterised into one image per view (:func:`rfmitsuba.splat.render`); with read-out
+        "bartlett" (of every field) the image is an arrival image resampled through the Bartlett
+        beam (:class:`rfmitsuba.rf.readout.BartlettReadout`). ``normalize`` is ignored: the splat
+        output is trained directly against the min-max normalised PAS, as in WRF-GS.
 
+        Returns:
+            ``TensorXf`` [B, height, width].
+        """
+        from ..splat import render
 
-def load_field(path: str | Path):
-    """Read any saved field: a :class:`GaussianField` (or its Stage-2 subclass
-    :class:`~rfmitsuba.human_field.HumanField`) or a coherent field
-    (:data:`rfmitsuba.coherent.COHERENT_FIELDS`), by the ``format`` in its metadata."""
-    path = Path(path)
-    if not path.is_file():
-        raise RunError(f"field file {path} does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            state = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as e:
-        raise RunError(f"{path}: not a readable field file ({e})") from None
-    if "meta" not in state:
-        raise RunError(f"{path}: field file has no 'meta' entry")
-    fmt = json.loads(str(state["meta"])).get("format")
-    if fmt == "rfmitsuba-field/1":
-        return GaussianField.from_state_dict(state)
-    if fmt == "rfmitsuba-human-field/1":
-        from .splat_person import HumanField
+        readouts = {f.cfg.readout for f in fields}
+        if len(readouts) != 1:
+            raise ConfigError(f"splat fields with different read-outs cannot be rendered together: {sorted(readouts)}")
+        s = Splats.concat([f.splats(views.antenna_pos, view_pos=views.view_pos, extra=views.extra(f)) for f in fields])
+        if readouts.pop() == "bartlett":
+            from ..rf.readout import BartlettReadout
 
-        return HumanField.from_state_dict(state)
-    from . import coherent
+            ha, wa = fields[0].cfg.arrival_grid
+            arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, views.view_pos,
+                         rx_to_world=views.rx_to_world, height=ha, width=wa, num_gaussians=s.n)
+            return BartlettReadout(ha, wa, height, width)(arr)
+        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, views.view_pos,
+                      rx_to_world=views.rx_to_world, height=height, width=width, num_gaussians=s.n)
 
-    classes = {c._format: c for c in coherent.COHERENT_FIELDS}
-    if fmt not in classes:
-        raise RunError(f"{path}: unknown field format {fmt!r}")
-    return classes[fmt].from_state_dict(state)
+    def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
+        """``gaussians.ply`` (3DGS layout, with each Gaussian's mean signal over ``views``) and
+        ``network.npz`` (the network weights and the box) in ``folder``."""
+        import drjit as dr
+
+        folder = Path(folder)
+        with dr.suspend_grad():
+            s = self.splats(views.antenna_pos, view_pos=views.view_pos, extra=views.extra(self))
+            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(views.count, -1).mean(axis=0)
+        ply = write_ply(folder / "gaussians.ply", self, signal=sig)
+        net = folder / "network.npz"
+        np.savez(net, **{k: v for k, v in self.state_dict().items() if "." in k or k == "box"})
+        return [ply, net]
 
 
 def _missing(state: dict):
@@ -563,7 +597,7 @@ def _missing(state: dict):
 _C0 = 0.28209479177387814  # SH degree-0 constant used by 3DGS viewers
 
 
-def write_ply(path: str | Path, field: GaussianField, *, signal: np.ndarray | None = None) -> Path:
+def write_ply(path: str | Path, field: SplatField, *, signal: np.ndarray | None = None) -> Path:
     """Export a field's Gaussians in the 3D Gaussian Splatting PLY layout (see :func:`write_ply_arrays`).
 
     Args:

@@ -1,6 +1,6 @@
 """Stage 2: a sparse set of "human" Gaussians conditioned on the human position.
 
-A :class:`HumanField` is a :class:`~rfmitsuba.field.GaussianField` whose EM-feature
+A :class:`SplatPersonField` is a :class:`~rfmitsuba.field.SplatField` whose EM-feature
 network takes the human position as extra per-view input
 
     F_man: (P(G_man), P(antenna), P(man)) -> signal, attenuation
@@ -10,7 +10,7 @@ plus a **deformation network**
     D_man: (P(G_man), P(man)) -> (position offset, rotation offset, log-scale offset)
 
 evaluated for every (view, Gaussian) pair, so the human Gaussians move, turn and grow with
-the person. Rendering (:meth:`HumanField.splats`) returns per-view geometry (size B*N) that
+the person. Rendering (:meth:`SplatPersonField.splats`) returns per-view geometry (size B*N) that
 :meth:`rfmitsuba.field.Splats.concat` joins with a frozen background into one splatting
 call (the paper's linear superposition); only the human field's parameters train.
 
@@ -26,9 +26,10 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError, RunError
-from .splat import GAUSSIAN_KEYS, FieldConfig, GaussianField, _logit, columns
+from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, _logit, columns
 from .nn import MLP, NetConfig, encode
 from ..data.samples import num_human_features
+from .base import register
 
 
 @dataclass
@@ -54,7 +55,7 @@ class DeformConfig:
 
 
 @dataclass
-class HumanConfig:
+class SplatPersonConfig:
     """The human Gaussian set of Stage 2.
 
     num_gaussians: size of the sparse set; init_radius: horizontal standard deviation (metres)
@@ -79,26 +80,32 @@ class HumanConfig:
 
     def __post_init__(self) -> None:
         if self.num_gaussians < 1:
-            raise ConfigError(f"HumanConfig.num_gaussians must be >= 1, got {self.num_gaussians}")
+            raise ConfigError(f"SplatPersonConfig.num_gaussians must be >= 1, got {self.num_gaussians}")
         if self.init_radius < 0 or self.init_scale <= 0 or not 0 < self.init_opacity < 1:
-            raise ConfigError("HumanConfig: init_radius >= 0, init_scale > 0, init_opacity in (0, 1)")
+            raise ConfigError("SplatPersonConfig: init_radius >= 0, init_scale > 0, init_opacity in (0, 1)")
         if self.anchor not in ("human", "world"):
-            raise ConfigError(f"HumanConfig.anchor must be 'human' or 'world', got {self.anchor!r}")
+            raise ConfigError(f"SplatPersonConfig.anchor must be 'human' or 'world', got {self.anchor!r}")
 
 
-class HumanField(GaussianField):
+@register
+class SplatPersonField(SplatField):
     """Human Gaussians with a position-conditioned EM network and a deformation network.
 
     Args:
-        params: per-Gaussian numpy arrays (as :class:`GaussianField`).
+        params: per-Gaussian numpy arrays (as :class:`SplatField`).
         box: float [2, 3] metres, normalisation box.
-        hcfg: :class:`HumanConfig`.
+        hcfg: :class:`SplatPersonConfig`.
         field_cfg: the field configuration (scale mode of the background it joins).
         seed: network seed.
         name: optimizer key prefix.
     """
 
-    def __init__(self, params: dict, *, box: np.ndarray, hcfg: HumanConfig, field_cfg: FieldConfig,
+    kind = "splat_person"
+    family = "splat"
+    format = "rfmitsuba-human-field/1"
+    person = True
+
+    def __init__(self, params: dict, *, box: np.ndarray, hcfg: SplatPersonConfig, field_cfg: FieldConfig,
                  seed: int = 0, name: str = "human"):
         import dataclasses
 
@@ -110,10 +117,22 @@ class HumanField(GaussianField):
         n_in = 3 * (1 + 2 * d.octaves) + num_human_features(hcfg.human_octaves)
         self.deform = MLP(n_in, 10, width=d.width, layers=d.layers, seed=seed + 17) if d.enabled else None
 
+    @property
+    def feature_octaves(self) -> int:
+        """Octaves of the person-position features (:func:`rfmitsuba.data.samples.human_features`)."""
+        return self.hcfg.human_octaves
+
     # ---- construction ---------------------------------------------------------------
     @classmethod
-    def near_walk(cls, human_positions: np.ndarray, *, hcfg: HumanConfig, field_cfg: FieldConfig,
-                  box: np.ndarray, rng: np.random.Generator, seed: int = 0, name: str = "human") -> "HumanField":
+    def for_background(cls, bg: SplatField, *, cfg: SplatPersonConfig, walk: np.ndarray, rng: np.random.Generator,
+                       seed: int = 0, name: str = "human") -> "SplatPersonField":
+        """Fresh person Gaussians joining background ``bg`` (its scale mode and box), placed
+        around the training walk ``walk`` (float [H, 3] metres) by :meth:`near_walk`."""
+        return cls.near_walk(walk, hcfg=cfg, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed, name=name)
+
+    @classmethod
+    def near_walk(cls, human_positions: np.ndarray, *, hcfg: SplatPersonConfig, field_cfg: FieldConfig,
+                  box: np.ndarray, rng: np.random.Generator, seed: int = 0, name: str = "human") -> "SplatPersonField":
         """Random initial human Gaussians around the (training) human positions.
 
         Args:
@@ -124,7 +143,7 @@ class HumanField(GaussianField):
         hp = np.asarray(human_positions, np.float64).reshape(-1, 3)
         hp = hp[np.isfinite(hp).all(1)]
         if len(hp) == 0:
-            raise ConfigError("HumanField.near_walk: no finite human positions to initialise around")
+            raise ConfigError("SplatPersonField.near_walk: no finite human positions to initialise around")
         n = hcfg.num_gaussians
         pick = hp[rng.integers(0, len(hp), n)]
         pts = pick.copy()
@@ -241,7 +260,7 @@ class HumanField(GaussianField):
         if self.deform is not None:
             out["deform.mlp"] = np.array(self.deform.weights.numpy(), dtype=np.float32, copy=True)
         meta = json.loads(str(out["meta"]))
-        meta.update({"format": "rfmitsuba-human-field/1", "human_config": to_dict(self.hcfg)})
+        meta.update({"format": self.format, "human_config": to_dict(self.hcfg)})
         out["meta"] = np.array(json.dumps(meta))
         return out
 
@@ -257,15 +276,15 @@ class HumanField(GaussianField):
             self.deform.set_weights(w)
 
     @classmethod
-    def from_state_dict(cls, state: dict) -> "HumanField":
+    def from_state_dict(cls, state: dict) -> "SplatPersonField":
         from ..core.config import from_dict
 
         if "meta" not in state:
             raise RunError("human field state has no 'meta' entry")
         meta = json.loads(str(state["meta"]))
-        if meta.get("format") != "rfmitsuba-human-field/1":
+        if meta.get("format") != cls.format:
             raise RunError(f"not a human field state (format {meta.get('format')!r})")
-        hcfg = from_dict(HumanConfig, meta["human_config"])
+        hcfg = from_dict(SplatPersonConfig, meta["human_config"])
         fcfg = from_dict(FieldConfig, meta["config"])
         g = {k: state[k] for k in GAUSSIAN_KEYS}
         f = cls(g, box=state["box"], hcfg=hcfg, field_cfg=fcfg, seed=meta["seed"], name=meta["name"])

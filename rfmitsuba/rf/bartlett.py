@@ -126,7 +126,7 @@ def _op_class():
     return BartlettPAS
 
 
-def pas(h_re, h_im, *, frequency_hz: float, height: int = 90, width: int = 360, normalize: bool = True):
+def bartlett(h_re, h_im, *, frequency_hz: float, height: int = 90, width: int = 360, normalize: bool = True):
     """PAS images of B channels, differentiable in the channels.
 
     Args:

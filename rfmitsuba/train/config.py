@@ -16,7 +16,7 @@ Run folder layout::
     split.json       train / validation / test antenna indices
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
     checkpoint/      latest resumable state (written atomically)
-    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/field.npz  the trained field (rfmitsuba.field.SplatField.load)
     final/gaussians.ply, final/network.npz, final/summary.json
 
 Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX

@@ -1,6 +1,6 @@
 """Adaptive density control of a Gaussian field (3DGS / gsplat style), as a strategy object.
 
-The trainer calls the hooks of :class:`DensityStrategy`:
+The trainer calls the named hooks of :class:`Strategy`; :class:`DensityStrategy` implements them:
 
 * :meth:`~DensityStrategy.after_backward` every step: accumulates the norm of each
   Gaussian's position gradient (our renderer takes world-space means, so this is the
@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError
-from ..models.splat import GAUSSIAN_KEYS, GaussianField
+from ..models.splat import GAUSSIAN_KEYS, SplatField
 
 
 @dataclass
@@ -75,8 +75,43 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     ], 1)
 
 
-class DensityStrategy:
-    """Clone / split / prune / reset for one :class:`GaussianField` (see module docstring).
+class Strategy:
+    """Base of the density strategies: the trainer calls these named hooks, in this order
+    within a step, and each is a no-op here.
+
+    * :meth:`after_backward` (field) - after the loss's backward pass, before the optimizer step;
+    * :meth:`step_end` (step, field, opt, rng=, probe_views=) - after the optimizer step; True
+      when the field's primitives changed outside the optimizer step;
+    * :meth:`on_validation` (step, val_ssim) - after each validation;
+    * :meth:`state_dict` / :meth:`load_state_dict` - in checkpoints, so a resumed run continues
+      the same schedule.
+
+    ``history`` lists the strategy's events, ``growth_stopped`` says whether growth ended.
+    """
+
+    growth_stopped = False
+
+    def __init__(self) -> None:
+        self.history: list[dict] = []
+
+    def after_backward(self, field) -> None:
+        return None
+
+    def step_end(self, step: int, field, opt, *, rng=None, probe_views=None, probe_opacity=None) -> bool:
+        return False
+
+    def on_validation(self, step: int, val_ssim: float) -> None:
+        return None
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        return None
+
+
+class DensityStrategy(Strategy):
+    """Clone / split / prune / reset for one :class:`SplatField` (see module docstring).
 
     Args:
         cfg: settings.
@@ -94,7 +129,7 @@ class DensityStrategy:
         self.history: list[dict] = []
 
     # ---- hooks ------------------------------------------------------------------------
-    def after_backward(self, field: GaussianField) -> None:
+    def after_backward(self, field: SplatField) -> None:
         """Accumulate statistics from the gradients of the current step."""
         import drjit as dr
 
@@ -124,7 +159,7 @@ class DensityStrategy:
                 self.growth_stopped = True
                 self.history.append({"step": step, "event": "growth stopped", "val_ssim": float(val_ssim)})
 
-    def step_end(self, step: int, field: GaussianField, opt, *, rng: np.random.Generator,
+    def step_end(self, step: int, field: SplatField, opt, *, rng: np.random.Generator, probe_views=None,
                  probe_opacity=None) -> bool:
         """Densify / prune / reset after optimizer step ``step`` (1-based count of steps done).
 
@@ -133,8 +168,10 @@ class DensityStrategy:
             field: the field (its parameters are the optimizer's values).
             opt: the ``drjit.opt.Adam`` holding ``prefix + key`` entries.
             rng: numpy generator for split sampling.
-            probe_opacity: callable () -> float32 [N] largest attenuation delta of every
-                Gaussian over some probe views (for pruning); None = the view-independent part.
+            probe_views: :class:`~rfmitsuba.models.base.Views` over which each Gaussian's largest
+                attenuation delta decides pruning; None = ``probe_opacity``.
+            probe_opacity: callable () -> float32 [N], that largest attenuation delta given
+                directly; None (and no probe_views) = the view-independent part.
 
         Returns:
             True when the Gaussian set changed (size or values outside the optimizer step).
@@ -142,6 +179,15 @@ class DensityStrategy:
         c = self.cfg
         if not c.enabled:
             return False
+        if probe_views is not None and probe_opacity is None:
+            def probe_opacity():
+                import drjit as dr
+
+                with dr.suspend_grad():
+                    sp = field.splats(probe_views.antenna_pos, view_pos=probe_views.view_pos,
+                                      extra=probe_views.extra(field))
+                    op = np.asarray(sp.opacities.numpy(), dtype=np.float32).reshape(probe_views.count, -1)
+                return op.max(axis=0)
         changed = False
         if c.start <= step < c.stop and step % c.every == 0 and self.grad_sum is not None:
             changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_opacity=probe_opacity)
@@ -229,7 +275,7 @@ class DensityStrategy:
         n = field.num_gaussians
         self.history.append({"event": "reset opacity", "n": n})
 
-    def _apply(self, field: GaussianField, opt, arrays: dict, keep: np.ndarray, n_new: int) -> None:
+    def _apply(self, field: SplatField, opt, arrays: dict, keep: np.ndarray, n_new: int) -> None:
         """Install the new Gaussian set in the field and the optimizer, remapping Adam moments:
         kept rows keep their moments, new rows start from zero."""
         import drjit as dr
@@ -280,26 +326,12 @@ class DensityStrategy:
             self.grad_sum = self.count = None
 
 
-class NoDensity:
-    """The density-control hooks for a model without adaptive density (the coherent field:
-    its sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
+class NoDensity(Strategy):
+    """The density-control hooks for a model without adaptive density (the coherent fields:
+    their sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
 
-    growth_stopped = False
 
-    def __init__(self) -> None:
-        self.history: list[dict] = []
-
-    def after_backward(self, field) -> None:
-        return None
-
-    def on_validation(self, step: int, val_ssim: float) -> None:
-        return None
-
-    def step_end(self, step: int, field, opt, *, rng=None, probe_opacity=None) -> bool:
-        return False
-
-    def state_dict(self) -> dict:
-        return {}
-
-    def load_state_dict(self, state: dict) -> None:
-        return None
+def make_strategy(cfg: DensityConfig, field, *, prefix: str) -> Strategy:
+    """The density strategy of ``field``: :class:`DensityStrategy` for fields whose class
+    allows densification (``Field.densify``), :class:`NoDensity` otherwise."""
+    return DensityStrategy(cfg, prefix=prefix) if getattr(field, "densify", False) else NoDensity()

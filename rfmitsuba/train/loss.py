@@ -11,7 +11,7 @@ box sum, so the backward pass needs no atomic scatter-additions).
 
 :func:`loss` is the training loss ``0.8 * L1 + 0.2 * (1 - SSIM)`` (paper,
 Section "Model Training"), averaged over a batch [B, H, W].
-:func:`ssim_np` is the SPEC metric protocol itself (skimage, float64).
+:func:`rfmitsuba.core.ssim.ssim_images` is the metric protocol itself (skimage, float64).
 """
 from __future__ import annotations
 
@@ -146,23 +146,3 @@ def loss(pred, gt):
     inv_views = dr.opaque(B.Float, 1.0 / shape[0])
     l1 = dr.sum(dr.abs(x - y)) * inv_pixels
     return (1.0 - LAMBDA) * l1 + LAMBDA * (1.0 - dr.sum(ssim(pred, gt)) * inv_views)
-
-
-def ssim_np(pred, gt) -> np.ndarray | float:
-    """The SPEC metric: skimage SSIM (data_range = 1) per image, float64.
-
-    Args:
-        pred, gt: numpy [B, H, W] or [H, W].
-
-    Returns:
-        float64 [B] (or a float for one [H, W] pair).
-    """
-    from skimage.metrics import structural_similarity
-
-    p = np.asarray(pred, dtype=np.float64)
-    g = np.asarray(gt, dtype=np.float64)
-    if p.shape != g.shape or p.ndim not in (2, 3):
-        raise ImageError(f"pred and gt must both be [B, H, W] or [H, W]; got {p.shape} and {g.shape}")
-    if p.ndim == 2:
-        return float(structural_similarity(p, g, data_range=1.0))
-    return np.array([structural_similarity(a, b, data_range=1.0) for a, b in zip(p, g)])

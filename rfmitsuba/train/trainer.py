@@ -16,32 +16,35 @@ Run folder layout::
     split.json       train / validation / test antenna indices
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
     checkpoint/      latest resumable state (written atomically)
-    final/field.npz  the trained field (rfmitsuba.field.GaussianField.load)
+    final/field.npz  the trained field (rfmitsuba.models.base.load_field)
     final/gaussians.ply, final/network.npz, final/summary.json
 
 Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
 (view = the fixed array, network input = transmitter position).
 """
 from __future__ import annotations
+
 import json
 import math
 import os
 import shutil
 import time
 from pathlib import Path
+
 import numpy as np
+
 from ..core import backend as B
 from ..core import config as C
 from ..core.atomic import write_json
-from ..models.coherent_person import COHERENT_FIELDS
-from ..models.coherent import CoherentField
-from .density import DensityStrategy, NoDensity
 from ..core.errors import ConfigError, RunError
-from ..models.splat import GaussianField, load_field, write_ply
-from ..rf.bartlett_ref import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
+from ..core.ssim import ssim_images
+from ..data.views import TrainData
+from ..models.base import Field, FieldSet, Views, field_class, load_field, render
+from ..rf.bartlett_ref import normalize as minmax  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
-from ..data.views import TrainData
+from .density import make_strategy
+
 
 def _lr(v0: float, v1: float | None, t: float) -> float:
     if v1 is None or v0 <= 0 or v1 <= 0:
@@ -72,15 +75,8 @@ def load_loss():
     return loss
 
 
-def load_render():
-    """The splatting renderer (rfmitsuba.splat.render)."""
-    from ..splat import render
-
-    return render
-
-
 class Trainer:
-    """Train a :class:`GaussianField` on a :class:`TrainData` into a run folder.
+    """Train a field (:class:`~rfmitsuba.models.base.Field`) on a :class:`TrainData` into a run folder.
 
     Args:
         cfg: the configuration.
@@ -170,31 +166,18 @@ class Trainer:
         fit = np.setdiff1d(train, val)
         return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
 
-    def _init_field(self, rng: np.random.Generator) -> GaussianField:
+    def _init_field(self, rng: np.random.Generator) -> Field:
         if self.field_factory is not None:
             return self.field_factory(self, rng)
         return self.init_field(rng)
 
-    def init_field(self, rng: np.random.Generator) -> GaussianField | CoherentField:
-        """The Stage-1 initial field, taking ``extra_inputs`` extra per-view network inputs:
-        Gaussians from scene mesh points or random in the bounds (model "splat"), or the
-        scene's image sources (model "coherent")."""
-        if self.cfg.model == "coherent":
-            return self.init_coherent()
-        fc = self.cfg.field
-        meshes = self.data.meshes(self.scene_xml()) if fc.init == "mesh" else None
-        if fc.init == "mesh" and meshes is None:
-            raise ConfigError(f"field.init = 'mesh' but dataset {self.data.path} names no scene; "
-                              "use --set field.init=\"random\"")
-        bounds = self.data.bounds
-        if meshes:
-            allv = np.concatenate([v for v, _ in meshes])
-            bounds = (np.minimum(bounds[0], allv.min(0)), np.maximum(bounds[1], allv.max(0)))
-        else:
-            pad = 0.5
-            bounds = (bounds[0] - pad, bounds[1] + pad)
-        return GaussianField.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=self.data.source,
-                                        extra_inputs=self.extra_inputs, seed=self.cfg.seed, name=self.name)
+    def init_field(self, rng: np.random.Generator) -> Field:
+        """The Stage-1 initial field of ``cfg.model`` (a registered field kind, see
+        :func:`rfmitsuba.models.base.field_class`), taking ``extra_inputs`` extra per-view
+        network inputs: e.g. Gaussians on the scene's meshes ("splat") or the scene's image
+        sources ("coherent")."""
+        return field_class(self.cfg.model).for_training(self.cfg, self.data, scene_xml=self.scene_xml(), rng=rng,
+                                                        extra_inputs=self.extra_inputs, name=self.name)
 
     def scene_xml(self) -> Path | None:
         """The room's XML: ``cfg.scene`` when set, else the dataset's scene (None when neither)."""
@@ -203,23 +186,6 @@ class Trainer:
 
             return resolve_scene(self.cfg.scene)
         return self.data.scene_xml
-
-    def init_coherent(self) -> CoherentField:
-        """A :class:`CoherentField` on the image sources of the dataset's scene."""
-        from ..sim.geometry import RoomGeometry
-        from ..rf.images import scene_image_maps
-
-        xml = self.scene_xml()
-        if xml is None:
-            raise ConfigError(f"model = 'coherent' needs the scene geometry, but dataset {self.data.path} names no "
-                              "scene (NeRF2 folders): give one with --set scene=NAME_OR_XML, or use model = 'splat'")
-        c = self.cfg.coherent
-        geo = RoomGeometry.from_xml(xml)
-        maps = scene_image_maps(geo, room_order=c.room_order, furniture_order=c.furniture_order,
-                                min_face_area=c.min_face_area)
-        lo, hi = geo.bounds
-        return CoherentField(maps, box=np.stack([lo, hi]), cfg=c, frequency_hz=self.data.frequency_hz,
-                             seed=self.cfg.seed, name=self.name, extra_inputs=self.extra_inputs)
 
     def _lrs(self, step: int, train_time: float = 0.0) -> dict:
         """Learning rates of step ``step``: the schedule's progress is the larger of the share of
@@ -236,46 +202,18 @@ class Trainer:
                 "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
 
     # ---- rendering -------------------------------------------------------------------------
-    def render(self, field: GaussianField, idx: np.ndarray, *, h: int | None = None, w: int | None = None):
+    def views(self, idx: np.ndarray) -> Views:
+        """The views of antenna indices ``idx``; fields with extra inputs get ``extra(idx)``."""
+        return Views.of(self.data, idx, inputs=(lambda f: self.extra(idx)) if self.extra is not None else None)
+
+    def render(self, field: Field, idx: np.ndarray, *, h: int | None = None, w: int | None = None):
         """Render the trained field (and the frozen ones) at antenna indices ``idx``:
-        TensorXf [K, h, w] (default the training resolution)."""
-        from ..models.splat import Splats
-
+        TensorXf [K, h, w] (default the training resolution) on the loss's scale
+        (:func:`rfmitsuba.models.base.render` with ``normalize``)."""
         h, w = h or self.h, w or self.w
-        if isinstance(field, COHERENT_FIELDS):
-            return self._render_coherent(field, idx, h=h, w=w)
-        render = load_render()
-        vp = self.data.view_pos[idx]
-        sets = [self._splats(f, idx) for f in self.frozen] + [self._splats(field, idx)]
-        s = Splats.concat(sets)
-        if field.cfg.readout == "bartlett":
-            from ..rf.readout import BartlettReadout
+        return render(self.frozen + [field], self.views(idx), height=h, width=w, normalize=True)
 
-            ha, wa = field.cfg.arrival_grid
-            arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
-                         rx_to_world=self.data.rx_to_world, height=ha, width=wa, num_gaussians=s.n)
-            return BartlettReadout(ha, wa, h, w)(arr)
-        return render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, vp,
-                      rx_to_world=self.data.rx_to_world, height=h, width=w, num_gaussians=s.n)
-
-    def _render_coherent(self, field, idx: np.ndarray, *, h: int, w: int):
-        """Coherent fields (the frozen ones and the trained one): min-max normalised PAS [K, h, w]."""
-        from ..models.coherent_person import render_fields
-
-        x, y, q = self.data.positions(idx)
-
-        def extra(f):
-            return self.extra(idx) if (self.extra is not None and f.extra_inputs) else None
-
-        return render_fields(self.frozen + [field], x, y, q, extra=extra, frequency_hz=self.data.frequency_hz,
-                             height=h, width=w, rx_to_world=self.data.rx_to_world)
-
-    def _splats(self, field: GaussianField, idx: np.ndarray):
-        """A field's Splats for antenna indices ``idx`` (extra inputs where the field takes them)."""
-        ex = self.extra(idx) if (self.extra is not None and field.extra_inputs) else None
-        return field.splats(self.data.antenna_pos[idx], view_pos=self.data.view_pos[idx], extra=ex)
-
-    def predict(self, field: GaussianField, idx: np.ndarray, *, h: int = 90, w: int = 360,
+    def predict(self, field: Field, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
         """Predicted PAS (not normalised) at antenna indices: float32 [K, h, w]."""
         import drjit as dr
@@ -287,14 +225,12 @@ class Trainer:
             out.append(np.array(img.numpy(), dtype=np.float32).reshape(-1, h, w))
         return np.concatenate(out) if out else np.zeros((0, h, w), np.float32)
 
-    def validate(self, field: GaussianField, val: np.ndarray, gt: np.ndarray) -> float:
+    def validate(self, field: Field, val: np.ndarray, gt: np.ndarray) -> float:
         """Mean SSIM (SPEC protocol, at the training resolution) over the validation positions."""
-        from skimage.metrics import structural_similarity
-
         if len(val) == 0:
             return float("nan")
         pred = minmax(self.predict(field, val, h=self.h, w=self.w, batch=self.cfg.batch_views * 2))
-        return float(np.mean([structural_similarity(p, g, data_range=1.0) for p, g in zip(pred, gt)]))
+        return float(np.mean(ssim_images(pred, gt)))
 
     # ---- checkpoints ------------------------------------------------------------------------
     def _save_checkpoint(self, step, field, opt, strategy, rng, train_time, val_hist) -> None:
@@ -381,7 +317,7 @@ class Trainer:
         opt = Adam(lr=1e-3)
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
-        strategy = NoDensity() if isinstance(field, COHERENT_FIELDS) else DensityStrategy(cfg.density, prefix=self.prefix)
+        strategy = make_strategy(cfg.density, field, prefix=self.prefix)
 
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
@@ -390,11 +326,7 @@ class Trainer:
         self._trim_log(start)
         self._pull(field, opt)
 
-        def probe_opacity():
-            with dr.suspend_grad():
-                s = self._splats(field, probe)
-                op = np.asarray(s.opacities.numpy(), dtype=np.float32).reshape(len(probe), -1)
-            return op.max(axis=0)
+        probe_views = self.views(probe)
 
         from ..core.progress import bar
 
@@ -431,7 +363,7 @@ class Trainer:
                     raise RunError(f"loss became {lv} at step {step + 1}; lower the learning rates "
                                    f"(checkpoint of step {start} kept)")
                 step += 1
-                changed = strategy.step_end(step, field, opt, rng=rng, probe_opacity=probe_opacity)
+                changed = strategy.step_end(step, field, opt, rng=rng, probe_views=probe_views)
                 if changed:
                     self._pull(field, opt)
                 log_loss += lv
@@ -443,16 +375,16 @@ class Trainer:
                 if step % cfg.val_every == 0 or step == cfg.iterations:
                     last_val = self.validate(field, split["val"], gt_val)
                     strategy.on_validation(step, last_val)
-                    val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_gaussians,
+                    val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_primitives,
                                      "time_s": train_time})
                     row = {"val_ssim": last_val}
                     t_last = time.perf_counter()  # validation is not training time
                 if step % cfg.log_every == 0 or row is not None:
-                    self._log({"step": step, "loss": log_loss / max(log_n, 1), "n_gaussians": field.num_gaussians,
+                    self._log({"step": step, "loss": log_loss / max(log_n, 1), "n_gaussians": field.num_primitives,
                                "time_s": round(train_time, 3), **(row or {})})
                     log_loss, log_n = 0.0, 0
                 pbar.update(1)
-                pbar.set_postfix(loss=f"{lv:.4f}", val_ssim=f"{last_val:.3f}", n=field.num_gaussians)
+                pbar.set_postfix(loss=f"{lv:.4f}", val_ssim=f"{last_val:.3f}", n=field.num_primitives)
                 if step % cfg.checkpoint_every == 0:
                     self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
                     t_last = time.perf_counter()
@@ -464,7 +396,7 @@ class Trainer:
             self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
         return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
 
-    def _pull(self, field: GaussianField, opt) -> None:
+    def _pull(self, field: Field, opt) -> None:
         vals = {k[len(self.prefix):]: opt[k] for k in opt.keys() if k.startswith(self.prefix)}
         if vals:
             field.assign(vals)
@@ -487,13 +419,10 @@ class Trainer:
         fd = self.run_dir / "final"
         fd.mkdir(exist_ok=True)
         field.save(fd / "field.npz")
-        if isinstance(field, COHERENT_FIELDS):
-            x, y, _ = self.data.positions(split["fit"][:1])
-            field.write_ply(fd / "sources.ply", x=x[0], y=y[0], task=self.data.task)
-        else:
-            self._write_gaussians(field, split, fd)
+        fit = split["fit"]
+        field.export_ply(fd, views=self.views(fit[np.linspace(0, len(fit) - 1, min(32, len(fit))).astype(int)]))
         summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time, "model": self.cfg.model,
-                   "num_gaussians": field.num_gaussians, "num_parameters": field.num_parameters,
+                   "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
                    "network_parameters": field.network_parameters,
                    "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
@@ -502,18 +431,6 @@ class Trainer:
                    "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
         _write_json(fd / "summary.json", summary)
         return summary
-
-    def _write_gaussians(self, field: GaussianField, split: dict, fd: Path) -> None:
-        """PLY of the Gaussians (with their mean signal over training views) and the network weights."""
-        import drjit as dr
-
-        probe = split["fit"][np.linspace(0, len(split["fit"]) - 1, min(32, len(split["fit"]))).astype(int)]
-        with dr.suspend_grad():
-            s = self._splats(field, probe)
-            sig = np.asarray(s.signals.numpy(), dtype=np.float32).reshape(len(probe), -1).mean(axis=0)
-        write_ply(fd / "gaussians.ply", field, signal=sig)
-        np.savez(fd / "network.npz", **{k: v for k, v in field.state_dict().items() if "." in k or k == "box"})
-
 
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
     """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``.
@@ -524,8 +441,10 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     return Trainer(cfg, data, out, quiet=quiet).run()
 
 
-def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField, Trainer]:
-    """Open a finished run: (config, data, trained field, a Trainer for rendering)."""
+def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet]:
+    """Open a finished run: (config, data, a renderer of its trained field).
+
+    The renderer's ``fields[0]`` is the trained field; ``render(data, idx)`` gives raw PAS."""
     rd = Path(run_dir)
     if not (rd / "config.toml").is_file() or not (rd / "run.json").is_file():
         raise RunError(f"{rd} is not a run folder (no config.toml / run.json)")
@@ -536,9 +455,5 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, GaussianField
     if not fpath.is_file():
         raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")
     field = load_field(fpath)
-    tr = Trainer.__new__(Trainer)
-    tr.cfg, tr.data, tr.run_dir, tr.frozen, tr.quiet, tr.name, tr.prefix = cfg, data, rd, [], True, field.name, field.name + "."
-    tr.extra = None
-    tr.h, tr.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
-    tr.field = field
-    return cfg, data, field, tr
+    field.freeze()
+    return cfg, data, FieldSet([field])
