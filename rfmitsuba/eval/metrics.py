@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from ..rf.bartlett_ref import normalize as minmax
 from ..core.ssim import ssim_images
+import math
 
 def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
                   query_human: np.ndarray | None = None) -> np.ndarray:

@@ -21,11 +21,9 @@ no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 core
 from __future__ import annotations
 import dataclasses
 import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-import numpy as np
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.errors import RunError

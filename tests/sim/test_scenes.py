@@ -13,7 +13,7 @@ from rfmitsuba import scenes
 from rfmitsuba.core.errors import SceneError
 from rfmitsuba.sim.geometry import RoomGeometry
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 # interior sizes asked for in issue 2 (metres)
 SIZES = {"bedroom": (4.4, 3.5, 2.8), "living_room": (4.3, 3.5, 2.8), "dining_room": (4.5, 3.8, 2.8),

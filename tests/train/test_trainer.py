@@ -233,7 +233,7 @@ def test_shipped_configs_load():
     from rfmitsuba.core import config
     from rfmitsuba.train.config import TrainConfig
 
-    files = sorted((Path(__file__).parent.parent / "configs").glob("*.toml"))
+    files = sorted((Path(__file__).resolve().parents[2] / "configs").glob("*.toml"))
     assert files
     for f in files:
         cfg = config.load(TrainConfig, f)
