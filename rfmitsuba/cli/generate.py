@@ -35,9 +35,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..core.errors import ConfigError
     from ..data import store as D
     from ..sim import generate as gen
-    from ..core.errors import ConfigError
     from ..sim.geometry import RoomGeometry
     from ..sim.simulate import SolverConfig
 

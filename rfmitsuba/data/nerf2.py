@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import DatasetError
 from ..rf.grid import PAS_SHAPE
 from .split import Split, make_split
-from ..core.errors import DatasetError
 
 EXTRA = "rfmitsuba.json"
 

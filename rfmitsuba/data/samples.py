@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
+from ..rf.bartlett_ref import normalize as minmax
 from ..rf.grid import PAS_SHAPE
 from .views import TrainData, downsample
-from ..rf.bartlett_ref import normalize as minmax
 
 STATE_SETS = ("empty", "human", "all")
 
@@ -46,12 +47,8 @@ def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) 
     h = np.asarray(human_pos, np.float64).reshape(-1, 3)
     box = np.asarray(box, np.float64).reshape(2, 3)
     present = np.isfinite(h).all(axis=1)
-    x = np.where(present[:, None], (h - box[0]) / (box[1] - box[0]), 0.0) * 0.5
-    parts = [x]
-    for k in range(octaves):
-        f = 2.0 * np.pi * 2 ** k
-        parts += [np.sin(f * x), np.cos(f * x)]
-    out = np.concatenate(parts + [present[:, None].astype(np.float64)], axis=1)
+    x01 = np.where(present[:, None], (h - box[0]) / (box[1] - box[0]), 0.0)
+    out = np.concatenate([sin_encoding(x01, octaves), present[:, None].astype(np.float64)], axis=1)
     out[~present] = 0.0
     return out.astype(np.float32)
 

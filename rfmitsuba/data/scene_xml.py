@@ -1,13 +1,16 @@
 """Reading a Mitsuba scene XML: its shapes, meshes and transforms (no Mitsuba or Sionna needed).
 """
 from __future__ import annotations
+
 import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+
 import numpy as np
 import trimesh
+
 from ..core.errors import SceneError
 
 STRUCTURE_PREFIXES = ("wall", "floor", "ceiling", "door", "window")

@@ -1,27 +1,16 @@
-"""The on-disk PAS dataset: folder layout, atomic per-state chunks, splits.
+"""Train/test splits of a dataset: which antenna positions and which person (walk) positions
+are held out for testing.
 
-Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
-
-    meta.json          configuration, reproducibility record, units
-    split.json         antenna / human train-test indices and their seed
-    antenna_pos.npy    float32 [A, 3], metres, world frame
-    chunks/00000/      state 0: the empty room
-        pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
-        channel.npy    complex64 [A, 16], narrowband channel per element
-        chunk.json     sha256 of both arrays (checked by Dataset.verify)
-    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
-
-Each chunk folder is written under a temporary name and renamed when
-complete, so a folder named ``chunks/<state:05d>`` is either whole or was
-damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
-``k = state * A + antenna``.
-
-Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
-datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+:func:`make_split` draws ``ANTENNA_TEST_FRACTION`` of the antenna positions and
+``HUMAN_TEST_FRACTION`` of the walk positions as test positions from a seeded generator;
+:class:`Split` holds the index lists and round-trips to ``split.json``.
 """
 from __future__ import annotations
+
 from dataclasses import dataclass
+
 import numpy as np
+
 from ..core.errors import DatasetError
 
 #: Fractions of held-out antenna and human positions (SPEC "Splits").

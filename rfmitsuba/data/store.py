@@ -20,18 +20,21 @@ Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
 datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
 """
 from __future__ import annotations
+
 import hashlib
 import json
 import os
 import shutil
 from pathlib import Path
 from typing import Any
+
 import numpy as np
+
 from ..core.atomic import write_json
 from ..core.errors import DatasetError
-from .split import Split, make_split
-from ..rf.grid import PAS_SHAPE
 from ..rf.array import NUM_ELEMENTS
+from ..rf.grid import PAS_SHAPE
+from .split import Split, make_split
 
 FORMAT = "rfmitsuba-dataset/1"
 

@@ -1,35 +1,24 @@
-"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+"""The training views of one dataset state: :class:`TrainData`.
 
-* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
-  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
-* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
-  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
-* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
-  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
-  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
-  same result, a progress bar, and the run folder.
-
-Run folder layout::
-
-    config.toml      the TrainConfig (a run folder of another config is refused)
-    run.json         dataset path, task, split sizes, package versions
-    split.json       train / validation / test antenna indices
-    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
-    checkpoint/      latest resumable state (written atomically)
-    final/field.npz  the trained field (rfmitsuba.field.SplatField.load)
-    final/gaussians.ply, final/network.npz, final/summary.json
-
-Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
-(view = the fixed array, network input = transmitter position).
+It opens a dataset folder or a NeRF2 spectrum folder (:func:`rfmitsuba.data.store.open_dataset`)
+and gives, per antenna index, the min-max normalised PAS (optionally block-averaged by
+:func:`downsample`), the positions of the array, the transmitter and the moving device
+(moving RX: the array moves; moving TX: the transmitter moves, the array is fixed), the array
+frame, the split, the carrier and the scene's meshes where the dataset names a scene.
 """
 from __future__ import annotations
+
 from dataclasses import dataclass
 from pathlib import Path
-import numpy as np
-from ..core.errors import DatasetError
-from ..rf.bartlett_ref import normalize as minmax  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
-from ..rf.grid import PAS_SHAPE
 
+import numpy as np
+
+from ..core.errors import DatasetError
+from ..rf.bartlett_ref import (
+    normalize as minmax,  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
+)
+from ..rf.grid import PAS_SHAPE
+from .nerf2 import quaternion_matrix
 
 
 def downsample(x: np.ndarray, d: int) -> np.ndarray:
@@ -38,14 +27,6 @@ def downsample(x: np.ndarray, d: int) -> np.ndarray:
         return np.asarray(x, dtype=np.float32)
     k, h, w = x.shape
     return x.reshape(k, h // d, d, w // d, d).mean(axis=(2, 4)).astype(np.float32)
-
-
-def quat_xyzw_to_matrix(q) -> np.ndarray:
-    """3x3 rotation of a quaternion given as [x, y, z, w] (NeRF2 gateway_info.yml order)."""
-    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def _scene_xml(meta: dict, root: Path) -> Path | None:
@@ -124,7 +105,7 @@ class TrainData:
         meta = dict(getattr(ds, "meta", {}) or {})
         r2w = getattr(ds, "rx_to_world", None)
         if r2w is None and "gateway_orientation_xyzw" in meta:
-            r2w = quat_xyzw_to_matrix(meta["gateway_orientation_xyzw"])
+            r2w = quaternion_matrix(meta["gateway_orientation_xyzw"])
         r2w = None if r2w is None else np.asarray(r2w, dtype=np.float64).reshape(3, 3)
         view = ap.copy() if task == "rx" else np.tile(fixed, (len(ap), 1))
         sp = ds.split

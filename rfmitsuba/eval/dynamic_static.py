@@ -1,40 +1,29 @@
-"""The compared methods (a registry), how each trains, and the two evaluations.
+"""The two evaluations of a compared method (the paper's protocol), with their floors.
 
-Methods (:data:`METHODS`; budgets in optimizer steps, ``n1`` = Stage-1 steps, ``n2`` =
-Stage-2 steps of :class:`MethodConfig`):
+* **dynamic** - unseen antenna positions x unseen person positions, against the ground truth
+  with the person; nearest neighbour over (antenna, person) position among the training
+  samples with a person. Methods without a person input render one image for every person.
+* **static** - the background alone (person fields off; End-to-End with the "no person"
+  input) at unseen antenna positions, against the empty room; nearest neighbour over the
+  antenna position among the empty-room training samples.
+* **affected** - the dynamic evaluation restricted to the test PAS the person changes most
+  (SSIM against the empty room's PAS at the same antenna below :data:`AFFECTED_SSIM`), with
+  the empty room's own PAS as a third reference (the best any background-only model scores).
 
-==================  ================================================================  ===========
-name                what it trains                                                    steps
-==================  ================================================================  ===========
-baseline            one field on the empty-room data                                  n1
-continued           the baseline trained longer (same data)                           n1 + n2
-duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
-baseline_human      one field on empty + human-present data, no human position        n1 + n2
-end_to_end          one field on empty + human-present data, human position as input  n1 + n2
-ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
-                    Gaussians (:mod:`rfmitsuba.human_field`) on the human-present data
-==================  ================================================================  ===========
-
-So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
-stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
-human-present data at training antenna and training human positions).
-
-Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
-
-* **dynamic** - unseen antenna positions x unseen human positions, against the human-present
-  ground truth; nearest neighbour over (antenna, human) position among the human-present
-  training samples. Methods without a human input render the same image for every human.
-* **static** - the background alone (human Gaussians off; end-to-end with "no human" input)
-  at unseen antenna positions, against the empty-room ground truth; nearest neighbour over
-  the antenna position among empty-room training samples.
+A model is anything with ``render(data, idx)`` and ``num_primitives``: a
+:class:`~rfmitsuba.models.base.FieldSet`.
 """
 from __future__ import annotations
+
 import time
 from pathlib import Path
+
 import numpy as np
+
 from ..core.errors import RunError
 from ..data.samples import SampleData
 from ..rf.bartlett_ref import normalize as minmax
+
 
 def test_sets(data: SampleData) -> dict:
     """Sample indices (into ``data`` opened with states="all") of both evaluations:
@@ -65,7 +54,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
 
     data = SampleData.open_samples(dataset, states="all")
     sets = test_sets(data)
-    out = {"num_gaussians": model.num_gaussians}
+    out = {"num_gaussians": model.num_primitives}
     t_render, n_render = 0.0, 0
     for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
                                                  ("static", "static_test", "static_train", False)):

@@ -1,22 +1,15 @@
-"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
-
-Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
-normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
-data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
-Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
-position - and human position, where given - is nearest) and **mean image** (the mean of the
-normalised training PAS). Wall times of training and rendering are reported too.
-
-:func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
-(per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
-nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
-``ssim_vs_time.png`` (validation SSIM during training against wall time).
+"""Figures of an evaluation: the PAS grid (ground truth, prediction, nearest neighbour from
+worst to best), the SSIM CDF, and validation SSIM against training wall time.
 """
 from __future__ import annotations
+
 import json
 from pathlib import Path
+
 import numpy as np
+
 from ..core import plots
+
 
 def plot_grid(path: Path, gt: np.ndarray, pred: np.ndarray, nn: np.ndarray, s_model: np.ndarray,
               s_nn: np.ndarray, *, count: int = 6) -> None:

@@ -1,22 +1,21 @@
-"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
+"""The metric protocol's statistics and the model-free floors.
 
-Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
-normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
-data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
-Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
-position - and human position, where given - is nearest) and **mean image** (the mean of the
-normalised training PAS). Wall times of training and rendering are reported too.
-
-:func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
-(per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
-nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
-``ssim_vs_time.png`` (validation SSIM during training against wall time).
+Every predicted and true PAS is min-max normalised on its own and compared by
+:func:`rfmitsuba.core.ssim.ssim_images` per image. Floors on the same split: **nearest
+neighbour** (:func:`nearest_index`: the training PAS whose antenna position - and person
+position, where given - is nearest) and **mean image** (the mean of the normalised training
+PAS), from :func:`floors`. :func:`stats` summarises per-image SSIM (mean, median, p10, min,
+n); :func:`mean_std` gives mean and standard deviation over seeds.
 """
 from __future__ import annotations
-import numpy as np
-from ..rf.bartlett_ref import normalize as minmax
-from ..core.ssim import ssim_images
+
 import math
+
+import numpy as np
+
+from ..core.ssim import ssim_images
+from ..rf.bartlett_ref import normalize as minmax
+
 
 def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
                   query_human: np.ndarray | None = None) -> np.ndarray:

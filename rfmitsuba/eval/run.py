@@ -1,11 +1,5 @@
-"""Evaluation by the SPEC metric protocol, model-free floors, and the run report.
-
-Protocol (SPEC "Metric protocol"): every predicted and ground-truth PAS is min-max
-normalised on its own, compared with ``skimage.metrics.structural_similarity(pred, gt,
-data_range=1.0)`` (7x7 uniform window), per image; mean and median over the test set.
-Two floors on the same split: **nearest neighbour** (the training PAS whose antenna
-position - and human position, where given - is nearest) and **mean image** (the mean of the
-normalised training PAS). Wall times of training and rendering are reported too.
+"""Evaluation of one Stage-1 run folder on its test split, by the metric protocol of
+:mod:`rfmitsuba.core.ssim`, with the nearest-neighbour and mean-image floors.
 
 :func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
 (per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
@@ -13,16 +7,20 @@ nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
 ``ssim_vs_time.png`` (validation SSIM during training against wall time).
 """
 from __future__ import annotations
+
 import json
 import os
 import time
 from pathlib import Path
+
 import numpy as np
+
 from ..core.errors import RunError
+from ..core.ssim import ssim_images
 from ..rf.bartlett_ref import normalize as minmax
 from .figures import plot_cdf, plot_grid, plot_time
-from ..core.ssim import ssim_images
 from .metrics import floors, stats
+
 
 def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) -> dict:
     """Evaluate a finished run on its test split (full 90 x 360 resolution) and write ``RUN/eval``.

@@ -117,8 +117,8 @@ def _drjit_step_functions(n: int, height: int, width: int, views: int = 1):
     import drjit as dr
 
     from ..core import backend as B
-    from ..train import loss as ssim
     from ..splat.render import render
+    from ..train import loss as ssim
 
     B.ensure()
     (means, ls, rot, op, sig), rx = make_scene(n, views=views)

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +28,9 @@ import numpy as np
 from ..core import config as C
 from ..core.atomic import write_json, write_text
 from ..core.errors import ConfigError, RunError
-from .methods import METHODS, MethodConfig, get_method, run_job as methods_run_job
 from ..train.config import TrainConfig, config_diff
+from .methods import METHODS, MethodConfig, get_method
+from .methods import run_job as methods_run_job
 
 
 def default_methods_config() -> MethodConfig:

@@ -56,13 +56,13 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
         dataset: use this dataset folder instead of generating ``out/data``.
     """
     from ..core import config as C
+    from ..eval.dynamic_static import evaluate
     from ..models.coherent import CoherentConfig
-    from ..train.density import DensityConfig
     from ..models.splat import FieldConfig
     from ..models.splat_person import SplatPersonConfig
-    from .methods import MethodConfig, load_model, train_method
-    from ..eval.dynamic_static import evaluate
     from ..train.config import TrainConfig
+    from ..train.density import DensityConfig
+    from .methods import MethodConfig, load_model, train_method
 
     cfg = cfg or DemoConfig()
     if cfg.positions < 10 or cfg.human_positions < 2:

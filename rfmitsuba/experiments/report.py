@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import paper
 from ..core import plots
 from ..core.atomic import write_text
 from ..eval.dynamic_static import AFFECTED_SSIM
+from . import paper
 from .methods import METHODS
 
 LABEL = {k: m.label for k, m in METHODS.items()}

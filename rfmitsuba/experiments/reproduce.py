@@ -19,15 +19,18 @@ no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 core
 ``full`` (the paper's 900 positions x 35 walk positions).
 """
 from __future__ import annotations
+
 import dataclasses
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.errors import RunError
 from .sizes import DatasetSpec, ExperimentConfig, method_config
+
 
 @dataclass(frozen=True)
 class Job:
@@ -137,9 +140,9 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
     Raises:
         PlacementError: no seed works.
     """
-    from ..sim import person as human
-    from ..data.store import resolve_scene
     from ..core.errors import PlacementError, RfmError
+    from ..data.store import resolve_scene
+    from ..sim import person as human
     from ..sim.geometry import RoomGeometry
 
     if human_positions < 1:
@@ -176,8 +179,9 @@ def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet
     Raises:
         RunError: the job folder holds a job of another configuration (``job.json`` differs).
     """
-    from .methods import config_dict, run_job as methods_run_job
     from ..train.config import config_diff
+    from .methods import config_dict
+    from .methods import run_job as methods_run_job
 
     jd = job.folder(out)
     mcfg = method_config(cfg)

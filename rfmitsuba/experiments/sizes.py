@@ -1,25 +1,17 @@
-"""Reproduce the paper's tables: datasets, jobs, resumable runs, the Markdown report.
+"""The sizes of the paper's experiments: one configuration for every table.
 
-:func:`reproduce` runs an :class:`ExperimentConfig` into an output folder::
-
-    OUT/experiment.toml     the configuration (another configuration here -> RunError)
-    OUT/data/<dataset>/     generated datasets (unless --data points elsewhere)
-    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>]/
-        job.toml            what the job is (checked on resume)
-        train/ | stage2/    Trainer run folders (resumable from their checkpoints)
-        metrics.json        both evaluations, written atomically, then
-        DONE                the done-marker: finished jobs are skipped
-    OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
-
-Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
-Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
-first stage, as in the paper). Tables (:data:`TABLES`): main, two_stage, perturbation,
-material, large_room, positions, noise. Sizes (:data:`SIZES`): ``tiny`` (synthetic data,
-no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 cores) and
-``full`` (the paper's 900 positions x 35 walk positions).
+:class:`ExperimentConfig` (with :class:`DataSize` and :class:`TrainSize`) says which
+datasets are generated and how long every method trains; :data:`SIZES` holds the named sizes
+``tiny`` (synthetic data, tests), ``quick`` and ``full``; :func:`size_config` returns a copy of
+one. :class:`DatasetSpec` names one dataset of a table; :func:`method_config` turns an
+experiment's sizes into the :class:`~rfmitsuba.experiments.methods.MethodConfig` every
+method shares.
 """
 from __future__ import annotations
-from dataclasses import dataclass, field as dc_field
+
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+
 from ..core import config as C
 from ..core.errors import ConfigError
 
@@ -136,10 +128,10 @@ class DatasetSpec:
 def method_config(cfg: ExperimentConfig):
     """The :class:`rfmitsuba.methods.MethodConfig` of an experiment's training sizes."""
     from ..models.splat import FieldConfig
-    from ..train.density import DensityConfig
     from ..models.splat_person import SplatPersonConfig
-    from .methods import MethodConfig
     from ..train.config import TrainConfig
+    from ..train.density import DensityConfig
+    from .methods import MethodConfig
 
     t = cfg.train
     s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,

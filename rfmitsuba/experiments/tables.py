@@ -20,8 +20,8 @@ from pathlib import Path
 from ..core import config as C
 from ..core import plots
 from ..core.errors import ConfigError
-from ..train.config import TrainConfig
 from ..data.views import TrainData
+from ..train.config import TrainConfig
 from ..train.trainer import Trainer
 
 MOTIVATION_COUNTS = (900, 1500, 3600, 6000, 10000)

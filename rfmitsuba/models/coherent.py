@@ -21,7 +21,7 @@ position-dependent modulation from a small Dr.Jit network: ``q`` is the moving d
 position (``x`` in the moving-RX task, ``y`` in the moving-TX task), ``e_i`` a learned
 per-image embedding. The modulation learns where an image is visible (finite faces,
 furniture in the way), the angle dependence of reflection, and what the geometry misses.
-The PAS comes from :func:`rfmitsuba.bartlett.pas`, differentiable end to end.
+The PAS comes from :func:`rfmitsuba.rf.bartlett.bartlett`, differentiable end to end.
 
 Both tasks of the SPEC use the same formula: moving RX (``x`` moves, ``y`` = the fixed
 corner transmitter) and moving TX (``y`` moves, ``x`` = the fixed array), by the
@@ -33,15 +33,20 @@ Parameters (Dr.Jit ``Float`` arrays, :meth:`CoherentField.parameters`): ``amp`` 
 State is plain NumPy (npz, no pickle).
 """
 from __future__ import annotations
+
 import json
 from dataclasses import dataclass
 from pathlib import Path
+
 import numpy as np
-from ..rf import array as antenna
+
 from ..core import backend as B
+from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, RunError
+from ..rf import array as antenna
 from ..rf.images import ImageMaps
 from .base import Field, Views, register
+
 
 @dataclass
 class CoherentConfig:
@@ -86,17 +91,6 @@ def _columns(a: np.ndarray) -> list:
     from .splat import columns
 
     return columns(np.asarray(a, np.float32).reshape(len(a), -1))
-
-
-def sin_encoding(x01: np.ndarray, octaves: int) -> np.ndarray:
-    """``[x, sin(2 pi 2^k x), cos(2 pi 2^k x)]`` of inputs mapped to [0, 1] (float [K, D]), with
-    x = x01 / 2 so that the encoding does not alias over the box: float32 [K, D (1 + 2 octaves)]."""
-    x = 0.5 * np.asarray(x01, np.float64)
-    parts = [x]
-    for k in range(octaves):
-        f = 2.0 * np.pi * 2 ** k
-        parts += [np.sin(f * x), np.cos(f * x)]
-    return np.concatenate(parts, axis=1).astype(np.float32)
 
 
 def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) -> list:

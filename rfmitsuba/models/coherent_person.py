@@ -1,47 +1,42 @@
-"""Coherent image-source field: the channel as a sum of virtual sources, read out by Bartlett.
+"""Stage 2 in the coherent family: the person as a change of the channel the background
+(:class:`~rfmitsuba.models.coherent.CoherentField`) already draws.
 
-Why: a simulated (or measured) PAS is the Bartlett response of the array to the *coherent*
-sum of all paths, ``P = |sum_m w_m h_m|``. Paths that arrive together interfere and draw
-the dark arcs of the PAS; a sum of splats, which adds intensities, cannot draw them, and the
-interference pattern changes every few centimetres, faster than any smooth interpolator of
-the PAS can follow (see README, "Stage 1"). This field models what the array actually sees:
+Two person fields, chosen by :class:`CoherentPersonConfig` ``kind``:
 
-    h_m(x, y) = sum_i  g_i(x, y) * exp(-j k L_i) / L_i * exp(+j k r_m . u_i),
-    L_i = |M_i(y) - x|,  u_i = (M_i(y) - x) / L_i,
+* "scatter" - :class:`CoherentPersonField`: a few scattering points that move with the person;
+  each adds the two-leg paths transmitter -> (image of) the point -> array (via the room's
+  planes up to ``scatter_order``), with learned complex gains modulated by a network of the
+  person's features.
+* "perturb" - :class:`CoherentPerturbField`: the person modulates the background's own image
+  paths (blockage and change of each path's gain), from the person's features and where the
+  person stands relative to each path's legs (:func:`leg_features`); zero at initialisation,
+  so Stage 2 starts from the background.
 
-with the array centre ``x``, the transmitter ``y``, the image maps ``M_i`` of the room's
-planes (:mod:`rfmitsuba.images`; ``M_0`` = identity is the direct path), the element offsets
-``r_m`` and ``k = 2 pi / lambda``. Propagation phase and direction are exact geometry; what
-is learned is each image's complex gain
-
-    g_i(x, y) = a_i * (1 + s * net(enc(q), e_i, u_i)),
-
-a constant complex amplitude ``a_i`` (reflection coefficients, 1/(4 pi) factors) times a
-position-dependent modulation from a small Dr.Jit network: ``q`` is the moving device's
-position (``x`` in the moving-RX task, ``y`` in the moving-TX task), ``e_i`` a learned
-per-image embedding. The modulation learns where an image is visible (finite faces,
-furniture in the way), the angle dependence of reflection, and what the geometry misses.
-The PAS comes from :func:`rfmitsuba.bartlett.pas`, differentiable end to end.
-
-Both tasks of the SPEC use the same formula: moving RX (``x`` moves, ``y`` = the fixed
-corner transmitter) and moving TX (``y`` moves, ``x`` = the fixed array), by the
-synthetic-array rule of :mod:`rfmitsuba.simulate` (plane-wave phase per element, about the
-array centre).
-
-Parameters (Dr.Jit ``Float`` arrays, :meth:`CoherentField.parameters`): ``amp`` [S*2]
-(re, im per image), ``embed`` [S*E] and ``net.gain`` (packed MLP weights).
-State is plain NumPy (npz, no pickle).
+Both are person fields (``Field.person``): rendered only where a person is present, their
+channels added to the background's before one Bartlett read-out.
 """
 from __future__ import annotations
+
 from dataclasses import dataclass
 from pathlib import Path
+
 import numpy as np
-from ..rf import array as antenna
+
 from ..core import backend as B
+from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError
+from ..rf import array as antenna
 from ..rf.images import ImageMaps
 from .base import Views, register
-from .coherent import CoherentFamily, CoherentField, _cmul, _columns, _pair_inputs, _write_points_ply, sin_encoding, sum_terms
+from .coherent import (
+    CoherentFamily,
+    CoherentField,
+    _cmul,
+    _columns,
+    _pair_inputs,
+    _write_points_ply,
+    sum_terms,
+)
 
 HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
 
@@ -145,8 +140,8 @@ class CoherentPersonField(CoherentFamily):
     def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentPersonConfig | None = None,
                  frequency_hz: float = 2.4e9, reference_amplitude: float = 1.0, seed: int = 0,
                  name: str = "human", params: dict | None = None):
-        from .nn import MLP
         from ..data.samples import num_human_features
+        from .nn import MLP
 
         B.ensure()
         self.cfg = cfg or CoherentPersonConfig(kind="scatter")
@@ -369,8 +364,8 @@ class CoherentPerturbField(CoherentFamily):
 
     def __init__(self, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
                  name: str = "human", params: dict | None = None):
-        from .nn import MLP
         from ..data.samples import num_human_features
+        from .nn import MLP
 
         self.bg = bg
         self.cfg = cfg or CoherentPersonConfig()

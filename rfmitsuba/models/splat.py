@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 from typing import Literal
 
@@ -31,8 +32,8 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError, RunError, SceneError
-from .nn import EMNetwork, NetConfig
 from .base import Field, Views, register
+from .nn import EMNetwork, NetConfig
 
 #: Per-Gaussian parameters and their number of components.
 GAUSSIAN_KEYS = {"means": 3, "log_scales": 3, "rotations": 4, "opacity_logits": 1}

@@ -20,16 +20,17 @@ Positions are in metres (world frame), the human position is given as the featur
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 
 import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError, RunError
-from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, _logit, columns
-from .nn import MLP, NetConfig, encode
 from ..data.samples import num_human_features
 from .base import register
+from .nn import MLP, NetConfig, encode
+from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, _logit, columns
 
 
 @dataclass

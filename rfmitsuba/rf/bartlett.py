@@ -27,7 +27,6 @@ from ..core import backend as B
 from ..core.errors import ConfigError
 from .array import NUM_ELEMENTS
 
-
 _cache: dict = {}
 
 

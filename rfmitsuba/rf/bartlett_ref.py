@@ -15,10 +15,13 @@ peak 180 degrees away in azimuth.
 All K images come from one complex matrix product ``[pixels, 16] x [16, K]``.
 """
 from __future__ import annotations
+
 import numpy as np
-from . import array as antenna
+
 from ..core.errors import ConfigError
+from . import array as antenna
 from .grid import angle_grid, directions
+
 
 def beamformer(*, frequency_hz: float, positions: np.ndarray | None = None,
                resolution_deg: float = 1.0) -> np.ndarray:

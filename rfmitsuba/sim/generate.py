@@ -1,33 +1,36 @@
-"""The on-disk PAS dataset: folder layout, atomic per-state chunks, splits.
+"""Dataset generation: place antennas in a room, walk the person, ray-trace every state with
+Sionna RT (:mod:`rfmitsuba.sim.simulate`) and write the dataset store (:mod:`rfmitsuba.data.store`).
 
-Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
-
-    meta.json          configuration, reproducibility record, units
-    split.json         antenna / human train-test indices and their seed
-    antenna_pos.npy    float32 [A, 3], metres, world frame
-    chunks/00000/      state 0: the empty room
-        pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
-        channel.npy    complex64 [A, 16], narrowband channel per element
-        chunk.json     sha256 of both arrays (checked by Dataset.verify)
-    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
-
-Each chunk folder is written under a temporary name and renamed when
-complete, so a folder named ``chunks/<state:05d>`` is either whole or was
-damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
-``k = state * A + antenna``.
-
-Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
-datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+:func:`generate` writes one chunk per state (the empty room, then one per walk position),
+resumes an interrupted run chunk by chunk (``repair`` re-simulates damaged chunks), and
+records the configuration, seeds and versions in ``meta.json`` and the timings in
+``timing.json``. :class:`GenerateConfig` is everything it simulates; :func:`quick_config`
+is the ``--quick`` size.
 """
 from __future__ import annotations
+
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
 import numpy as np
+
 from ..core.errors import DatasetError, PlacementError
-from ..data.store import Dataset, _scene_record, _write_json, base_meta, check_chunk, chunk_name, prepare_folder, remove_stale_tmp, resolve_scene, write_chunk
 from ..data.split import make_split
+from ..data.store import (
+    Dataset,
+    _scene_record,
+    _write_json,
+    base_meta,
+    check_chunk,
+    chunk_name,
+    prepare_folder,
+    remove_stale_tmp,
+    resolve_scene,
+    write_chunk,
+)
+
 
 @dataclass
 class GenerateConfig:
@@ -131,13 +134,12 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
     """
     import time
 
-    from . import person as human
+    from ..core import config as _config
     from ..core import progress
+    from ..core.errors import ConfigError
+    from . import person as human
     from .geometry import RoomGeometry
     from .simulate import Simulator, SolverConfig, versions
-
-    from ..core import config as _config
-    from ..core.errors import ConfigError
 
     if cfg.task not in ("rx", "tx"):
         raise ConfigError(f"task must be 'rx' or 'tx', got {cfg.task!r}")

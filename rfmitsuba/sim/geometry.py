@@ -29,10 +29,13 @@ clearances enlarge each hull's faces outward by the clearance (a box grows by
 the clearance on every side). All distances are metres.
 """
 from __future__ import annotations
+
 import math
 from pathlib import Path
+
 import numpy as np
 import trimesh
+
 from ..core.errors import PlacementError, SceneError
 from ..data.scene_xml import Shape, read_shapes
 

@@ -168,8 +168,8 @@ def scene_object(folder: str | Path, *, kind: str = "tissue", name: str = "human
     object's name, as Sionna requires). With ``position`` (float [3], metres, the feet) the
     object is placed there, else it stands at the origin.
     """
-    from ..core import backend
     from .. import plugins
+    from ..core import backend
 
     backend.variant()
     plugins.register()

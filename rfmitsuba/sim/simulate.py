@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..rf import array as antenna
 from ..core.errors import ConfigError, PlacementError, SceneError
+from ..rf import array as antenna
 
 #: Name of the perturber object inside the Sionna scene.
 HUMAN_ID = "rfm-human"
@@ -134,6 +134,7 @@ class Simulator:
     def __init__(self, scene_xml: str | Path, *, fixed_pos, frequency_hz: float = 2.4e9,
                  solver: SolverConfig | None = None):
         import rfmitsuba  # noqa: F401  (libLLVM first)
+
         from ..core import backend
 
         backend.variant()  # selects the default variant on first use

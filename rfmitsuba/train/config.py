@@ -1,36 +1,25 @@
-"""Training of a Gaussian radio field (Stage 1: the empty-room background).
+"""Typed training configuration, with a TOML round trip (:mod:`rfmitsuba.core.config`).
 
-* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
-  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
-* :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
-  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
-* :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
-  loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
-  control, validation SSIM on held-out *training* positions, checkpoints that resume to the
-  same result, a progress bar, and the run folder.
-
-Run folder layout::
-
-    config.toml      the TrainConfig (a run folder of another config is refused)
-    run.json         dataset path, task, split sizes, package versions
-    split.json       train / validation / test antenna indices
-    log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
-    checkpoint/      latest resumable state (written atomically)
-    final/field.npz  the trained field (rfmitsuba.field.SplatField.load)
-    final/gaussians.ply, final/network.npz, final/summary.json
-
-Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
-(view = the fixed array, network input = transmitter position).
+:class:`TrainConfig` holds the step counts, batch, resolution, seed, validation and checkpoint
+cadence, the model kind (``model``: a registered field kind, "splat" or "coherent") and the
+sub-configurations of each family (``field``, ``coherent``, ``density``) and of the optimizer
+(:class:`OptimConfig`). :func:`quick_config` is the ``--quick`` size; :func:`config_diff`
+names the keys in which two configurations differ (a run folder of another configuration is
+refused with that list).
 """
 from __future__ import annotations
+
 import math
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from typing import Literal
+
 from ..core import config as C
-from ..models.coherent import CoherentConfig
-from .density import DensityConfig
 from ..core.errors import ConfigError
+from ..models.coherent import CoherentConfig
 from ..models.splat import FieldConfig
+from .density import DensityConfig
+
 
 @dataclass
 class OptimConfig:

@@ -40,7 +40,9 @@ from ..core.errors import ConfigError, RunError
 from ..core.ssim import ssim_images
 from ..data.views import TrainData
 from ..models.base import Field, FieldSet, Views, field_class, load_field, render
-from ..rf.bartlett_ref import normalize as minmax  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
+from ..rf.bartlett_ref import (
+    normalize as minmax,  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
+)
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
 from .density import make_strategy

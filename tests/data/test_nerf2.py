@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from rfmitsuba.data import store as D
-from rfmitsuba.data import nerf2
 from rfmitsuba.core.errors import DatasetError
+from rfmitsuba.data import nerf2
+from rfmitsuba.data import store as D
 
 
 @pytest.fixture

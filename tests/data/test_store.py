@@ -6,10 +6,10 @@ import shutil
 import numpy as np
 import pytest
 
+from rfmitsuba.core.errors import DatasetError, PlacementError
+from rfmitsuba.data import split as splits
 from rfmitsuba.data import store as D
 from rfmitsuba.sim import generate as gen
-from rfmitsuba.data import split as splits
-from rfmitsuba.core.errors import DatasetError, PlacementError
 
 
 def tiny(path, S=3, A=10, seed=0, **kw):
@@ -141,8 +141,8 @@ def test_config_diff_names_nested_key():
 
 def test_quick_dataset_contents(quick_dataset):
     ds = quick_dataset
-    from rfmitsuba.sim.geometry import RoomGeometry
     from rfmitsuba.sim import person as human
+    from rfmitsuba.sim.geometry import RoomGeometry
 
     assert ds.num_antennas == gen.QUICK["positions"] and ds.num_states == 1 + gen.QUICK["human_positions"]
     assert ds.meta["scene"]["name"] == "bedroom" and len(ds.meta["scene"]["sha256"]) == 64

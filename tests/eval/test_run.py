@@ -74,8 +74,8 @@ def test_evaluate_run_writes_report(tmp_path, variant):
 
     from rfmitsuba.cli import main
     from rfmitsuba.core.errors import RunError
-    from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.data.views import TrainData
+    from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.train.trainer import Trainer
 
     ds = make_dataset(tmp_path / "ds", num_antennas=30)

@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
-
 import splat_reference as ref
+
 from rfmitsuba.cli import main
 from rfmitsuba.experiments import bench
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from job_metrics import age_metrics
+
 from rfmitsuba.core.errors import ConfigError, RunError
 
 

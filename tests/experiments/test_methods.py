@@ -10,8 +10,8 @@ from rfmitsuba.models.base import FieldSet
 
 def _mcfg(stage1, stage2):
     from rfmitsuba.core import config as C
-    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.experiments.methods import MethodConfig
+    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.train.config import TrainConfig
 
     s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
@@ -46,8 +46,8 @@ def trained(synthetic_ds, tmp_path_factory):
 
 def test_two_stage_beats_frozen_background(trained, synthetic_ds):
     """Same frozen background with and without the human Gaussians, on unseen antennas x unseen humans."""
-    from rfmitsuba.experiments import methods
     from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.experiments import methods
 
     ours = dynamic_static.evaluate(methods.load_model("ours", trained / "ours"), synthetic_ds)
     bg = dynamic_static.evaluate(methods.load_model("baseline", trained / "baseline"), synthetic_ds)
@@ -63,10 +63,10 @@ def test_two_stage_beats_frozen_background(trained, synthetic_ds):
 def test_affected_subset_matches_a_direct_count(trained, synthetic_ds):
     """The "affected" part: the dynamic test PAS whose SSIM against the empty room's PAS at the same
     antenna is below 0.9, recounted here sample by sample."""
-    from rfmitsuba.experiments import methods
-    from rfmitsuba.eval import dynamic_static
     from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.experiments import methods
 
     ours = dynamic_static.evaluate(methods.load_model("ours", trained / "ours"), synthetic_ds)
     bg = dynamic_static.evaluate(methods.load_model("baseline", trained / "baseline"), synthetic_ds)
@@ -87,8 +87,8 @@ def test_affected_subset_matches_a_direct_count(trained, synthetic_ds):
 
 
 def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
-    from rfmitsuba.experiments import methods
     from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.experiments import methods
 
     mc = _mcfg(10, 5)
     s = methods.train_method("end_to_end", synthetic_ds, tmp_path / "e", mcfg=mc, seed=1)
@@ -104,8 +104,8 @@ def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
 
 
 def test_missing_stage1(synthetic_ds, tmp_path):
-    from rfmitsuba.experiments import methods
     from rfmitsuba.core.errors import RunError
+    from rfmitsuba.experiments import methods
 
     with pytest.raises(RunError, match="has not finished"):
         methods.train_method("ours", synthetic_ds, tmp_path / "o", mcfg=_mcfg(5, 5), stage1_dir=tmp_path / "nothing")
@@ -130,12 +130,15 @@ def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dat
     paths; "scatter": scattering points that move with the person). On the human-present training
     samples the background plus the person fits better than the frozen background alone, and the
     static evaluation renders the background alone (the person off)."""
-    from rfmitsuba.experiments import methods
-    from rfmitsuba.eval import dynamic_static
-    from rfmitsuba.models.coherent import CoherentField
-    from rfmitsuba.models.coherent_person import CoherentPersonField, CoherentPerturbField
     from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.experiments import methods
+    from rfmitsuba.models.coherent import CoherentField
+    from rfmitsuba.models.coherent_person import (
+        CoherentPersonField,
+        CoherentPerturbField,
+    )
     from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     mc = _coherent_mcfg(150, 150, kind)
@@ -158,9 +161,9 @@ def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dat
 
 
 def test_coherent_end_to_end_takes_the_human_features(quick_dataset, tmp_path):
-    from rfmitsuba.experiments import methods
-    from rfmitsuba.eval import dynamic_static
     from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.experiments import methods
 
     mc = _coherent_mcfg(20, 10)
     methods.train_method("end_to_end", quick_dataset.path, tmp_path / "e2e", mcfg=mc, seed=0)

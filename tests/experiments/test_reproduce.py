@@ -49,8 +49,8 @@ def test_other_configuration_is_refused(tiny_reproduction):
 
 
 def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
-    from rfmitsuba.experiments.sizes import DatasetSpec
     from rfmitsuba.experiments.reproduce import Job, run_job
+    from rfmitsuba.experiments.sizes import DatasetSpec
 
     out, cfg, _, _ = tiny_reproduction
     job = Job(DatasetSpec("bedroom", "rx"), "baseline", 0)
@@ -66,8 +66,8 @@ def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
 def test_config_round_trip_and_jobs():
     from rfmitsuba.core import config as C
     from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.experiments.sizes import SIZES, ExperimentConfig, size_config
     from rfmitsuba.experiments.reproduce import all_jobs
+    from rfmitsuba.experiments.sizes import SIZES, ExperimentConfig, size_config
 
     for name in SIZES:
         cfg = size_config(name)
@@ -92,6 +92,7 @@ def test_reevaluate_rewrites_metrics_without_training(tiny_reproduction, tmp_pat
     import shutil
 
     from job_metrics import age_metrics
+
     from rfmitsuba.experiments.reproduce import reproduce
 
     src, cfg, _, _ = tiny_reproduction

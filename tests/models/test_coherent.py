@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from rfmitsuba.rf import array as antenna, images
 from rfmitsuba.core.errors import ConfigError, RunError
+from rfmitsuba.rf import array as antenna
+from rfmitsuba.rf import images
 
 F = 2.4e9
 K = 2 * np.pi / antenna.wavelength(F)
@@ -101,8 +102,12 @@ def test_gradients_match_finite_differences(variant):
 def human_point_on_the_direct_path(x, y):
     """A human field with one scattering point at the middle of the direct segment x -> y, only its
     first path family (direct in, direct out) switched on, and networks that output 0."""
-    from rfmitsuba.models.coherent_person import CoherentPersonConfig, CoherentPersonField, scatter_paths
     from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.models.coherent_person import (
+        CoherentPersonConfig,
+        CoherentPersonField,
+        scatter_paths,
+    )
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     cfg = CoherentPersonConfig(num_points=1)
@@ -133,9 +138,9 @@ def test_a_scatterer_on_the_direct_path_has_its_length_and_direction(variant):
 
 
 def test_state_round_trips_and_load_field(variant, tmp_path):
+    from rfmitsuba.models.base import load_field
     from rfmitsuba.models.coherent import CoherentField
     from rfmitsuba.models.coherent_person import CoherentPersonField
-    from rfmitsuba.models.base import load_field
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=2, furniture_order=0)
     f = CoherentField(maps, box=BOX, frequency_hz=F, seed=4)
@@ -202,10 +207,13 @@ def test_leg_features_closed_form():
 def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
     """The perturbation field adds nothing before training (its network's last layer is zero), is
     saved with its background, and loads back to the same channels."""
-    from rfmitsuba.models.coherent import CoherentField
-    from rfmitsuba.models.coherent_person import CoherentPersonConfig, CoherentPerturbField
-    from rfmitsuba.models.base import load_field
     from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.models.base import load_field
+    from rfmitsuba.models.coherent import CoherentField
+    from rfmitsuba.models.coherent_person import (
+        CoherentPersonConfig,
+        CoherentPerturbField,
+    )
 
     maps = images.image_maps(images.box_planes(*BOX), room_order=1, furniture_order=0)
     bg = CoherentField(maps, box=BOX, frequency_hz=F, seed=1)

@@ -52,8 +52,8 @@ def test_scene_meshes_of_the_bedroom_and_missing_file(tmp_path):
 
 
 def _field(n=6, **kw):
-    from rfmitsuba.models.splat import FieldConfig, SplatField
     from rfmitsuba.models.nn import NetConfig
+    from rfmitsuba.models.splat import FieldConfig, SplatField
 
     cfg = FieldConfig(init_scale=0.2, net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1), **kw)
     pts = np.random.default_rng(0).uniform(0, 3, (n, 3))

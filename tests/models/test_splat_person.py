@@ -105,8 +105,8 @@ def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp
 
 def methods_config(*, stage1, stage2):
     from rfmitsuba.core import config as C
-    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.experiments.methods import MethodConfig
+    from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.train.config import TrainConfig
 
     s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",

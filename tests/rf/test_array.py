@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from rfmitsuba.rf import array as antenna
 from rfmitsuba.core.errors import ConfigError
+from rfmitsuba.rf import array as antenna
 
 
 def test_wavelength_2_4ghz():

@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from rfmitsuba.rf import array as antenna, bartlett_ref as pas
-from rfmitsuba.rf import grid
 from rfmitsuba.core.errors import ConfigError
+from rfmitsuba.rf import array as antenna
+from rfmitsuba.rf import bartlett_ref as pas
+from rfmitsuba.rf import grid
 
 F = 2.4e9
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfmitsuba.rf import images
 from rfmitsuba.core.errors import ConfigError
+from rfmitsuba.rf import images
 
 LO, HI = np.zeros(3), np.array([4.0, 3.0, 2.6])
 

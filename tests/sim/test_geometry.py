@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba import scenes
 from rfmitsuba.core.errors import PlacementError, SceneError
-from rfmitsuba.sim.geometry import RoomGeometry
 from rfmitsuba.data.scene_xml import kind_of, object_of
+from rfmitsuba.sim import scene_builder as sb
+from rfmitsuba.sim.geometry import RoomGeometry
 
 
 @pytest.fixture(scope="module")

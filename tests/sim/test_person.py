@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
-
-from rfmitsuba.sim import person as human
-from rfmitsuba.core.errors import PlacementError
-from rfmitsuba.sim.geometry import RoomGeometry
-from rfmitsuba import scenes
 import trimesh
+
+from rfmitsuba import scenes
+from rfmitsuba.core.errors import PlacementError
+from rfmitsuba.sim import person as human
+from rfmitsuba.sim.geometry import RoomGeometry
 
 
 @pytest.fixture(scope="module")

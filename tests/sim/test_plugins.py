@@ -17,10 +17,9 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
+import rfmitsuba.plugins as plugins_pkg
 import trimesh
 from scipy.constants import epsilon_0, pi
-
-import rfmitsuba.plugins as plugins_pkg
 
 
 def _plugin_modules():
@@ -221,7 +220,10 @@ def test_complex_permittivity_at_2_4_ghz(scene):
 def test_thick_slab_reflects_like_a_half_space(scene):
     """Normal incidence on a thick lossy slab: Sionna's slab coefficient -> Fresnel (1 - n)/(1 + n)."""
     import mitsuba as mi
-    from sionna.rt.utils import complex_relative_permittivity, itu_coefficients_single_layer_slab
+    from sionna.rt.utils import (
+        complex_relative_permittivity,
+        itu_coefficients_single_layer_slab,
+    )
 
     m = scene.get("person").radio_material
     f = 2.4e9

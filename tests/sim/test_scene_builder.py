@@ -7,11 +7,11 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 import trimesh
+from rfmitsuba.scenes import catalog
 
 from rfmitsuba.core import config
-from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba.core.errors import SceneError
-from rfmitsuba.scenes import catalog
+from rfmitsuba.sim import scene_builder as sb
 
 
 def small_room(**kw) -> sb.RoomDescription:

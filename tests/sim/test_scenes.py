@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba import scenes
 from rfmitsuba.core.errors import SceneError
+from rfmitsuba.sim import scene_builder as sb
 from rfmitsuba.sim.geometry import RoomGeometry
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -2,12 +2,12 @@
 with an explicit reverse solve, and reproducibility."""
 import numpy as np
 import pytest
-
-from rfmitsuba.rf import array as antenna, bartlett_ref as pas
-from rfmitsuba.rf import grid
-from rfmitsuba.core.errors import ConfigError, PlacementError, SceneError
-
 from conftest import write_quads_scene
+
+from rfmitsuba.core.errors import ConfigError, PlacementError, SceneError
+from rfmitsuba.rf import array as antenna
+from rfmitsuba.rf import bartlett_ref as pas
+from rfmitsuba.rf import grid
 
 F = 2.4e9
 

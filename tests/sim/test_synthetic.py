@@ -6,8 +6,8 @@ import pytest
 
 
 def test_human_perturbs_the_pas(synthetic_ds):
-    from rfmitsuba.data.store import open_dataset
     from rfmitsuba.core.ssim import ssim_images
+    from rfmitsuba.data.store import open_dataset
     from rfmitsuba.rf.bartlett_ref import normalize as minmax
 
     ds = open_dataset(synthetic_ds)
@@ -18,8 +18,8 @@ def test_human_perturbs_the_pas(synthetic_ds):
 
 
 def test_bad_sizes(tmp_path):
-    from rfmitsuba.sim import synthetic
     from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.sim import synthetic
 
     with pytest.raises(ConfigError, match="antennas"):
         synthetic.make_dataset(tmp_path / "x", antennas=2, humans=3)

@@ -5,10 +5,10 @@ import math
 
 import numpy as np
 import pytest
+from test_splat_render import to_jit
 
 from rfmitsuba.core import backend as B
 from rfmitsuba.splat.project import DILATION, project
-from test_splat_render import to_jit
 
 
 def run(means, scales, rx=(0.0, 0.0, 0.0), rot=None, quats=None, h=90, w=360, near=0.05):

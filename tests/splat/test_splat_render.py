@@ -7,8 +7,8 @@ import math
 import drjit as dr
 import numpy as np
 import pytest
-
 import splat_reference as ref
+
 from rfmitsuba.core import backend as B
 from rfmitsuba.core.errors import GaussianError
 from rfmitsuba.splat import as_jit_array, render

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
-
 import splat_reference as ref
+from test_splat_render import random_scene, to_jit
+
 from rfmitsuba.core import backend as B
 from rfmitsuba.splat import tiles
 from rfmitsuba.splat.project import project
-from test_splat_render import random_scene, to_jit
 
 
 def projected(scene, rx, h, w):

@@ -9,9 +9,9 @@ def _setup(n=6, scale=0.02, **cfg_kw):
     from drjit.opt import Adam
 
     from rfmitsuba.core import backend as B
-    from rfmitsuba.train.density import DensityConfig, DensityStrategy
-    from rfmitsuba.models.splat import FieldConfig, SplatField
     from rfmitsuba.models.nn import NetConfig
+    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.train.density import DensityConfig, DensityStrategy
 
     pts = np.stack([np.arange(n, dtype=float), np.zeros(n), np.ones(n)], 1)
     f = SplatField.from_points(pts, cfg=FieldConfig(init_scale=scale, net=NetConfig(width=4)),
@@ -123,8 +123,8 @@ def test_after_backward_accumulates_gradient_norms(variant):
 
 
 def test_bad_density_config():
-    from rfmitsuba.train.density import DensityConfig
     from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.train.density import DensityConfig
 
     with pytest.raises(ConfigError, match="every"):
         DensityConfig(every=0)

@@ -6,7 +6,6 @@ import shutil
 
 import numpy as np
 import pytest
-
 from stage1_data import make_dataset
 
 
@@ -50,8 +49,8 @@ def test_config_round_trip_and_unknown_option():
 
 
 def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
-    from rfmitsuba.models.splat import SplatField, read_ply
     from rfmitsuba.data.views import TrainData
+    from rfmitsuba.models.splat import SplatField, read_ply
     from rfmitsuba.train.trainer import Trainer
 
     run = tmp_path / "run"
@@ -135,8 +134,8 @@ def test_bad_datasets_are_clear_errors(tiny_ds, tmp_path):
 
 
 def test_nan_in_pas_names_the_position(tmp_path, variant):
-    from rfmitsuba.data.store import write_dataset
     from rfmitsuba.core.errors import DatasetError
+    from rfmitsuba.data.store import write_dataset
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.trainer import Trainer
 
@@ -182,11 +181,11 @@ def test_moving_tx_task_trains(tmp_path, variant):
 def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
     the gateway orientation reaches the renderer as rx_to_world; no scene -> random init."""
+    from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
-    from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.data.views import TrainData
+    from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.train.trainer import Trainer
 
     ds = make_dataset(tmp_path / "tx", num_antennas=30, task="tx")
@@ -204,8 +203,8 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
 def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
     """What Stage 2 does: load and freeze a trained background, train a second set with an extra
     network input rendered in the same call; the background does not change."""
-    from rfmitsuba.models.splat import SplatField
     from rfmitsuba.data.views import TrainData
+    from rfmitsuba.models.splat import SplatField
     from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
@@ -273,9 +272,9 @@ def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bed
     --set coherent.room_order=2 --set coherent.furniture_order=1`` on the fixture's dataset. (With
     80 training positions the model does not beat nearest neighbour: it has more parameters than
     80 PAS constrain.)"""
+    from rfmitsuba.data.views import TrainData
     from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.models.splat import read_ply
-    from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(empty_bedroom)
@@ -317,9 +316,9 @@ def test_coherent_killed_run_resumes_to_the_same_result(quick_dataset, tmp_path,
 
 def test_coherent_needs_a_scene_and_takes_one_for_a_nerf2_folder(quick_dataset, tmp_path):
     """A NeRF2 folder names no scene: the coherent model says so, and trains with --set scene=..."""
+    from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
-    from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.trainer import Trainer
 
