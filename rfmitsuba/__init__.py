@@ -3,7 +3,7 @@
 Importing the package points Dr.Jit at a libLLVM >= 16 (``DRJIT_LIBLLVM_PATH``)
 before Dr.Jit starts; import :mod:`rfmitsuba` before :mod:`drjit` or
 :mod:`mitsuba`. The Mitsuba/Dr.Jit variant is chosen on first use, see
-:mod:`rfmitsuba.backend`.
+:mod:`rfmitsuba.core.backend`.
 """
 from .core import _llvm
 

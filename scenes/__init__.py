@@ -36,7 +36,7 @@ def path(name: str) -> Path:
 
 
 def description(name: str):
-    """The :class:`rfmitsuba.scene_builder.RoomDescription` that built room ``name``."""
+    """The :class:`rfmitsuba.sim.scene_builder.RoomDescription` that built room ``name``."""
     from .catalog import ROOMS
 
     if name not in ROOMS:

@@ -1,7 +1,7 @@
 """Descriptions of the built-in rooms (the source of ``scenes/<name>/``).
 
 ``scripts/build_scenes.py`` writes each description with
-:func:`rfmitsuba.scene_builder.write_scene`; edit a room here, then run the
+:func:`rfmitsuba.sim.scene_builder.write_scene`; edit a room here, then run the
 script and commit the XML and meshes with it. Furniture stands 1 cm off the
 walls so that no face of it is coplanar with a wall face.
 
@@ -12,7 +12,17 @@ textile; carpet tile is the nearest soft furnishing); metal appliances.
 """
 from __future__ import annotations
 
-from rfmitsuba.sim.scene_builder import Material, Opening, RoomDescription, bed, block, chair, shelf, sofa, table
+from rfmitsuba.sim.scene_builder import (
+    Material,
+    Opening,
+    RoomDescription,
+    bed,
+    block,
+    chair,
+    shelf,
+    sofa,
+    table,
+)
 
 G = 0.01  # gap between furniture and walls, metres
 

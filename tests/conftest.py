@@ -92,7 +92,7 @@ def quick_dataset(tmp_path_factory, variant):
 @pytest.fixture(scope="session")
 def synthetic_ds(tmp_path_factory, variant):
     """A synthetic dynamic dataset (30 antennas x (1 + 6) states) rendered from known background and
-    human Gaussians (rfmitsuba.synthetic.make_dataset, seed 0); no Sionna."""
+    human Gaussians (rfmitsuba.sim.synthetic.make_dataset, seed 0); no Sionna."""
     from rfmitsuba.sim import synthetic
 
     out = tmp_path_factory.mktemp("synthetic") / "ds"

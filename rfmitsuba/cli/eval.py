@@ -1,4 +1,4 @@
-"""``rfmitsuba eval RUN``: SPEC-protocol evaluation of a trained run, with floors and plots."""
+"""``rfmitsuba eval RUN``: metric-protocol evaluation of a trained run, with floors and plots."""
 from __future__ import annotations
 
 

@@ -21,7 +21,7 @@ def register(sub) -> None:
 
 
 def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
-    """Per-image SSIM (SPEC protocol) between the empty-room PAS and each human-present PAS: float64 [S-1, A]."""
+    """Per-image SSIM (metric protocol (docs/conventions.md)) between the empty-room PAS and each human-present PAS: float64 [S-1, A]."""
     from ..core import progress
     from ..core.ssim import ssim_images
     from ..rf.bartlett_ref import normalize

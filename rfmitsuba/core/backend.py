@@ -13,7 +13,7 @@ Choice of variant, first match wins:
    ``llvm_ad_mono_polarized``.
 
 Array types are read at call time: ``from rfmitsuba import backend as B`` then
-``B.Float(...)``, never ``from rfmitsuba.backend import Float`` (that copy would
+``B.Float(...)``, never ``from rfmitsuba.core.backend import Float`` (that copy would
 not follow a later :func:`set_variant`).
 """
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Every config in rfmitsuba is a (possibly nested) ``@dataclass``. Fields may be
 ``bool``, ``int``, ``float``, ``str``, ``Optional[...]``, ``list[...]``/``tuple[...]``
 of those, or another dataclass. :func:`from_dict` checks types and rejects
-unknown keys with a :class:`~rfmitsuba.errors.ConfigError` naming the key; no
+unknown keys with a :class:`~rfmitsuba.core.errors.ConfigError` naming the key; no
 ``eval`` and no pickle are involved.
 
 Example::

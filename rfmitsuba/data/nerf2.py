@@ -3,7 +3,7 @@
 A folder holds::
 
     spectrum/00001.png ...   90 x 360 8-bit greyscale, min-max normalised PAS (row = elevation
-                             1..90 deg, column = azimuth 0..359 deg, SPEC layout)
+                             1..90 deg, column = azimuth 0..359 deg, PAS layout, docs/conventions.md)
     tx_pos.csv               header ``x,y,z``, one row per image (image n -> row n), metres
     gateway_info.yml         the fixed receiver array: position [x, y, z] and orientation
                              quaternion [x, y, z, w] (array frame -> world)
@@ -87,7 +87,7 @@ def _read_gateway(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
-    """Write one state of a dataset (:class:`rfmitsuba.dataset.Dataset` or a NeRF2 one) in NeRF2 format.
+    """Write one state of a dataset (:class:`rfmitsuba.data.store.Dataset` or a NeRF2 one) in NeRF2 format.
 
     Args:
         dataset: the source (``pas(state)``, ``antenna_pos``, ``fixed_pos``, ``split``).
@@ -123,7 +123,7 @@ def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
 
 
 class NerfDataset:
-    """A NeRF2 spectrum folder read with the :class:`rfmitsuba.dataset.Dataset` interface (one state).
+    """A NeRF2 spectrum folder read with the :class:`rfmitsuba.data.store.Dataset` interface (one state).
 
     ``pas(0)`` is float32 [A, 90, 360] in [0, 1] (the 8-bit images / 255; already normalised).
     ``rx_to_world`` float64 [3, 3] is the gateway orientation (identity for our own files).
@@ -211,7 +211,7 @@ class NerfDataset:
         raise DatasetError(f"{self.path}: a NeRF2 spectrum dataset stores no channels")
 
     def arrays(self, states: list[int] | None = None) -> dict[str, np.ndarray]:
-        """Flat SPEC arrays (K = A): pas, antenna_pos, human_pos, state, antenna."""
+        """Flat arrays (docs/conventions.md) (K = A): pas, antenna_pos, human_pos, state, antenna."""
         for s in states or [0]:
             self.pas(s)
         A = self.num_antennas

@@ -1,7 +1,7 @@
 """Flat (state, antenna) views of a dataset: what Stage 2 and the baselines train on.
 
-A :class:`SampleData` looks like :class:`rfmitsuba.train.TrainData` to the
-:class:`~rfmitsuba.train.Trainer` (``antenna_pos``, ``view_pos``, ``train``, ``test``,
+A :class:`SampleData` looks like :class:`rfmitsuba.train.trainer.TrainData` to the
+:class:`~rfmitsuba.train.trainer.Trainer` (``antenna_pos``, ``view_pos``, ``train``, ``test``,
 ``pas(idx, d=)``...), but its index ``k`` runs over *samples*: pairs of a dataset state
 (0 = empty room, s > 0 = human at ``human_positions[s-1]``) and an antenna position.
 
@@ -107,7 +107,7 @@ class SampleData(TrainData):
         """Open a dataset folder as samples.
 
         Args:
-            path: dataset folder (:mod:`rfmitsuba.dataset` format).
+            path: dataset folder (:mod:`rfmitsuba.data.store` format).
             states: "empty", "human" or "all".
             duplicate: how many times the sample list is repeated (>= 1).
             noise_snr_db: SNR of the noise added to training samples (None = no noise).

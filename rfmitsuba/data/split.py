@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.errors import DatasetError
 
-#: Fractions of held-out antenna and human positions (SPEC "Splits").
+#: Fractions of held-out antenna and human positions (docs/conventions.md, "Splits").
 ANTENNA_TEST_FRACTION = 0.2
 
 
@@ -62,7 +62,7 @@ class Split:
 
 
 def make_split(num_antennas: int, num_humans: int, *, seed: int = 0) -> Split:
-    """Seeded split per SPEC: 20% of antenna positions and ~19% of human positions held out.
+    """Seeded split (docs/conventions.md): 20% of antenna positions and ~19% of human positions held out.
 
     Args:
         num_antennas: A, number of antenna positions.

@@ -13,11 +13,11 @@ Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
 
 Each chunk folder is written under a temporary name and renamed when
 complete, so a folder named ``chunks/<state:05d>`` is either whole or was
-damaged afterwards. The flattened SPEC view (``Dataset.arrays``) has row
+damaged afterwards. The flattened view (``Dataset.arrays``) has row
 ``k = state * A + antenna``.
 
 Nothing here needs Sionna: :func:`write_dataset` makes small synthetic
-datasets for other modules' tests; :mod:`rfmitsuba.simulate` generates real ones.
+datasets for other modules' tests; :mod:`rfmitsuba.sim.simulate` generates real ones.
 """
 from __future__ import annotations
 
@@ -255,7 +255,7 @@ class Dataset:
         return bad
 
     def arrays(self, states: list[int] | None = None) -> dict[str, np.ndarray]:
-        """Flat SPEC arrays, row ``k = state * A + antenna`` (over ``states`` in the given order).
+        """Flat arrays (docs/conventions.md), row ``k = state * A + antenna`` (over ``states`` in the given order).
 
         Returns:
             ``pas`` float32 [K, 90, 360], ``antenna_pos`` float32 [K, 3],
@@ -280,7 +280,7 @@ def open_dataset(path: str | Path, *, check: bool = True) -> Dataset:
     """Open a dataset folder; DatasetError naming the file/chunk when it is incomplete or damaged.
 
     A NeRF2 spectrum folder (``spectrum/`` + ``gateway_info.yml``) is read through
-    :func:`rfmitsuba.nerf2.read` instead.
+    :func:`rfmitsuba.data.nerf2.read` instead.
     """
     p = Path(path)
     if not (p / "meta.json").exists() and (p / "spectrum").is_dir():

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..rf.bartlett_ref import (
-    normalize as minmax,  # the SPEC's per-image min-max normalisation, [..., H, W] -> [0, 1]
+    normalize as minmax,  # the project's per-image min-max normalisation, [..., H, W] -> [0, 1]
 )
 from ..rf.grid import PAS_SHAPE
 from .nerf2 import quaternion_matrix

@@ -40,7 +40,7 @@ def test_sets(data: SampleData) -> dict:
 
 
 def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) -> dict:
-    """Both evaluations of ``model`` on ``dataset`` (SPEC protocol, full 90 x 360).
+    """Both evaluations of ``model`` on ``dataset`` (metric protocol (docs/conventions.md), full 90 x 360).
 
     Returns:
         {"dynamic": part, "static": part, "affected": dict or None, "render_ms_per_pas": float,

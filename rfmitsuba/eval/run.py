@@ -84,7 +84,7 @@ def summary_markdown(m: dict) -> str:
     lines = [
         f"# Evaluation of `{m['run']}`", "",
         f"Dataset `{m['dataset']}`, task moving-{m['task'].upper()}, {m['train_positions']} training and "
-        f"{m['test_positions']} held-out test positions. SSIM by the SPEC protocol (skimage, data_range=1, "
+        f"{m['test_positions']} held-out test positions. SSIM by the metric protocol (docs/conventions.md) (skimage, data_range=1, "
         "7x7 window, per-image min-max normalised 90x360 PAS).", "",
         "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
     ]

@@ -347,7 +347,7 @@ def _main(argv: list[str]) -> int:
 
     import rfmitsuba  # noqa: F401  (libLLVM before drjit)
 
-    p = argparse.ArgumentParser(prog="python -m rfmitsuba.splat.bench")
+    p = argparse.ArgumentParser(prog="python -m rfmitsuba.experiments.bench")
     p.add_argument("mode", choices=["drjit", "torch", "first-call"])
     p.add_argument("--n", type=int, default=10_000)
     p.add_argument("--repeats", type=int, default=5)

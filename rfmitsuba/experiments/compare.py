@@ -1,7 +1,7 @@
 """Compare methods on one dataset of your own: train each over seeds, evaluate, tabulate.
 
 :func:`compare` is what ``rfmitsuba compare DATASET --out DIR`` runs. For every seed it trains
-the requested methods of :mod:`rfmitsuba.methods` (Ours reuses that seed's Baseline as its
+the requested methods of :mod:`rfmitsuba.experiments.methods` (Ours reuses that seed's Baseline as its
 Stage 1, so Baseline and Ours share one background), evaluates each by both protocols
 (dynamic: unseen antenna x unseen human positions; static: the background alone) with the
 nearest-neighbour and mean-image floors, and writes
@@ -46,7 +46,7 @@ def default_methods_config() -> MethodConfig:
 
 @dataclass
 class CompareConfig:
-    """What :func:`compare` runs: ``methods`` (names of :data:`rfmitsuba.methods.METHODS`),
+    """What :func:`compare` runs: ``methods`` (names of :data:`rfmitsuba.experiments.methods.METHODS`),
     ``seeds`` (training seeds) and ``training`` (the sizes every method shares)."""
 
     methods: list[str] = dc_field(default_factory=lambda: ["baseline", "end_to_end", "ours"])
@@ -80,7 +80,7 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
 
 def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
             reevaluate: bool = False) -> dict:
-    """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.methods.run_job`
+    """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.experiments.methods.run_job`
     (skipped when done; Ours first runs that seed's Baseline, its Stage 1)."""
     stage1 = None
     if get_method(method).two_stage:
@@ -144,7 +144,7 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
     and median), the floors, whether the method beats nearest neighbour, training and render time."""
     lines = [f"# Method comparison on `{dataset}`", "",
              f"Seeds {sorted({r['seed'] for r in results})} (of jobs run in this folder; a method's row averages the "
-             f"seeds it has); SPEC protocol (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
+             f"seeds it has); metric protocol (docs/conventions.md) (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
              "over seeds.", ""]
     for part in ("dynamic", "static"):
         lines += [f"## {part.capitalize()} evaluation", "",
@@ -177,7 +177,7 @@ def _method_order(results: list[dict], cfg: CompareConfig) -> list[str]:
 
 def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
     """Markdown section: the dynamic evaluation on the PAS the person changes most
-    (:func:`rfmitsuba.methods.evaluate`'s "affected" part; jobs evaluated before it existed are
+    (:func:`rfmitsuba.experiments.methods.evaluate`'s "affected" part; jobs evaluated before it existed are
     left out: ``--reevaluate`` adds it)."""
     rs_all = [r for r in results if r["eval"].get("affected")]
     if not rs_all:

@@ -22,7 +22,7 @@ from ..core.errors import ConfigError
 class DemoConfig:
     """Sizes and model of the demo (defaults finish in about 10 minutes on 2 idle cores).
 
-    model: "coherent" (image sources + Bartlett readout, :mod:`rfmitsuba.coherent`; ``downsample``
+    model: "coherent" (image sources + Bartlett readout, :mod:`rfmitsuba.models.coherent`; ``downsample``
     and the Gaussian counts are not used) or "splat" (Gaussian splatting, WRF-GS+ style).
     """
 

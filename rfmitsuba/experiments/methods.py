@@ -12,14 +12,14 @@ duplicated          one field on the empty-room data repeated (1 + H_train) time
 baseline_human      one field on empty + human-present data, no human position        n1 + n2
 end_to_end          one field on empty + human-present data, human position as input  n1 + n2
 ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
-                    Gaussians (:mod:`rfmitsuba.human_field`) on the human-present data
+                    Gaussians (:mod:`rfmitsuba.models.splat_person`) on the human-present data
 ==================  ================================================================  ===========
 
 So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
 stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
 human-present data at training antenna and training human positions).
 
-Evaluations (:func:`evaluate`), both by the SPEC protocol with both floors:
+Evaluations (:func:`evaluate`), both by the metric protocol (docs/conventions.md) with both floors:
 
 * **dynamic** - unseen antenna positions x unseen human positions, against the human-present
   ground truth; nearest neighbour over (antenna, human) position among the human-present
@@ -241,7 +241,7 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
 
     The job folder holds the training runs (:func:`train_method`), ``metrics.json`` (written
     atomically) and then the ``DONE`` marker: a job with a marker is not trained again, so a
-    killed caller (:mod:`rfmitsuba.compare`, :mod:`rfmitsuba.reproduce`) resumes where it stopped.
+    killed caller (:mod:`rfmitsuba.experiments.compare`, :mod:`rfmitsuba.experiments.reproduce`) resumes where it stopped.
 
     Args:
         name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir: as :func:`train_method`.

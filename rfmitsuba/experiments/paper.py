@@ -1,4 +1,5 @@
-"""The published figures of "One Walk is All You Need" (seed/one-walk-paper.tex), by table label.
+"""The published figures of the paper, by table label: Bian et al., "One Walk is All You Need:
+Data-Efficient 3D RF Scene Reconstruction with Human Movements" (preprint; no venue is named).
 
 Numbers are copied from the paper's LaTeX tables (mean / median test SSIM); keys name our
 rooms, tasks and methods so that :mod:`rfmitsuba.experiments` can print them beside ours.

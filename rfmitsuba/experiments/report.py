@@ -1,8 +1,8 @@
-"""The Markdown report of :func:`rfmitsuba.reproduce.reproduce`: the paper's tables (ours as
+"""The Markdown report of :func:`rfmitsuba.experiments.reproduce.reproduce`: the paper's tables (ours as
 mean +- std over seeds beside the published figures), claims checked, speed against accuracy,
 and where each method breaks.
 
-Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.reproduce.run_job`}.
+Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.run_job`}.
 Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png``.
 """
 from __future__ import annotations
@@ -91,7 +91,7 @@ def _model_line(cfg) -> str:
 
     t = cfg.train
     if t.model == "coherent":
-        return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.coherent`): "
+        return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.models.coherent`): "
                 "training images 90x360, one source per image of each room, Stage 2 of kind "
                 f"`{method_config(cfg).coherent_human.kind}`")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
@@ -132,7 +132,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
           f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "
           f"Baseline (duplicated) and Continued baseline = {t.stage1_iterations + t.stage2_iterations} "
-          f"(equal budgets). {_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the SPEC "
+          f"(equal budgets). {_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the metric "
           "protocol.", "",
           "Two evaluations: **dynamic** = unseen antenna x unseen human positions against the human-present "
           "ground truth (floors: nearest neighbour over antenna + human position, mean image); **static** = "

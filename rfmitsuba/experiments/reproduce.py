@@ -134,7 +134,7 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
 
 
 def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
-    """The first seed in 0..tries-1 for which :func:`rfmitsuba.human.walk` finds a clear walk of
+    """The first seed in 0..tries-1 for which :func:`rfmitsuba.sim.person.walk` finds a clear walk of
     ``human_positions`` steps in ``scene`` (the walk sampler gives up on some seeds in small rooms).
 
     Raises:
@@ -173,7 +173,7 @@ def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
 
 def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
             reevaluate: bool = False) -> dict:
-    """Train and evaluate one job by :func:`rfmitsuba.methods.run_job` (skipped when done, or
+    """Train and evaluate one job by :func:`rfmitsuba.experiments.methods.run_job` (skipped when done, or
     evaluated again with ``reevaluate``); returns its metrics.
 
     Raises:

@@ -31,7 +31,7 @@ class DataSize:
 @dataclass
 class TrainSize:
     """Training sizes shared by every method (steps, image downsampling, Gaussians) and the model
-    family: "coherent" (image sources read out by Bartlett, :mod:`rfmitsuba.coherent`; trains at
+    family: "coherent" (image sources read out by Bartlett, :mod:`rfmitsuba.models.coherent`; trains at
     full resolution whatever ``downsample`` says; needs a scene, so Sionna data only) or "splat"
     (Gaussian splatting, WRF-GS+ style)."""
 
@@ -51,8 +51,8 @@ class TrainSize:
 class ExperimentConfig:
     """What :func:`reproduce` runs.
 
-    size: label ("tiny", "quick", "full"); source: "sionna" (rfmitsuba.dataset.generate) or
-    "synthetic" (rfmitsuba.synthetic, no Sionna); seeds: training seeds (>= 3 for the report's
+    size: label ("tiny", "quick", "full"); source: "sionna" (rfmitsuba.sim.generate.generate) or
+    "synthetic" (rfmitsuba.sim.synthetic, no Sionna); seeds: training seeds (>= 3 for the report's
     mean +- std); rooms / tasks: of the main table (the first room and task are used by the
     ablations); materials: perturber materials; large_room: scene of the large-room table ("" =
     skip); snr_db: noise levels of the noise table; position_counts: training antenna positions of
@@ -126,7 +126,7 @@ class DatasetSpec:
 
 
 def method_config(cfg: ExperimentConfig):
-    """The :class:`rfmitsuba.methods.MethodConfig` of an experiment's training sizes."""
+    """The :class:`rfmitsuba.experiments.methods.MethodConfig` of an experiment's training sizes."""
     from ..models.splat import FieldConfig
     from ..models.splat_person import SplatPersonConfig
     from ..train.config import TrainConfig

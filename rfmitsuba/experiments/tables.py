@@ -3,13 +3,13 @@
 * :func:`motivation_table` - test SSIM against the number of static antenna positions
   (paper, Table "motivation": 900, 1500, 3600, 6000, 10000 positions). A row with C positions
   trains on ``round(0.8 * C)`` positions drawn from the dataset's training split (the 80/20 rule
-  of SPEC) and is evaluated on the dataset's whole test split, the same for every row, so rows
+  of docs/conventions.md) and is evaluated on the dataset's whole test split, the same for every row, so rows
   are comparable. The dataset must hold enough training positions for the largest row.
 * :func:`parsimony_curve` - test SSIM against the number of Gaussians, from runs whose density
   control is capped at different sizes ("a model no larger than the scene needs").
 
 Each run is an ordinary run folder ``OUT/<name>`` (resumable, evaluated by
-:func:`rfmitsuba.evaluate.evaluate_run`); the table is written to ``OUT/table.md`` and
+:func:`rfmitsuba.eval.run.evaluate_run`); the table is written to ``OUT/table.md`` and
 ``OUT/table.json`` with a plot.
 """
 from __future__ import annotations

@@ -10,7 +10,7 @@ the PAS can follow (see README, "Stage 1"). This field models what the array act
     L_i = |M_i(y) - x|,  u_i = (M_i(y) - x) / L_i,
 
 with the array centre ``x``, the transmitter ``y``, the image maps ``M_i`` of the room's
-planes (:mod:`rfmitsuba.images`; ``M_0`` = identity is the direct path), the element offsets
+planes (:mod:`rfmitsuba.rf.images`; ``M_0`` = identity is the direct path), the element offsets
 ``r_m`` and ``k = 2 pi / lambda``. Propagation phase and direction are exact geometry; what
 is learned is each image's complex gain
 
@@ -23,9 +23,9 @@ per-image embedding. The modulation learns where an image is visible (finite fac
 furniture in the way), the angle dependence of reflection, and what the geometry misses.
 The PAS comes from :func:`rfmitsuba.rf.bartlett.bartlett`, differentiable end to end.
 
-Both tasks of the SPEC use the same formula: moving RX (``x`` moves, ``y`` = the fixed
+Both tasks use the same formula: moving RX (``x`` moves, ``y`` = the fixed
 corner transmitter) and moving TX (``y`` moves, ``x`` = the fixed array), by the
-synthetic-array rule of :mod:`rfmitsuba.simulate` (plane-wave phase per element, about the
+synthetic-array rule of :mod:`rfmitsuba.sim.simulate` (plane-wave phase per element, about the
 array centre).
 
 Parameters (Dr.Jit ``Float`` arrays, :meth:`CoherentField.parameters`): ``amp`` [S*2]
@@ -86,7 +86,7 @@ FORMAT = "rfmitsuba-coherent-field/1"
 
 def _columns(a: np.ndarray) -> list:
     """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
-    (:func:`rfmitsuba.field.columns`: kernels stay independent of the host arrays' values and
+    (:func:`rfmitsuba.models.splat.columns`: kernels stay independent of the host arrays' values and
     alignment, so they compile once)."""
     from .splat import columns
 
@@ -273,7 +273,7 @@ class CoherentField(CoherentFamily):
     docstring.
 
     Args:
-        maps: the image maps (:func:`rfmitsuba.images.scene_image_maps`).
+        maps: the image maps (:func:`rfmitsuba.rf.images.scene_image_maps`).
         box: float [2, 3] metres, box that maps moving positions into [0, 1] for the encoding.
         cfg: :class:`CoherentConfig`.
         frequency_hz: carrier, Hz.
@@ -371,7 +371,7 @@ class CoherentField(CoherentFamily):
             extra: float [B, extra_inputs] more inputs of the gain network (the End-to-End
                 model's human-position features), or None for a field without them.
             rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
-                orientation), or None for the SPEC's horizontal array (identity).
+                orientation), or None for the project's horizontal array (identity).
         """
         gr, gi, pr, pi, u = self._terms(x, y, q, extra=extra, rx_to_world=rx_to_world)
         return sum_terms(*_cmul(gr, gi, pr, pi), u, np.shape(q)[0], self.num_sources, frequency_hz=self.frequency_hz)

@@ -47,7 +47,7 @@ class CoherentPersonConfig:
 
     num_points: scattering points that move with the person; init_radius / init_height: their
     initial horizontal radius and (lo, hi) height, metres, around the feet position;
-    human_octaves: octaves of the human-position features (:func:`rfmitsuba.samples.human_features`);
+    human_octaves: octaves of the human-position features (:func:`rfmitsuba.data.samples.human_features`);
     octaves: octaves of the moving device's position encoding; width / layers: the gain
     network's hidden width and layers; embed: size of each point's learned embedding;
     max_offset: bound of the deformation network's position offset, metres;
@@ -134,7 +134,7 @@ class CoherentPersonField(CoherentFamily):
 
     Per-view input ``extra``: float [B, F + 3], the human features (F =
     ``num_human_features(human_octaves)``) followed by the feet position in metres, as
-    :meth:`rfmitsuba.samples.SampleData.features` with ``raw=True`` gives them.
+    :meth:`rfmitsuba.data.samples.SampleData.features` with ``raw=True`` gives them.
     """
 
     def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentPersonConfig | None = None,
@@ -191,7 +191,7 @@ class CoherentPersonField(CoherentFamily):
         Args:
             x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
             extra: float [B, F + 3]: human features, then the feet position in metres.
-            rx_to_world: must be None or the identity (Stage 2 runs on the SPEC's horizontal array).
+            rx_to_world: must be None or the identity (Stage 2 runs on the project's horizontal array).
         """
         if rx_to_world is not None and not np.allclose(rx_to_world, np.eye(3)):
             raise ConfigError("the coherent human field supports the horizontal array only (rx_to_world = I)")

@@ -6,7 +6,7 @@ A :class:`SplatField` owns
   ``means`` [N*3] metres (world frame), ``log_scales`` [N*3] natural log of metres,
   ``rotations`` [N*4] quaternion (w, x, y, z; normalised before rendering),
   ``opacity_logits`` [N] (the view-independent part of the attenuation delta);
-* an :class:`~rfmitsuba.nn.EMNetwork` whose weights are parameters ``net.<module>``;
+* an :class:`~rfmitsuba.models.nn.EMNetwork` whose weights are parameters ``net.<module>``;
 * a fixed normalisation box (``box`` [2, 3], metres) mapping world positions into [0, 1]
   for the encodings.
 
@@ -60,7 +60,7 @@ class FieldConfig:
     scale_net: let the network add a per-view isotropic log-scale offset (bounded by +-1).
     readout: "direct" (the splatted image is the PAS, as WRF-GS) or "bartlett" (the splatted image,
         rendered on ``arrival_grid`` (rows, columns), is the arrival spectrum and the PAS is the
-        array's Bartlett response to it; see :mod:`rfmitsuba.beam`).
+        array's Bartlett response to it; see :mod:`rfmitsuba.rf.readout`).
     net: EM-feature network architecture.
     """
 

@@ -1,6 +1,6 @@
 """Stage 2: a sparse set of "human" Gaussians conditioned on the human position.
 
-A :class:`SplatPersonField` is a :class:`~rfmitsuba.field.SplatField` whose EM-feature
+A :class:`SplatPersonField` is a :class:`~rfmitsuba.models.splat.SplatField` whose EM-feature
 network takes the human position as extra per-view input
 
     F_man: (P(G_man), P(antenna), P(man)) -> signal, attenuation
@@ -11,11 +11,11 @@ plus a **deformation network**
 
 evaluated for every (view, Gaussian) pair, so the human Gaussians move, turn and grow with
 the person. Rendering (:meth:`SplatPersonField.splats`) returns per-view geometry (size B*N) that
-:meth:`rfmitsuba.field.Splats.concat` joins with a frozen background into one splatting
+:meth:`rfmitsuba.models.splat.Splats.concat` joins with a frozen background into one splatting
 call (the paper's linear superposition); only the human field's parameters train.
 
 Positions are in metres (world frame), the human position is given as the feature vector of
-:func:`rfmitsuba.samples.human_features` (NaN-free, already normalised).
+:func:`rfmitsuba.data.samples.human_features` (NaN-free, already normalised).
 """
 from __future__ import annotations
 
@@ -198,12 +198,12 @@ class SplatPersonField(SplatField):
 
         Args:
             antenna_pos: float [B, 3] metres (moving antenna per view).
-            extra: float32 [B, num_human_features + 3]: :func:`rfmitsuba.samples.human_features`
+            extra: float32 [B, num_human_features + 3]: :func:`rfmitsuba.data.samples.human_features`
                 followed by the human position in metres (``SampleData.features(..., raw=True)``).
             view_pos: float [B, 3] metres, array position per view (default antenna_pos).
 
         Returns:
-            :class:`rfmitsuba.field.Splats` with every array of size B*N (view-major).
+            :class:`rfmitsuba.models.splat.Splats` with every array of size B*N (view-major).
         """
         import drjit as dr
 

@@ -1,4 +1,4 @@
-"""The 4x4 horizontal uniform rectangular array (SPEC "Antennas") and its plane-wave response.
+"""The 4x4 horizontal uniform rectangular array (docs/conventions.md, "Antennas") and its plane-wave response.
 
 Element ``m = row * cols + col`` (x fastest) sits at
 ``x = (col - (cols-1)/2) * d``, ``y = (row - (rows-1)/2) * d``, ``z = 0`` in the

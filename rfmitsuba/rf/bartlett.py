@@ -1,10 +1,10 @@
 """Differentiable Bartlett PAS of the 4x4 array in Dr.Jit: channels -> (normalised) PAS images.
 
-The SPEC's PAS is ``P(el, az) = | sum_m w_m(el, az) h_m |`` with the beamformer weights
-``w_m = conj(v_m) / M`` of :func:`rfmitsuba.pas.beamformer` (the same sign convention, the
+The PAS is ``P(el, az) = | sum_m w_m(el, az) h_m |`` with the beamformer weights
+``w_m = conj(v_m) / M`` of :func:`rfmitsuba.rf.bartlett_ref.beamformer` (the same sign convention, the
 same grid: row ``i`` = elevation ``(i + 1)`` degrees, column ``j`` = azimuth ``j`` degrees).
 :func:`pas` computes it for B channels at once and, with ``normalize=True``, min-max
-normalises every image inside the same operation, as the SPEC metric and the training loss
+normalises every image inside the same operation, as the metric and the training loss
 see it.
 
 The operation is a ``drjit.CustomOp`` with a hand-written adjoint, so the backward pass
@@ -16,7 +16,7 @@ needs no atomic scatter: the forward pass sums over the 16 elements (lanes ``[b,
 
 where ``g_P`` is the gradient at the raw PAS. With normalisation ``Pn = (P - lo)/(hi - lo)``
 the gradient also flows through the image's minimum and maximum pixel (a subgradient where
-several pixels tie). Reference: :func:`rfmitsuba.pas.bartlett` (NumPy, tests check parity
+several pixels tie). Reference: :func:`rfmitsuba.rf.bartlett_ref.bartlett` (NumPy, tests check parity
 and finite differences).
 """
 from __future__ import annotations
@@ -132,8 +132,8 @@ def bartlett(h_re, h_im, *, frequency_hz: float, height: int = 90, width: int = 
         h_re, h_im: Dr.Jit ``Float`` [B*16] (or NumPy float32 [B, 16]), real and imaginary part
             of the narrowband channel at each element (view-major, ``b*16 + m``; unitless).
         frequency_hz: carrier, Hz.
-        height, width: grid (90 x 360 is the SPEC's; 90/d x 360/d samples it at d degrees).
-        normalize: min-max normalise each image to [0, 1] (SPEC's training and metric view).
+        height, width: grid (90 x 360 is the project's; 90/d x 360/d samples it at d degrees).
+        normalize: min-max normalise each image to [0, 1] (the training loss's and the metric's view).
     Returns:
         ``TensorXf`` [B, height, width].
     """

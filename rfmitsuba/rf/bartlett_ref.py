@@ -1,4 +1,4 @@
-"""Power Angular Spectrum (SPEC): Bartlett beamformer of the 4x4 horizontal array.
+"""Power Angular Spectrum (docs/conventions.md): Bartlett beamformer of the 4x4 horizontal array.
 
 Layout: image [90, 360] at 1 degree, row ``i`` = elevation ``(i + 1) * res``
 degrees above the array plane, column ``j`` = azimuth ``j * res`` degrees from
@@ -8,7 +8,7 @@ Value: ``P(el, az) = | sum_m conj(v_m(el, az)) h_m | / M`` with the element's
 plane-wave response ``v_m = exp(+j 2 pi / lambda * r_m . d(el, az))`` and
 ``d = (cos el cos az, cos el sin az, sin el)``. The sign of the exponent is
 the one that makes the peak point at the source for Sionna RT's channels
-(``a exp(-j 2 pi f tau)``, see :mod:`rfmitsuba.antenna`); SPEC's written
+(``a exp(-j 2 pi f tau)``, see :mod:`rfmitsuba.rf.array`); an older specification's written
 ``a_m = exp(-j ...)`` is the complex conjugate convention and would put every
 peak 180 degrees away in azimuth.
 
@@ -39,7 +39,7 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     Args:
         channels: complex [K, M] narrowband channel per element (M = 16).
         frequency_hz: carrier, Hz.
-        positions: element offsets float [M, 3], metres (default: the SPEC 4x4 URA).
+        positions: element offsets float [M, 3], metres (default: the 4x4 URA).
         resolution_deg: angular step (1 -> [90, 360] images).
         batch: images per matrix product (bounds memory).
     Returns:

@@ -12,13 +12,13 @@ direction of the image point ``M(y)``.
 * the room's six bounding planes (floor, ceiling, four walls), every sequence up to
   ``room_order`` reflections (no plane twice in a row), and
 * the faces of every piece of furniture (its axis-aligned box, from
-  :meth:`rfmitsuba.geometry.RoomGeometry.furniture_bounds`): one furniture reflection,
+  :meth:`rfmitsuba.sim.geometry.RoomGeometry.furniture_bounds`): one furniture reflection,
   alone or followed / preceded by one room reflection (``furniture_order`` = 2),
 
 and drops maps that coincide (the same ``A`` and ``b`` reached by two orders of
 perpendicular planes). Whether a path exists for a given pair of positions (the reflection
 points fall on the finite faces, nothing blocks it) is *not* decided here: the coherent field
-(:mod:`rfmitsuba.coherent`) learns each image's visibility and reflection gain from data.
+(:mod:`rfmitsuba.models.coherent`) learns each image's visibility and reflection gain from data.
 
 Units: metres. Arrays: ``A`` float64 [S, 3, 3], ``b`` float64 [S, 3], ``order`` int64 [S].
 """
@@ -150,7 +150,7 @@ def image_maps(room: list[Plane], furniture: list[Plane] = (), *, room_order: in
 
 def scene_image_maps(geometry, *, room_order: int = 2, furniture_order: int = 2,
                      min_face_area: float = 0.05) -> ImageMaps:
-    """Image maps of a :class:`~rfmitsuba.geometry.RoomGeometry`: its interior box and the faces
+    """Image maps of a :class:`~rfmitsuba.sim.geometry.RoomGeometry`: its interior box and the faces
     of every piece of furniture whose face area is at least ``min_face_area`` (m^2)."""
     lo, hi = geometry.bounds
     room = box_planes(lo, hi)

@@ -1,6 +1,6 @@
 """Bartlett read-out: from a splatted arrival spectrum to the PAS the 4x4 array measures.
 
-The PAS of SPEC is the Bartlett beamformer output of the array. A single plane wave from
+The PAS is the Bartlett beamformer output of the array. A single plane wave from
 direction q gives the pattern ``|AF(p, q)| = |sum_m exp(j k (x_m (u_q - u_p) + y_m (v_q - v_p)))| / M``
 over look directions p, with direction cosines ``u = cos(el) cos(az)``, ``v = cos(el) sin(az)``
 (array frame): a main lobe about 26 degrees wide with side lobes and the curved null arcs
@@ -24,7 +24,7 @@ def grid_directions(height: int, width: int, *, block: int | None = None) -> tup
     """Pixel-centre elevation and azimuth (radians) of a PAS grid, each float64 [height*width].
 
     ``block=None``: the splat renderer's grid (row i -> (i+1)*90/height deg, column j ->
-    j*360/width deg). ``block=d``: the centres of d x d block means of the 90 x 360 SPEC grid
+    j*360/width deg). ``block=d``: the centres of d x d block means of the 90 x 360 PAS grid
     (row i -> i*d + (d+1)/2 deg, column j -> j*d + (d-1)/2 deg), as the training targets.
     """
     i, j = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
@@ -43,7 +43,7 @@ def bartlett_kernel(el_out, az_out, el_in, az_in, *, elements_wl: np.ndarray | N
     Args:
         el_out, az_out: float [P] look directions (radians, array frame).
         el_in, az_in: float [Q] arrival directions (radians).
-        elements_wl: float [M, 2] element (x, y) positions in wavelengths; default the SPEC
+        elements_wl: float [M, 2] element (x, y) positions in wavelengths; default the
             4x4 array at half-wavelength pitch (x fastest).
 
     Returns:

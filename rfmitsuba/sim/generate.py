@@ -105,7 +105,7 @@ def place_antennas(geometry, n: int, *, rng: np.random.Generator, z_range: tuple
 
 
 def default_solver(geometry, *, quick: bool = False):
-    """SolverConfig for a room: 1e5 samples per source, 3e5 for rooms over 50 m^2 floor (SPEC facts)."""
+    """SolverConfig for a room: 1e5 samples per source, 3e5 for rooms over 50 m^2 floor (environment facts, docs/conventions.md)."""
     from .simulate import SolverConfig
 
     area = float(np.prod(geometry.size[:2]))

@@ -12,7 +12,7 @@ Other shape types (``cube``, ``rectangle``, ``sphere``, ...) and ``<include>``
 raise :class:`SceneError`, as do malformed XML and missing or unreadable
 meshes; each message names the file.
 
-Id convention (the one :mod:`rfmitsuba.scene_builder` writes; a leading
+Id convention (the one :mod:`rfmitsuba.sim.scene_builder` writes; a leading
 ``mesh-`` is dropped first, as Sionna does):
 
 - ids starting with ``wall``, ``floor``, ``ceiling``, ``door`` or ``window`` are

@@ -29,7 +29,7 @@ y > Ly, ``west`` x < 0, ``east`` x > Lx. Openings are placed along their wall
 by ``offset`` from the wall's low end (x = 0 for south/north, y = 0 for
 west/east).
 
-Shape-id convention (read back by :mod:`rfmitsuba.geometry`): every shape id
+Shape-id convention (read back by :mod:`rfmitsuba.sim.geometry`): every shape id
 is the object name Sionna shows (no ``mesh-`` prefix is written; one would be
 stripped on reading). Structure shapes are named by prefix:
 
@@ -511,7 +511,7 @@ def scene_xml(desc: RoomDescription, *, mesh_dir: str = "meshes") -> str:
     meshes = room_meshes(desc)
     root = ET.Element("scene", {"version": "2.1.0"})
     root.append(ET.Comment(f" rfmitsuba room '{desc.name}': interior [0, 0, 0]..[{', '.join(_fmt(v) for v in desc.size)}] m,"
-                           f" z up; written by rfmitsuba.scene_builder "))
+                           f" z up; written by rfmitsuba.sim.scene_builder "))
     used = [m for m in desc.materials if any(mat == m.id for _, mat, _ in meshes)]
     for m in used:
         if m.type == "human-tissue":

@@ -1,6 +1,6 @@
-"""Sionna RT wrapper: narrowband channels at the 4x4 array for both SPEC tasks.
+"""Sionna RT wrapper: narrowband channels at the 4x4 array for both tasks (moving RX, moving TX).
 
-One solve serves both tasks by reciprocity (SPEC facts; checked against an
+One solve serves both tasks by reciprocity (environment facts, docs/conventions.md; checked against an
 explicit reverse solve in tests/test_simulate.py). The solve always has one
 isotropic transmitter at the fixed corner device and one isotropic receiver at
 each antenna position (all batched into few ``PathSolver`` calls). From each

@@ -4,7 +4,7 @@
 bright source near the fixed transmitter) and a known "human" (a column of absorbing,
 weakly scattering Gaussians standing at each human position), renders the PAS of every
 (state, antenna) pair with :func:`rfmitsuba.splat.render`, and writes them with
-:func:`rfmitsuba.dataset.write_dataset`. Used by the tests and the ``tiny`` experiment size.
+:func:`rfmitsuba.data.store.write_dataset`. Used by the tests and the ``tiny`` experiment size.
 """
 from __future__ import annotations
 

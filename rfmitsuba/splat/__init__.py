@@ -1,6 +1,6 @@
 """Differentiable azimuth-elevation Gaussian splatting (issue 3).
 
-:func:`render` draws power angular spectra (SPEC layout, rows = elevation
+:func:`render` draws power angular spectra (PAS layout, docs/conventions.md, rows = elevation
 (i+1)*90/H degrees, columns = azimuth j*360/W degrees, array frame) of N 3D
 Gaussians seen from B receiver positions, differentiable in reverse mode.
 

@@ -1,14 +1,14 @@
 """Projection of 3D Gaussians onto the receiver's azimuth-elevation image.
 
 Each (view, Gaussian) pair becomes a 2D Gaussian in *pixel units* of the PAS
-image (SPEC layout): column coordinate ``u = azimuth * W / 360 deg`` in
+image (PAS layout, docs/conventions.md): column coordinate ``u = azimuth * W / 360 deg`` in
 ``[0, W)`` and row coordinate ``v = elevation * H / 90 deg - 1`` (row ``i``
 is elevation ``(i + 1) * 90 / H`` degrees, so for 90x360 row ``i`` is
 ``(i + 1)`` degrees and column ``j`` is ``j`` degrees).
 
 Directions are taken in the array frame: ``d = rx_to_world^T (mean - rx)``.
 Elevation is ``atan2(|d_z|, |d_xy|)``: a horizontal array cannot tell up from
-down (SPEC), so a Gaussian below the array plane is drawn at the mirrored
+down (docs/conventions.md), so a Gaussian below the array plane is drawn at the mirrored
 elevation. Only its centre and covariance are mirrored (the Jacobian carries
 ``sign(d_z)``), the footprint is not duplicated across the horizon.
 

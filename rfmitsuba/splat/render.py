@@ -96,7 +96,7 @@ def render(means, log_scales, rotations, opacities, signals, rx_positions, *,
         rx_to_world: 3x3 rotation from the array frame to the world (default
             identity: array x, y horizontal, z up).
         height, width: image size, pixels; row i is elevation (i+1)*90/height
-            degrees, column j is azimuth j*360/width degrees (SPEC layout).
+            degrees, column j is azimuth j*360/width degrees (PAS layout, docs/conventions.md).
         near: Gaussians closer than this to the receiver are culled, metres.
         check: validate values (one fused reduction and a synchronisation);
             the trainer may pass ``False``. Sizes are always checked.

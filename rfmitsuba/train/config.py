@@ -57,7 +57,7 @@ class TrainConfig:
     state: dataset state to train on (0 = empty room).
     model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
     "coherent" (image sources summed coherently and read out by the Bartlett beamformer,
-    :mod:`rfmitsuba.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
+    :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
     scene: the room (built-in scene name or XML path) for a dataset that names none, e.g. a
     NeRF2 folder measured in a room you have modelled ("" = the dataset's own scene).
     """

@@ -1,9 +1,9 @@
 """Training of a Gaussian radio field (Stage 1: the empty-room background).
 
-* :class:`TrainConfig` (with :class:`~rfmitsuba.field.FieldConfig`,
-  :class:`~rfmitsuba.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
+* :class:`TrainConfig` (with :class:`~rfmitsuba.models.splat.FieldConfig`,
+  :class:`~rfmitsuba.train.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
 * :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
-  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.dataset.open_dataset`).
+  folder or a NeRF2 spectrum folder (:func:`rfmitsuba.data.store.open_dataset`).
 * :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
   loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
   control, validation SSIM on held-out *training* positions, checkpoints that resume to the
@@ -71,7 +71,7 @@ def _write_json(path: Path, obj) -> None:
 
 
 def load_loss():
-    """The training loss ``loss(pred, gt) -> Float`` (0.8*L1 + 0.2*(1-SSIM), rfmitsuba.ssim)."""
+    """The training loss ``loss(pred, gt) -> Float`` (0.8*L1 + 0.2*(1-SSIM), rfmitsuba.train.loss)."""
     from .loss import loss
 
     return loss
@@ -228,7 +228,7 @@ class Trainer:
         return np.concatenate(out) if out else np.zeros((0, h, w), np.float32)
 
     def validate(self, field: Field, val: np.ndarray, gt: np.ndarray) -> float:
-        """Mean SSIM (SPEC protocol, at the training resolution) over the validation positions."""
+        """Mean SSIM (metric protocol (docs/conventions.md), at the training resolution) over the validation positions."""
         if len(val) == 0:
             return float("nan")
         pred = minmax(self.predict(field, val, h=self.h, w=self.w, batch=self.cfg.batch_views * 2))

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.atomic: whole-file replacement, no temporary file left behind."""
+"""Tests of rfmitsuba.core.atomic: whole-file replacement, no temporary file left behind."""
 import json
 
 import pytest

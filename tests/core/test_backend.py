@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.backend: one variant for Sionna RT and the kernels."""
+"""Tests of rfmitsuba.core.backend: one variant for Sionna RT and the kernels."""
 import drjit as dr
 import mitsuba as mi
 import pytest

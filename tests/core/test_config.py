@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.config: typed dataclass configs round-trip to TOML and JSON."""
+"""Tests of rfmitsuba.core.config: typed dataclass configs round-trip to TOML and JSON."""
 from dataclasses import dataclass, field
 from typing import Literal, Optional
 

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.plots: report figures are written without touching pyplot's state."""
+"""Tests of rfmitsuba.core.plots: report figures are written without touching pyplot's state."""
 import matplotlib
 
 from rfmitsuba.core import plots

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.nerf2: NeRF2 spectrum folders, write -> read round trip and bad folders."""
+"""Tests of rfmitsuba.data.nerf2: NeRF2 spectrum folders, write -> read round trip and bad folders."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.dataset: format, splits, atomic chunks, damaged folders, generation and resume."""
+"""Tests of rfmitsuba.data.store: format, splits, atomic chunks, damaged folders, generation and resume."""
 import hashlib
 import json
 import shutil

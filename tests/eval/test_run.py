@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.evaluate: SSIM protocol, floors on hand-made cases, the run report."""
+"""Tests of rfmitsuba.eval.metrics: SSIM protocol, floors on hand-made cases, the run report."""
 from __future__ import annotations
 
 import json

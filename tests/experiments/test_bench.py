@@ -1,4 +1,4 @@
-"""Tests of the splat benchmark (rfmitsuba.splat.bench, rfmitsuba.cli.bench) and of
+"""Tests of the splat benchmark (rfmitsuba.experiments.bench, rfmitsuba.cli.bench) and of
 the PyTorch baseline it compares against (rfmitsuba.splat.torch_baseline)."""
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 import pytest
-import splat_reference as ref
 
 from rfmitsuba.cli import main
 from rfmitsuba.experiments import bench
+from rfmitsuba.splat import reference as ref
 
 
 def test_torch_baseline_matches_reference():

@@ -1,4 +1,4 @@
-"""rfmitsuba.compare: methods over seeds on one dataset, resumable, refuses other sizes."""
+"""rfmitsuba.experiments.compare: methods over seeds on one dataset, resumable, refuses other sizes."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""The coherent image-source field (rfmitsuba.coherent): closed-form free-space and shadow cases,
+"""The coherent image-source field (rfmitsuba.models.coherent): closed-form free-space and shadow cases,
 gradients against finite differences, state round trips, bad input, and training on Sionna data."""
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def _h(pair):
 @pytest.mark.parametrize("task", ["rx", "tx"])
 def test_free_space_is_a_spherical_wave_with_the_synthetic_array_rule(variant, task):
     """h_m = a exp(-jkL)/L exp(+jk r_m.u): the same rule the datasets' channels follow (Sionna's
-    synthetic array, rfmitsuba.antenna.array_response)."""
+    synthetic array, rfmitsuba.rf.array.array_response)."""
     f = direct_field(amp=(0.6, -0.3))
     rng = np.random.default_rng(0)
     moving = rng.uniform([0.5, 0.5, 0.5], [3.5, 2.5, 2.0], (5, 3))

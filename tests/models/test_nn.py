@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.nn: encodings, packed MLPs and the EM-feature network."""
+"""Tests of rfmitsuba.models.nn: encodings, packed MLPs and the EM-feature network."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.field: initialisation, evaluation layout, state, PLY export, concat."""
+"""Tests of rfmitsuba.models.splat: initialisation, evaluation layout, state, PLY export, concat."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.antenna: URA geometry and the plane-wave array response."""
+"""Tests of rfmitsuba.rf.array: URA geometry and the plane-wave array response."""
 import numpy as np
 import pytest
 

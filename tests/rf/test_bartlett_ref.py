@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.pas: SPEC layout, Bartlett beamformer, normalisation."""
+"""Tests of rfmitsuba.rf.bartlett_ref: SPEC layout, Bartlett beamformer, normalisation."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""Image maps (rfmitsuba.images): counts, closed-form reflected paths, and agreement with Sionna RT."""
+"""Image maps (rfmitsuba.rf.images): counts, closed-form reflected paths, and agreement with Sionna RT."""
 from __future__ import annotations
 
 import numpy as np

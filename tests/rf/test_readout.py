@@ -1,11 +1,11 @@
-"""Tests of rfmitsuba.beam: the Bartlett kernel and the differentiable read-out."""
+"""Tests of rfmitsuba.rf.readout: the Bartlett kernel and the differentiable read-out."""
 from __future__ import annotations
 
 import numpy as np
 
 
 def test_kernel_is_the_array_response():
-    """K[p, q] equals |a(p)^H a(q)| / 16 computed from rfmitsuba.antenna's element positions."""
+    """K[p, q] equals |a(p)^H a(q)| / 16 computed from rfmitsuba.rf.array's element positions."""
     from rfmitsuba.rf import array as antenna
     from rfmitsuba.rf.readout import bartlett_kernel
 

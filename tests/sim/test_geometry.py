@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.geometry: reading scene XML, free space, placement errors, sampling, segments."""
+"""Tests of rfmitsuba.sim.geometry: reading scene XML, free space, placement errors, sampling, segments."""
 from __future__ import annotations
 
 import math

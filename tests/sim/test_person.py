@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.human: body mesh, seeded walks that stay clear, walk checks, Sionna object."""
+"""Tests of rfmitsuba.sim.person: body mesh, seeded walks that stay clear, walk checks, Sionna object."""
 from __future__ import annotations
 
 import math

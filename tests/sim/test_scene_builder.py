@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.scene_builder: descriptions -> Mitsuba XML + PLY, validation, TOML round trip."""
+"""Tests of rfmitsuba.sim.scene_builder: descriptions -> Mitsuba XML + PLY, validation, TOML round trip."""
 from __future__ import annotations
 
 import dataclasses

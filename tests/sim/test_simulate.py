@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.simulate against closed forms (free space, one metal plate), reciprocity
+"""Tests of rfmitsuba.sim.simulate against closed forms (free space, one metal plate), reciprocity
 with an explicit reverse solve, and reproducibility."""
 import numpy as np
 import pytest

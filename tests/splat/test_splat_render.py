@@ -7,11 +7,11 @@ import math
 import drjit as dr
 import numpy as np
 import pytest
-import splat_reference as ref
 
 from rfmitsuba.core import backend as B
 from rfmitsuba.core.errors import GaussianError
 from rfmitsuba.splat import as_jit_array, render
+from rfmitsuba.splat import reference as ref
 
 
 def random_scene(rng, n, *, box=((-3, -3, -1.5), (3, 3, 2.5)), scale=(0.08, 0.5)):
@@ -236,3 +236,11 @@ def test_no_recompilation_when_n_or_batch_changes(variant):
     for key, hashes in later.items():
         new = [hashes[h] for h in set(hashes) - set(seen)]
         assert not new, f"(N, B) = {key}: kernels (ops, size) not seen before: {new}"
+
+
+def test_reference_twin_constants_equal_the_kernels():
+    """The NumPy twin writes the kernel constants again (independently): they must agree."""
+    from rfmitsuba.splat import project, tiles
+
+    assert ref.ALPHA_MIN == tiles.ALPHA_MIN and ref.ALPHA_MAX == tiles.ALPHA_MAX
+    assert ref.DILATION == project.DILATION and ref.ZENITH_EPS == project.ZENITH_EPS

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
-import splat_reference as ref
 from test_splat_render import random_scene, to_jit
 
 from rfmitsuba.core import backend as B
+from rfmitsuba.splat import reference as ref
 from rfmitsuba.splat import tiles
 from rfmitsuba.splat.project import project
 

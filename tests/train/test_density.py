@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.density: clone / split / prune / reset, Adam state remapping, growth stop."""
+"""Tests of rfmitsuba.train.density: clone / split / prune / reset, Adam state remapping, growth stop."""
 from __future__ import annotations
 
 import numpy as np

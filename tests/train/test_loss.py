@@ -1,4 +1,4 @@
-"""Tests of rfmitsuba.ssim: parity with skimage, finite-difference gradients, the loss."""
+"""Tests of rfmitsuba.train.loss: parity with skimage, finite-difference gradients, the loss."""
 from __future__ import annotations
 
 import drjit as dr
