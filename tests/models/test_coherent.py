@@ -82,7 +82,7 @@ def test_gradients_match_finite_differences(variant):
         hr, hi = f.channels(x, y, x)
         return dr.sum(hr * B.Float(c[:, :16].ravel()) + hi * B.Float(c[:, 16:].ravel()))
 
-    base = {k: B.Float(np.asarray(v.numpy(), np.float32)) for k, v in f.parameters().items()}
+    base = {k: B.Float(np.array(v.numpy(), np.float32, copy=True)) for k, v in f.parameters().items()}
     for name in ("amp", "embed", "net.gain"):
         p = dict(base)
         dr.enable_grad(p[name])
