@@ -70,7 +70,7 @@ def test_minmax_and_stats():
 
 def test_evaluate_run_writes_report(tmp_path, variant):
     from stage1_data import make_dataset
-    from test_train import tiny_cfg
+    from test_trainer import tiny_cfg
 
     from rfmitsuba.cli import main
     from rfmitsuba.core.errors import RunError
@@ -100,7 +100,7 @@ def test_evaluate_run_writes_report(tmp_path, variant):
 def test_motivation_table_and_parsimony_on_a_tiny_dataset(tmp_path, variant):
     """Two rows each; the table files exist and rows carry model and floor numbers."""
     from stage1_data import make_dataset
-    from test_train import tiny_cfg
+    from test_trainer import tiny_cfg
 
     from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.experiments.tables import motivation_table, parsimony_curve
