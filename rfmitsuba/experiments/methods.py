@@ -135,19 +135,16 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
                                    noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
 
 
-def person_kind(mcfg: MethodConfig, bg) -> str:
-    """The registered kind of Stage 2's person field on background ``bg``: "splat_person" on a
-    splat background; on a coherent one "coherent_perturb" or "coherent_person" by
-    ``mcfg.coherent_human.kind`` ("perturb" or "scatter")."""
+def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
+    """Stage 2's person field on background ``bg``: (registered kind, its configuration).
+
+    On a splat background ("splat_person", ``mcfg.human``); on a coherent one
+    ("coherent_perturb" or "coherent_person", by ``mcfg.coherent_human.kind`` "perturb" or
+    "scatter", with ``mcfg.coherent_human``)."""
     if bg.family == "splat":
-        return "splat_person"
-    return "coherent_perturb" if mcfg.coherent_human.kind == "perturb" else "coherent_person"
-
-
-def person_config(mcfg: MethodConfig, bg):
-    """The Stage-2 person configuration of ``bg``'s family: ``mcfg.human`` (splat) or
-    ``mcfg.coherent_human`` (coherent)."""
-    return mcfg.human if bg.family == "splat" else mcfg.coherent_human
+        return "splat_person", mcfg.human
+    kind = "coherent_perturb" if mcfg.coherent_human.kind == "perturb" else "coherent_person"
+    return kind, mcfg.coherent_human
 
 
 def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
@@ -195,9 +192,9 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     bg.freeze()
     data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
-    pcfg = person_config(mcfg, bg)
+    kind, pcfg = person_field(mcfg, bg)
     oct_ = pcfg.human_octaves
-    person_cls = field_class(person_kind(mcfg, bg))
+    person_cls = field_class(kind)
     walk = np.unique(data.human_pos[data.train], axis=0)
 
     def factory(tr, rng):

@@ -415,11 +415,10 @@ class CoherentField(CoherentFamily):
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
-        """PAS of B views: ``TensorXf`` [B, height, width] (min-max normalised by default)."""
-        from ..rf.bartlett import bartlett
-
-        hr, hi = self.channels(x, y, q)
-        return bartlett(hr, hi, frequency_hz=self.frequency_hz, height=height, width=width, normalize=normalize)
+        """PAS of B views of this field alone (x, y, q: float [B, 3] metres, as :meth:`channels`;
+        horizontal array): ``TensorXf`` [B, height, width] (min-max normalised by default)."""
+        views = Views(antenna_pos=q, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=self.frequency_hz)
+        return self.render_family([self], views, height=height, width=width, normalize=normalize)
 
     # ---- export and state ------------------------------------------------------------------
     def source_points(self, *, x: np.ndarray, y: np.ndarray, task: str) -> np.ndarray:

@@ -97,7 +97,7 @@ class Strategy:
     def after_backward(self, field) -> None:
         return None
 
-    def step_end(self, step: int, field, opt, *, rng=None, probe_views=None, probe_opacity=None) -> bool:
+    def step_end(self, step: int, field, opt, *, rng=None, probe_views=None) -> bool:
         return False
 
     def on_validation(self, step: int, val_ssim: float) -> None:
@@ -159,8 +159,7 @@ class DensityStrategy(Strategy):
                 self.growth_stopped = True
                 self.history.append({"step": step, "event": "growth stopped", "val_ssim": float(val_ssim)})
 
-    def step_end(self, step: int, field: SplatField, opt, *, rng: np.random.Generator, probe_views=None,
-                 probe_opacity=None) -> bool:
+    def step_end(self, step: int, field: SplatField, opt, *, rng: np.random.Generator, probe_views=None) -> bool:
         """Densify / prune / reset after optimizer step ``step`` (1-based count of steps done).
 
         Args:
@@ -169,9 +168,7 @@ class DensityStrategy(Strategy):
             opt: the ``drjit.opt.Adam`` holding ``prefix + key`` entries.
             rng: numpy generator for split sampling.
             probe_views: :class:`~rfmitsuba.models.base.Views` over which each Gaussian's largest
-                attenuation delta decides pruning; None = ``probe_opacity``.
-            probe_opacity: callable () -> float32 [N], that largest attenuation delta given
-                directly; None (and no probe_views) = the view-independent part.
+                attenuation delta decides pruning; None = the view-independent part.
 
         Returns:
             True when the Gaussian set changed (size or values outside the optimizer step).
@@ -179,25 +176,26 @@ class DensityStrategy(Strategy):
         c = self.cfg
         if not c.enabled:
             return False
-        if probe_views is not None and probe_opacity is None:
-            def probe_opacity():
-                import drjit as dr
-
-                with dr.suspend_grad():
-                    sp = field.splats(probe_views.antenna_pos, view_pos=probe_views.view_pos,
-                                      extra=probe_views.extra(field))
-                    op = np.asarray(sp.opacities.numpy(), dtype=np.float32).reshape(probe_views.count, -1)
-                return op.max(axis=0)
         changed = False
         if c.start <= step < c.stop and step % c.every == 0 and self.grad_sum is not None:
-            changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_opacity=probe_opacity)
+            changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_views=probe_views)
         if c.reset_every > 0 and step % c.reset_every == 0 and step < c.stop:
             self._reset_opacity(field, opt)
             changed = True
         return changed
 
     # ---- operations -------------------------------------------------------------------
-    def _densify_and_prune(self, step, field, opt, *, rng, probe_opacity) -> bool:
+    @staticmethod
+    def _probe_opacity(field: SplatField, views) -> np.ndarray:
+        """Largest attenuation delta of every Gaussian over ``views``: float32 [N]."""
+        import drjit as dr
+
+        with dr.suspend_grad():
+            sp = field.splats(views.antenna_pos, view_pos=views.view_pos, extra=views.extra(field))
+            op = np.asarray(sp.opacities.numpy(), dtype=np.float32).reshape(views.count, -1)
+        return op.max(axis=0)
+
+    def _densify_and_prune(self, step, field, opt, *, rng, probe_views) -> bool:
         c = self.cfg
         g = field.gaussians_numpy()
         n = len(g["opacity_logits"])
@@ -207,8 +205,8 @@ class DensityStrategy(Strategy):
         scale_max = np.exp(g["log_scales"].max(axis=1))
 
         # -- prune
-        if probe_opacity is not None:
-            op = np.asarray(probe_opacity(), dtype=np.float64)
+        if probe_views is not None:
+            op = np.asarray(self._probe_opacity(field, probe_views), dtype=np.float64)
         else:
             op = 1 / (1 + np.exp(-g["opacity_logits"].astype(np.float64)))
         prune = (op < c.prune_opacity) | (scale_max > c.prune_scale) | ~np.isfinite(g["means"]).all(1)

@@ -17,7 +17,9 @@ Run folder layout::
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
     checkpoint/      latest resumable state (written atomically)
     final/field.npz  the trained field (rfmitsuba.models.base.load_field)
-    final/gaussians.ply, final/network.npz, final/summary.json
+    final/summary.json
+    final/*.ply      what the field exports (Field.export_ply): gaussians.ply and network.npz
+                     (splat), sources.ply (coherent)
 
 Tasks: moving RX (view = antenna position, network input = antenna position) and moving TX
 (view = the fixed array, network input = transmitter position).
@@ -217,7 +219,8 @@ class Trainer:
 
     def predict(self, field: Field, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
-        """Predicted PAS (not normalised) at antenna indices: float32 [K, h, w]."""
+        """Predicted PAS at antenna indices, as :meth:`render` gives them (on the loss's scale):
+        float32 [K, h, w]."""
         import drjit as dr
 
         out = []
@@ -433,6 +436,7 @@ class Trainer:
                    "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
         _write_json(fd / "summary.json", summary)
         return summary
+
 
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
     """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``.
