@@ -12,6 +12,10 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set iterations=2000 --set field.num_gaussians=4000")
     p.add_argument("--quick", action="store_true", help="small fast run (300 steps, half resolution)")
+    p.add_argument("--split", choices=["dataset", "block", "random"], default=None,
+                   help="test positions: the dataset's own split (a NeRF2 folder's published index files), "
+                        "'block' (the 20%% of positions with the largest x, a held-out slab) or 'random' "
+                        "(seeded 80/20); same as --set split=...")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -24,7 +28,8 @@ def build_config(args):
     cfg = C.load(TrainConfig, args.config) if args.config else TrainConfig()
     if args.quick:
         cfg = quick_config(cfg)
-    return C.override(cfg, list(args.set)) if args.set else cfg
+    sets = list(args.set) + ([f'split="{args.split}"'] if getattr(args, "split", None) else [])
+    return C.override(cfg, sets) if sets else cfg
 
 
 def run(args) -> int:

@@ -4,23 +4,33 @@ A folder holds::
 
     spectrum/00001.png ...   90 x 360 8-bit greyscale, min-max normalised PAS (row = elevation
                              1..90 deg, column = azimuth 0..359 deg, PAS layout, docs/conventions.md)
-    tx_pos.csv               header ``x,y,z``, one row per image (image n -> row n), metres
-    gateway_info.yml         the fixed receiver array: position [x, y, z] and orientation
-                             quaternion [x, y, z, w] (array frame -> world)
+    tx_pos.csv               one row per image (image n -> row n), metres; a header row
+                             (``x,y,z``) is optional
+    gateway_info.yml         the fixed receiver array: ``gateway1: {position: [x, y, z],
+                             orientation: [x, y, z, w]}`` (quaternion, array frame -> world)
     train_index.txt          1-based image numbers, one per line (``00001``...)
     test_index.txt
 
-NeRF2 is natively the moving-TX task (the gateway is the fixed array). A dataset
-of the moving-RX task written here keeps the moving device's positions in
-``tx_pos.csv`` and the fixed device as the gateway; the task, carrier and
-origin are kept in an extra file ``rfmitsuba.json`` that NeRF2 readers ignore.
-The YAML is written and read without a YAML library (the file is this one
-fixed two-level layout).
+Folders are read as published (NeRF2's RFID ``s23``, WRF-GS's ``data_test200``): the YAML
+is read with PyYAML, so extra top-level keys (``dataset_name: s23``) and comments are
+accepted; CRLF line ends, a UTF-8 byte-order mark, a header row and zero-padded index
+numbers are accepted too. Anything else that is malformed raises :class:`DatasetError`
+naming the file (and line, where there is one).
+
+NeRF2 is natively the moving-TX task (the gateway is the fixed array). A folder without our
+extra file is read with NeRF2's RFID defaults: moving TX, carrier :data:`NERF2_FREQUENCY_HZ`
+(about 920 MHz; the 4 x 4 array's 0.16 m pitch is half a wavelength there). A dataset of the
+moving-RX task written here keeps the moving device's positions in ``tx_pos.csv`` and the
+fixed device as the gateway; the task, carrier and origin are kept in an extra file
+``rfmitsuba.json`` that NeRF2 readers ignore (write one beside a measured folder to set
+another carrier).
 """
 from __future__ import annotations
 
 import json
+import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +40,8 @@ from ..rf.grid import PAS_SHAPE
 from .split import Split, make_split
 
 EXTRA = "rfmitsuba.json"
+#: carrier of NeRF2's RFID gateway, Hz (used when a folder does not say)
+NERF2_FREQUENCY_HZ = 920e6
 
 
 def quaternion_matrix(q) -> np.ndarray:
@@ -49,41 +61,122 @@ def to_uint8(pas: np.ndarray) -> np.ndarray:
     return np.round(normalize(pas) * 255.0).astype(np.uint8)
 
 
+def _read_text(path: Path) -> str:
+    """The text of ``path`` (UTF-8, an optional byte-order mark dropped); DatasetError when missing
+    or not text."""
+    if not path.is_file():
+        raise DatasetError(f"{path} is missing")
+    try:
+        return path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise DatasetError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+
+
 def _write_gateway(path: Path, position, orientation) -> None:
-    p = ", ".join(f"{float(v):.9g}" for v in position)
-    o = ", ".join(f"{float(v):.9g}" for v in orientation)
-    path.write_text(f"gateway1:\n  position: [{p}]\n  orientation: [{o}]\n")
+    import yaml
+
+    doc = {"gateway1": {"position": [float(v) for v in position], "orientation": [float(v) for v in orientation]}}
+    path.write_text(yaml.safe_dump(doc, default_flow_style=None, sort_keys=False))
+
+
+def _numbers(value, n: int) -> np.ndarray | None:
+    """``value`` as float64 [n] when it is a list of n finite numbers (not booleans), else None."""
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+        return None
+    return np.asarray(value, np.float64)
 
 
 def _read_gateway(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    if not path.is_file():
-        raise DatasetError(f"{path} is missing")
-    data: dict[str, dict[str, list[float]]] = {}
-    top = None
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        s = line.split("#", 1)[0].rstrip()
-        if not s.strip():
-            continue
-        m_top = re.fullmatch(r"([A-Za-z0-9_]+):", s)
-        m_key = re.fullmatch(r"\s+([A-Za-z0-9_]+):\s*\[([^\]]*)\]", s)
-        if m_top:
-            top = m_top.group(1)
-            data[top] = {}
-        elif m_key and top is not None:
-            try:
-                data[top][m_key.group(1)] = [float(v) for v in m_key.group(2).split(",")]
-            except ValueError:
-                raise DatasetError(f"{path}:{n}: not a list of numbers: {line.strip()!r}") from None
-        else:
-            raise DatasetError(f"{path}:{n}: cannot parse {line.strip()!r}")
+    """(position float64 [3] metres, quaternion float64 [4] ``[x, y, z, w]``) of ``gateway_info.yml``.
+
+    The fixed array is the key ``gateway1`` (or the only key named ``gateway...``); other
+    top-level keys (``dataset_name``) are ignored."""
+    import yaml
+
+    text = _read_text(path)
     try:
-        g = data["gateway1"]
-        pos, quat = np.asarray(g["position"], np.float64), np.asarray(g["orientation"], np.float64)
-    except KeyError as e:
-        raise DatasetError(f"{path}: missing gateway1 key {e}") from None
-    if pos.shape != (3,) or quat.shape != (4,) or not np.isfinite(pos).all() or not np.linalg.norm(quat) > 0:
-        raise DatasetError(f"{path}: gateway1 needs position [x, y, z] and orientation [x, y, z, w]")
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f":{mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise DatasetError(f"{path}{where}: not valid YAML ({problem})") from None
+    if not isinstance(doc, dict):
+        raise DatasetError(f"{path}: expected a mapping with a 'gateway1' key, got {type(doc).__name__}")
+    names = [k for k in doc if isinstance(k, str) and re.fullmatch(r"gateway\d*", k)]
+    key = "gateway1" if "gateway1" in doc else (names[0] if len(names) == 1 else None)
+    if key is None:
+        raise DatasetError(f"{path}: no 'gateway1' key (keys: {', '.join(map(str, doc))})")
+    g = doc[key]
+    if not isinstance(g, dict):
+        raise DatasetError(f"{path}: {key} must hold 'position' and 'orientation', got {g!r}")
+    pos = _numbers(g.get("position"), 3)
+    quat = _numbers(g.get("orientation"), 4)
+    if pos is None:
+        raise DatasetError(f"{path}: {key}.position must be [x, y, z] (finite numbers, metres), got "
+                           f"{g.get('position')!r}")
+    if quat is None or not np.linalg.norm(quat) > 1e-9:
+        raise DatasetError(f"{path}: {key}.orientation must be a non-zero quaternion [x, y, z, w], got "
+                           f"{g.get('orientation')!r}")
     return pos, quat
+
+
+def _read_positions(path: Path) -> np.ndarray:
+    """Rows of ``tx_pos.csv``: float64 [N, 3] metres. A first row that is not numeric is a header;
+    with a header naming x, y and z those columns are used, else the first three."""
+    lines = [(n, ln.strip()) for n, ln in enumerate(_read_text(path).splitlines(), 1) if ln.strip()]
+    if not lines:
+        raise DatasetError(f"{path}: empty, expected one row x,y,z per image")
+
+    def cells(s: str) -> list[str]:
+        return [c.strip() for c in (s.split(",") if "," in s else s.split())]
+
+    def is_number(c: str) -> bool:
+        try:
+            float(c)
+            return True
+        except ValueError:
+            return False
+
+    cols = [0, 1, 2]
+    first = cells(lines[0][1])
+    if not all(is_number(c) for c in first):
+        head = [c.strip().strip('"').lower() for c in first]
+        if all(k in head for k in ("x", "y", "z")):
+            cols = [head.index(k) for k in ("x", "y", "z")]
+        lines = lines[1:]
+        if not lines:
+            raise DatasetError(f"{path}: a header row and no positions")
+    out = np.empty((len(lines), 3), np.float64)
+    for r, (n, s) in enumerate(lines):
+        row = cells(s)
+        try:
+            out[r] = [float(row[c]) for c in cols]
+        except (IndexError, ValueError):
+            raise DatasetError(f"{path}:{n}: expected numbers x,y,z, got {s[:80]!r}") from None
+        if not np.isfinite(out[r]).all():
+            raise DatasetError(f"{path}:{n}: position is not finite: {s[:80]!r}")
+    return out
+
+
+def _read_index(path: Path, count: int) -> np.ndarray:
+    """0-based indices, sorted int64, of a 1-based index file (whitespace or comma separated)."""
+    tokens = re.split(r"[\s,]+", _read_text(path).strip())
+    tokens = [t for t in tokens if t]
+    if not tokens:
+        raise DatasetError(f"{path}: no image numbers")
+    try:
+        vals = np.asarray([int(t) for t in tokens], np.int64)
+    except ValueError:
+        bad = next(t for t in tokens if not t.lstrip("+").isdigit())
+        raise DatasetError(f"{path}: entries must be 1-based image numbers, found {bad[:40]!r}") from None
+    if vals.min() < 1 or vals.max() > count:
+        raise DatasetError(f"{path}: image numbers outside 1..{count} (found {int(vals.min())}..{int(vals.max())})")
+    if len(np.unique(vals)) != len(vals):
+        raise DatasetError(f"{path}: image numbers repeat")
+    return np.sort(vals - 1)
 
 
 def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
@@ -149,53 +242,64 @@ class NerfDataset:
             raise DatasetError(f"{spec}: images must be numbered 1..{A} without gaps")
         extra = {}
         if (self.path / EXTRA).is_file():
-            extra = json.loads((self.path / EXTRA).read_text())
+            try:
+                extra = json.loads(_read_text(self.path / EXTRA))
+            except json.JSONDecodeError as e:
+                raise DatasetError(f"{self.path / EXTRA}:{e.lineno}: not valid JSON ({e.msg})") from None
+            if not isinstance(extra, dict):
+                raise DatasetError(f"{self.path / EXTRA}: expected a JSON object")
         self.task = extra.get("task", "tx")
-        self.frequency_hz = float(frequency_hz or extra.get("frequency_hz", 2.4e9))
+        if self.task not in ("rx", "tx"):
+            raise DatasetError(f"{self.path / EXTRA}: task must be 'rx' or 'tx', got {self.task!r}")
+        f_hz = frequency_hz or extra.get("frequency_hz", NERF2_FREQUENCY_HZ)
+        if not isinstance(f_hz, (int, float)) or not math.isfinite(f_hz) or f_hz <= 0:
+            raise DatasetError(f"{self.path}: frequency_hz must be a positive number, got {f_hz!r}")
+        self.frequency_hz = float(f_hz)
+        csv = self.path / "tx_pos.csv"
+        pos = _read_positions(csv)
+        self.warnings = []
+        if len(pos) < A:
+            raise DatasetError(f"{csv}: {len(pos)} positions for {A} images in spectrum/ (one row per image)")
+        if len(pos) > A:
+            msg = (f"{csv}: {len(pos)} positions but only {A} images in spectrum/; images 1..{A} take the first "
+                   f"{A} rows (is spectrum/ complete?)")
+            warnings.warn(msg, stacklevel=2)
+            self.warnings.append(msg)
+        self.antenna_pos = pos[:A].astype(np.float32)
+        self.fixed_pos, quat = _read_gateway(self.path / "gateway_info.yml")
+        self.rx_to_world = quaternion_matrix(quat)
         imgs = np.empty((A, *PAS_SHAPE), np.float32)
         for f in files:
-            im = Image.open(f)
-            arr = np.asarray(im.convert("L") if im.mode not in ("L", "I;16", "I") else im)
+            try:
+                im = Image.open(f)
+                arr = np.asarray(im.convert("L") if im.mode not in ("L", "I;16", "I") else im)
+            except (OSError, ValueError, SyntaxError) as e:
+                raise DatasetError(f"{f}: not a readable image ({e})") from None
             if arr.shape != PAS_SHAPE:
                 raise DatasetError(f"{f}: image is {arr.shape[0]}x{arr.shape[1]}, expected 90x360")
             scale = 65535.0 if arr.dtype == np.uint16 else 255.0
             imgs[int(f.stem) - 1] = arr / scale
         self._pas = imgs
-        csv = self.path / "tx_pos.csv"
-        try:
-            pos = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
-        except (OSError, ValueError) as e:
-            raise DatasetError(f"{csv}: missing or malformed ({e})") from None
-        if pos.shape[1] != 3 or len(pos) < A or not np.isfinite(pos).all():
-            raise DatasetError(f"{csv}: needs {A} finite rows x,y,z; got {pos.shape}")
-        self.antenna_pos = pos[:A].astype(np.float32)
-        self.fixed_pos, quat = _read_gateway(self.path / "gateway_info.yml")
-        self.rx_to_world = quaternion_matrix(quat)
         self.num_antennas = A
         self.num_states = 1
         hp = extra.get("human_pos")
+        if hp is not None and _numbers(hp, 3) is None:
+            raise DatasetError(f"{self.path / EXTRA}: human_pos must be null or [x, y, z], got {hp!r}")
         self.human_pos = np.array([hp if hp is not None else [np.nan] * 3], np.float32)
         self.split = self._read_split(A)
         self.meta = {"format": "nerf2", "task": self.task, "frequency_hz": self.frequency_hz,
                      "num_antenna_positions": A, "num_states": 1, "fixed_pos": self.fixed_pos.tolist(),
-                     "gateway_orientation_xyzw": quat.tolist(), "nerf2": extra}
+                     "gateway_orientation_xyzw": quat.tolist(), "nerf2": extra, "warnings": self.warnings}
 
     def _read_split(self, A: int) -> Split:
+        """The published index files; without them, the seeded 80/20 split of :func:`make_split`."""
         tr, te = self.path / "train_index.txt", self.path / "test_index.txt"
         if not (tr.is_file() and te.is_file()):
             return make_split(A, 0, seed=0)
-        idx = {}
-        for name, f in (("train", tr), ("test", te)):
-            try:
-                vals = [int(t) for t in f.read_text().split()]
-            except ValueError:
-                raise DatasetError(f"{f}: entries must be 1-based image numbers") from None
-            if vals and (min(vals) < 1 or max(vals) > A):
-                raise DatasetError(f"{f}: image numbers outside 1..{A}")
-            idx[name] = np.sort(np.asarray(vals, np.int64) - 1)
-        if set(idx["train"]) & set(idx["test"]):
-            raise DatasetError(f"{tr} and {te} share images")
-        return Split(antenna_train=idx["train"], antenna_test=idx["test"], human_train=np.zeros(0, np.int64),
+        train, test = _read_index(tr, A), _read_index(te, A)
+        if np.intersect1d(train, test).size:
+            raise DatasetError(f"{tr} and {te} share images (e.g. {int(np.intersect1d(train, test)[0]) + 1})")
+        return Split(antenna_train=train, antenna_test=test, human_train=np.zeros(0, np.int64),
                      human_test=np.zeros(0, np.int64), seed=0)
 
     def __repr__(self) -> str:

@@ -3,6 +3,8 @@ are held out for testing.
 
 :func:`make_split` draws ``ANTENNA_TEST_FRACTION`` of the antenna positions and
 ``HUMAN_TEST_FRACTION`` of the walk positions as test positions from a seeded generator;
+:func:`block_split` holds out a slab instead (the positions with the largest x), so that test
+positions lie away from every training one (docs/conventions.md, "Splits");
 :class:`Split` holds the index lists and round-trips to ``split.json``.
 """
 from __future__ import annotations
@@ -78,3 +80,32 @@ def make_split(num_antennas: int, num_humans: int, *, seed: int = 0) -> Split:
                  antenna_test=np.sort(perm_a[:n_at]).astype(np.int64),
                  human_train=np.sort(perm_h[n_ht:]).astype(np.int64),
                  human_test=np.sort(perm_h[:n_ht]).astype(np.int64), seed=seed)
+
+
+def block_split(positions: np.ndarray, *, fraction: float = ANTENNA_TEST_FRACTION, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Spatial-block split: the ``fraction`` of positions with the largest coordinate ``axis``
+    (0 = x) are the test set.
+
+    Args:
+        positions: float [A, 3] metres.
+        fraction: share held out, in (0, 1).
+        axis: 0, 1 or 2 (x, y, z).
+
+    Returns:
+        (train, test): int64 indices into ``positions``, sorted. Positions tied at the boundary all
+        go to the test side, so every test position lies strictly beyond every training one along
+        ``axis`` (DatasetError when all positions share that coordinate).
+    """
+    pos = np.asarray(positions, np.float64)
+    if pos.ndim != 2 or pos.shape[1] != 3 or len(pos) < 2:
+        raise DatasetError(f"block_split: positions must be [A >= 2, 3], got {pos.shape}")
+    if not 0 < fraction < 1 or axis not in (0, 1, 2):
+        raise DatasetError(f"block_split: fraction must be in (0, 1) and axis 0, 1 or 2, got {fraction}, {axis}")
+    c = pos[:, axis]
+    n_test = max(1, int(round(fraction * len(pos))))
+    cut = np.sort(c)[len(c) - n_test]
+    test = np.flatnonzero(c >= cut)
+    if len(test) == len(c):
+        raise DatasetError(f"block_split: all positions share coordinate {axis}; a slab cannot be held out")
+    train = np.setdiff1d(np.arange(len(c)), test)
+    return train.astype(np.int64), np.sort(test).astype(np.int64)

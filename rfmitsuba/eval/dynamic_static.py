@@ -74,7 +74,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
                     train_human=data.human_pos[train] if use_human else None,
                     test_human=data.human_pos[test] if use_human else None)
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
-               "mean_image": stats(fl["mean_image"]),
+               "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
                "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
                "test_samples": int(len(test)), "train_samples": int(len(train))}
         if keep:

@@ -331,6 +331,8 @@ class SplatField(Field):
                      name: str = "bg") -> "SplatField":
         """The Stage-1 initial field of a training configuration: Gaussians on the scene's mesh
         surfaces (``cfg.field.init == "mesh"``) or random in the known bounds padded by 0.5 m.
+        A dataset without a scene (a measured NeRF2 folder) gets the random initialisation
+        whatever ``init`` says, with a warning.
 
         Args:
             cfg: the :class:`~rfmitsuba.train.config.TrainConfig` (``field``, ``seed``).
@@ -342,8 +344,13 @@ class SplatField(Field):
         fc = cfg.field
         meshes = data.meshes(scene_xml) if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
-            raise ConfigError(f"field.init = 'mesh' but dataset {data.path} names no scene; "
-                              "use --set field.init=\"random\"")
+            # a measured folder names no room: the scene-free initialisation is the only one there is
+            import warnings
+            from dataclasses import replace
+
+            warnings.warn(f"dataset {data.path} names no scene: Gaussians start uniform in the known bounds "
+                          "(field.init = 'random')", stacklevel=2)
+            fc = replace(fc, init="random")
         bounds = data.bounds
         if meshes:
             allv = np.concatenate([v for v, _ in meshes])

@@ -1,7 +1,8 @@
 """Typed training configuration, with a TOML round trip (:mod:`rfmitsuba.core.config`).
 
 :class:`TrainConfig` holds the step counts, batch, resolution, seed, validation and checkpoint
-cadence, the model kind (``model``: a registered field kind, "splat" or "coherent") and the
+cadence, the model kind (``model``: a registered Stage-1 field kind, e.g. "splat" or
+"coherent"), the train/test split (``split``) and the
 sub-configurations of each family (``field``, ``coherent``, ``density``) and of the optimizer
 (:class:`OptimConfig`). :func:`quick_config` is the ``--quick`` size; :func:`config_diff`
 names the keys in which two configurations differ (a run folder of another configuration is
@@ -55,9 +56,14 @@ class TrainConfig:
     schedules then also advance with the share of this time used);
     max_train_positions: use only this many training positions (0 = all; motivation table);
     state: dataset state to train on (0 = empty room).
-    model: "splat" (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or
-    "coherent" (image sources summed coherently and read out by the Bartlett beamformer,
+    model: a registered Stage-1 field kind (:func:`rfmitsuba.models.base.field_class`): "splat"
+    (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or "coherent" (image
+    sources summed coherently and read out by the Bartlett beamformer,
     :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
+    split: which positions are test positions: "dataset" (the dataset's own split: its
+    split.json, or a NeRF2 folder's published index files), "block" (the 20% of all positions
+    with the largest x, a held-out slab: :func:`rfmitsuba.data.split.block_split`) or "random"
+    (a seeded 80/20 split of all positions, seed ``seed``).
     scene: the room (built-in scene name or XML path) for a dataset that names none, e.g. a
     NeRF2 folder measured in a room you have modelled ("" = the dataset's own scene).
     """
@@ -74,7 +80,8 @@ class TrainConfig:
     time_limit_s: float = 0.0
     max_train_positions: int = 0
     state: int = 0
-    model: Literal["splat", "coherent"] = "splat"
+    model: str = "splat"
+    split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
     field: FieldConfig = dc_field(default_factory=FieldConfig)
     coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
@@ -91,8 +98,14 @@ class TrainConfig:
         for k in ("val_every", "checkpoint_every", "log_every"):
             if getattr(self, k) < 1:
                 raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
-        if self.model not in ("splat", "coherent"):
-            raise ConfigError(f"TrainConfig.model must be 'splat' or 'coherent', got {self.model!r}")
+        from ..models.base import field_class
+
+        cls = field_class(self.model)  # ConfigError naming the known kinds
+        if getattr(cls, "person", False):
+            raise ConfigError(f"TrainConfig.model {self.model!r} is a Stage-2 person field; Stage 1 trains a "
+                              "background field (e.g. 'splat' or 'coherent')")
+        if self.split not in ("dataset", "block", "random"):
+            raise ConfigError(f"TrainConfig.split must be 'dataset', 'block' or 'random', got {self.split!r}")
         if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
             raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
 

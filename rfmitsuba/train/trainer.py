@@ -159,16 +159,33 @@ class Trainer:
             _write_json(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
 
     # ---- setup ----------------------------------------------------------------------------
+    def base_split(self) -> tuple[np.ndarray, np.ndarray]:
+        """(train, test) antenna indices of ``cfg.split``: the dataset's own, a held-out slab of
+        the largest x ("block") or a seeded 80/20 split ("random") of all its positions."""
+        if self.cfg.split == "dataset":
+            return np.array(self.data.train), np.array(self.data.test)
+        every = np.union1d(self.data.train, self.data.test)
+        if self.cfg.split == "block":
+            from ..data.split import block_split
+
+            tr, te = block_split(self.data.antenna_pos[every])
+        else:
+            from ..data.split import make_split
+
+            sp = make_split(len(every), 0, seed=self.cfg.seed)
+            tr, te = sp.antenna_train, sp.antenna_test
+        return every[tr], every[te]
+
     def _make_split(self, rng: np.random.Generator) -> dict:
         cfg = self.cfg
-        train = np.array(self.data.train)
+        train, test = self.base_split()
         if cfg.max_train_positions and cfg.max_train_positions < len(train):
             train = np.sort(rng.choice(train, cfg.max_train_positions, replace=False))
         n_val = int(round(cfg.val_fraction * len(train)))
         n_val = min(n_val, cfg.val_max, len(train) - 1)
         val = np.sort(rng.choice(train, n_val, replace=False)) if n_val > 0 else np.zeros(0, np.int64)
         fit = np.setdiff1d(train, val)
-        return {"train": train, "fit": fit, "val": val, "test": np.array(self.data.test)}
+        return {"train": train, "fit": fit, "val": val, "test": test}
 
     def _init_field(self, rng: np.random.Generator) -> Field:
         if self.field_factory is not None:
@@ -295,10 +312,23 @@ class Trainer:
     def run(self, *, stop_at: int | None = None) -> dict:
         """Train (or resume) to ``cfg.iterations`` steps; returns the summary dict.
 
+        A run folder this call created is removed again when the run fails before its first
+        checkpoint (a configuration the field refuses, bad data, a diverging first step), so a
+        corrected retry starts clean; a folder with a checkpoint is kept and resumes.
+
         Args:
             stop_at: stop after this many steps as if interrupted (no final files; the latest
                 checkpoint stays), for tests of resuming.
         """
+        created = not self.run_dir.exists()
+        try:
+            return self._run(stop_at=stop_at)
+        except BaseException:
+            if created and self.run_dir.is_dir() and not (self.run_dir / "checkpoint").is_dir():
+                shutil.rmtree(self.run_dir, ignore_errors=True)
+            raise
+
+    def _run(self, *, stop_at: int | None = None) -> dict:
         import drjit as dr
         from drjit.opt import Adam
 

@@ -72,11 +72,42 @@ def test_bad_folders(small, tmp_path):
     with pytest.raises(DatasetError, match="gateway_info.yml"):
         nerf2.read(out)
     (out / "gateway_info.yml").write_text("gateway1:\n  position: oops\n")
-    with pytest.raises(DatasetError, match="cannot parse"):
+    with pytest.raises(DatasetError, match="gateway1.position must be"):
+        nerf2.read(out)
+    (out / "gateway_info.yml").write_text("gateway1:\n  position: [1, 2, 3\n")
+    with pytest.raises(DatasetError, match="gateway_info.yml.*not valid YAML"):
+        nerf2.read(out)
+    (out / "gateway_info.yml").write_text("dataset_name: s23\n")
+    with pytest.raises(DatasetError, match="no 'gateway1' key"):
+        nerf2.read(out)
+    (out / "gateway_info.yml").write_text("gateway1:\n  position: [1, 2, 3]\n  orientation: [0, 0, 0, 0]\n")
+    with pytest.raises(DatasetError, match="non-zero quaternion"):
         nerf2.read(out)
     nerf2._write_gateway(out / "gateway_info.yml", [0, 0, 1], [0, 0, 0, 1])
     (out / "tx_pos.csv").write_text("x,y,z\n1,2\n")
-    with pytest.raises(DatasetError, match="tx_pos.csv"):
+    with pytest.raises(DatasetError, match="tx_pos.csv:2: expected numbers"):
+        nerf2.read(out)
+    (out / "tx_pos.csv").write_text("x,y,z\n" + "1,2,3\n" * 11)
+    with pytest.raises(DatasetError, match="11 positions for 12 images"):
+        nerf2.read(out)
+    (out / "tx_pos.csv").write_text("x,y,z\n" + "1,2,3\n" * 11 + "1,nan,3\n")
+    with pytest.raises(DatasetError, match="tx_pos.csv:13: position is not finite"):
+        nerf2.read(out)
+    (out / "tx_pos.csv").write_text("x,y,z\n" + "1,2,3\n" * 12)
+    (out / "test_index.txt").write_text("00001\n00013\n")
+    with pytest.raises(DatasetError, match="test_index.txt: image numbers outside 1..12"):
+        nerf2.read(out)
+    (out / "test_index.txt").write_text("00001\nfoo\n")
+    with pytest.raises(DatasetError, match="test_index.txt: entries must be 1-based image numbers, found 'foo'"):
+        nerf2.read(out)
+    (out / "test_index.txt").write_text((out / "train_index.txt").read_text().split()[0] + "\n")
+    with pytest.raises(DatasetError, match="share images"):
+        nerf2.read(out)
+    (out / "test_index.txt").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(DatasetError, match="test_index.txt: not a UTF-8 text file"):
+        nerf2.read(out)
+    (out / "spectrum" / "00004.png").write_bytes(b"not a png")
+    with pytest.raises(DatasetError, match="00004.png: not a readable image"):
         nerf2.read(out)
     (out / "spectrum" / "00003.png").unlink()
     with pytest.raises(DatasetError, match="without gaps"):
@@ -90,3 +121,39 @@ def test_wrong_image_size(small, tmp_path):
     Image.fromarray(np.zeros((45, 180), np.uint8), mode="L").save(out / "spectrum" / "00002.png")
     with pytest.raises(DatasetError, match="00002.png.*90x360"):
         nerf2.read(out)
+
+
+def published_layout(folder):
+    """Rewrite a folder written by nerf2.write as the published ones are: a ``dataset_name`` key and a
+    comment in the YAML, CRLF line ends everywhere, a UTF-8 byte-order mark on the CSV."""
+    (folder / "gateway_info.yml").write_bytes(
+        b"dataset_name: s23\r\ngateway1:\r\n  position: [0.3, 0.3, 2.0]\r\n"
+        b"  orientation: [0, 0, 0, 1]  # x, y, z, w\r\n")
+    for name in ("tx_pos.csv", "train_index.txt", "test_index.txt"):
+        text = (folder / name).read_text()
+        (folder / name).write_bytes((b"\xef\xbb\xbf" if name == "tx_pos.csv" else b"")
+                                    + text.replace("\n", "\r\n").encode())
+
+
+def test_published_folders_are_read_as_they_are(small, tmp_path):
+    out = nerf2.write(small, tmp_path / "n")
+    (out / nerf2.EXTRA).unlink()  # a published folder has no rfmitsuba.json
+    published_layout(out)
+    back = nerf2.read(out)
+    assert back.task == "tx" and back.frequency_hz == nerf2.NERF2_FREQUENCY_HZ
+    assert np.allclose(back.antenna_pos, small.antenna_pos, atol=1e-6)
+    assert np.allclose(back.fixed_pos, [0.3, 0.3, 2.0])
+    assert np.array_equal(back.split.antenna_test, small.split.antenna_test)
+    # no header row: the first row is a position
+    rows = (out / "tx_pos.csv").read_bytes().decode("utf-8-sig").splitlines()[1:]
+    (out / "tx_pos.csv").write_text("\n".join(rows) + "\n")
+    assert np.allclose(nerf2.read(out).antenna_pos, small.antenna_pos, atol=1e-6)
+    # a header naming the columns in another order, with an extra column
+    pos = np.asarray(small.antenna_pos, np.float64).tolist()
+    (out / "tx_pos.csv").write_text("id,z,y,x\n" + "".join(f"{i},{z!r},{y!r},{x!r}\n" for i, (x, y, z) in enumerate(pos)))
+    assert np.allclose(nerf2.read(out).antenna_pos, pos, atol=1e-6)
+    # more positions than images: the first A rows, with a warning
+    (out / "tx_pos.csv").write_text("x,y,z\n" + "".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in pos) + "9,9,9\n")
+    with pytest.warns(UserWarning, match="13 positions but only 12 images"):
+        ds = nerf2.read(out)
+    assert np.allclose(ds.antenna_pos, pos, atol=1e-6) and ds.meta["warnings"]

@@ -1,71 +1,10 @@
-"""Tests of rfmitsuba.eval.metrics: SSIM protocol, floors on hand-made cases, the run report."""
+"""Tests of rfmitsuba.eval.run: the run report with its three floors, and the motivation table."""
 from __future__ import annotations
 
 import json
 
 import numpy as np
 import pytest
-
-
-def _img(seed, h=20, w=30):
-    return np.random.default_rng(seed).random((h, w)).astype(np.float32)
-
-
-def test_ssim_images_is_skimage_per_image():
-    from skimage.metrics import structural_similarity
-
-    from rfmitsuba.core.ssim import ssim_images
-
-    a = np.stack([_img(0), _img(1)])
-    b = np.stack([_img(0), _img(2)])
-    s = ssim_images(a, b)
-    assert s[0] == pytest.approx(1.0)
-    assert s[1] == pytest.approx(structural_similarity(a[1].astype(np.float64), b[1].astype(np.float64),
-                                                       data_range=1.0))
-    with pytest.raises(ValueError, match="must both be"):
-        ssim_images(a, b[:1])
-
-
-def test_nearest_index_with_and_without_human():
-    from rfmitsuba.eval.metrics import nearest_index
-
-    train = np.array([[0, 0, 0], [1, 0, 0], [5, 5, 1.0]])
-    q = np.array([[0.9, 0.1, 0], [4, 4, 1], [0.2, 0, 0]])
-    np.testing.assert_array_equal(nearest_index(train, q), [1, 2, 0])
-    # with human positions the nearest sample is the one with the closer human
-    train2 = np.array([[0, 0, 0], [0, 0, 0.0]])
-    th = np.array([[3, 3, 0], [1, 1, 0.0]])
-    np.testing.assert_array_equal(nearest_index(train2, np.zeros((1, 3)), train_human=th,
-                                                query_human=np.array([[1.2, 1, 0]])), [1])
-
-
-def test_floors_on_hand_made_cases():
-    """Test image k equals training image k, placed at the training position plus 1 cm: the
-    nearest-neighbour floor is exactly 1; the mean-image floor compares with the normalised mean."""
-    from rfmitsuba.core.ssim import ssim_images
-    from rfmitsuba.eval.metrics import floors
-    from rfmitsuba.rf.bartlett_ref import normalize as minmax
-
-    train = minmax(np.stack([_img(i) for i in range(4)]))
-    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
-    test = train[[2, 0]]
-    f = floors(train, pos, test, pos[[2, 0]] + 0.01)
-    np.testing.assert_allclose(f["nearest_neighbour"], 1.0)
-    np.testing.assert_array_equal(f["nearest_index"], [2, 0])
-    mean = minmax(train.mean(0)[None])[0]
-    np.testing.assert_allclose(f["mean_image"], ssim_images(np.stack([mean, mean]), test))
-    assert np.all(f["mean_image"] < 0.9)
-
-
-def test_minmax_and_stats():
-    from rfmitsuba.eval.metrics import stats
-    from rfmitsuba.rf.bartlett_ref import normalize as minmax
-
-    x = np.stack([np.full((3, 3), 5.0), np.arange(9.0).reshape(3, 3)])
-    m = minmax(x)
-    assert m[0].max() == 0 and m[1].min() == 0 and m[1].max() == 1
-    s = stats(np.array([0.1, 0.5, 0.9, 0.3]))
-    assert s["mean"] == pytest.approx(0.45) and s["median"] == pytest.approx(0.4) and s["n"] == 4
 
 
 def test_evaluate_run_writes_report(tmp_path, variant):
@@ -90,9 +29,10 @@ def test_evaluate_run_writes_report(tmp_path, variant):
     assert m["test_positions"] == 6 and 0 < m["nearest_neighbour"]["mean"] <= 1
     assert json.loads((out / "metrics.json").read_text())["num_gaussians"] == m["num_gaussians"]
     text = (out / "summary.md").read_text()
-    assert "nearest neighbour" in text and "mean image" in text and "wall time" in text
+    assert "nearest neighbour" in text and "IDW-3" in text and "mean image" in text and "wall time" in text
+    assert m["best_floor"] in ("nearest_neighbour", "idw3") and 0 < m["idw3"]["mean"] <= 1
     with np.load(out / "ssim.npz") as z:
-        assert z["model"].shape == (6,)
+        assert z["model"].shape == (6,) and z["idw3"].shape == (6,)
         assert m["model"]["mean"] == pytest.approx(float(z["model"].mean()))
     assert main(["eval", str(run)]) == 0
 

@@ -180,8 +180,8 @@ def test_moving_tx_task_trains(tmp_path, variant):
 
 def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
-    the gateway orientation reaches the renderer as rx_to_world; no scene -> random init."""
-    from rfmitsuba.core.errors import ConfigError
+    the gateway orientation reaches the renderer as rx_to_world; no scene -> random init with a
+    warning, whatever field.init says; --split block holds out the slab of largest x."""
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.data.views import TrainData
@@ -193,11 +193,51 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     data = TrainData.open(folder)
     assert data.task == "tx" and data.scene_xml is None
     np.testing.assert_allclose(data.rx_to_world, np.eye(3), atol=1e-12)
-    with pytest.raises(ConfigError, match="names no scene"):
-        Trainer(tiny_cfg(iterations=5, **{"field.init": '"mesh"'}), data, tmp_path / "r0", quiet=True).run()
-    Trainer(tiny_cfg(iterations=10), data, tmp_path / "run", quiet=True).run()
+    with pytest.warns(UserWarning, match="names no scene"):
+        Trainer(tiny_cfg(iterations=10, **{"field.init": '"mesh"'}), data, tmp_path / "run", quiet=True).run()
     m = evaluate_run(tmp_path / "run")
-    assert m["test_positions"] == len(data.test)
+    assert m["test_positions"] == len(data.test) and m["split"] == "dataset"
+    # the spatial-block split: the test positions are the slab of the largest x
+    Trainer(tiny_cfg(iterations=4, split='"block"'), data, tmp_path / "block", quiet=True).run()
+    sp = json.loads((tmp_path / "block" / "split.json").read_text())
+    x = data.antenna_pos[:, 0]
+    assert len(sp["test"]) == 6 and x[sp["test"]].min() > x[sp["train"]].max()
+    assert evaluate_run(tmp_path / "block")["split"] == "block"
+
+
+def test_a_run_that_fails_before_its_first_checkpoint_leaves_no_folder(tiny_ds, tmp_path):
+    """The coherent field refuses a dataset without a scene: the run folder it would have made is
+    gone, so the corrected retry into the same --out starts clean."""
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer
+
+    folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=30, task="tx")), tmp_path / "n")
+    data = TrainData.open(folder)
+    out = tmp_path / "run"
+    with pytest.raises(ConfigError, match="names no"):
+        Trainer(tiny_cfg(iterations=5, model='"coherent"'), data, out, quiet=True).run()
+    assert not out.exists()
+    assert Trainer(tiny_cfg(iterations=5), data, out, quiet=True).run()["steps"] == 5
+    # an existing folder is never removed by a failure
+    out2 = tmp_path / "kept"
+    out2.mkdir()
+    with pytest.raises(ConfigError):
+        Trainer(tiny_cfg(iterations=5, model='"coherent"'), data, out2, quiet=True).run()
+    assert out2.is_dir()
+
+
+def test_config_model_is_a_registered_stage1_kind():
+    from rfmitsuba.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="unknown field kind 'nerf'.*known:.*splat"):
+        tiny_cfg(model='"nerf"')
+    with pytest.raises(ConfigError, match="Stage-2 person field"):
+        tiny_cfg(model='"splat_person"')
+    with pytest.raises(ConfigError, match="split"):
+        tiny_cfg(split='"slab"')
 
 
 def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
