@@ -10,7 +10,8 @@ def register(sub) -> None:
     p.add_argument("--seeds", default=None, help="comma-separated training seeds (default 0,1,2)")
     p.add_argument("--config", default=None, help="CompareConfig TOML file")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set training.stage1.iterations=1000")
+                   help="override a config value, e.g. --set train.stage1_iterations=1000 or "
+                        "--set 'train.overrides=[\"stage1.optim.lr_amp=0.02\"]'")
     p.add_argument("--reevaluate", action="store_true",
                    help="evaluate finished jobs again (after the evaluation changed); training is kept")
     p.set_defaults(func=run)

@@ -6,7 +6,7 @@ def register(sub) -> None:
     p = sub.add_parser("reproduce", help="generate data, train every method, write the paper's tables (resumable)")
     p.add_argument("--out", required=True, help="output folder (report.md, jobs/, data/); a killed run resumes")
     p.add_argument("--quick", action="store_true", help="the quick size (minutes on 2 cores)")
-    p.add_argument("--size", choices=["tiny", "quick", "full"], default=None,
+    p.add_argument("--size", choices=["tiny", "quick", "full"], default=None,  # sizes.PAPER_SIZES
                    help="experiment size (default full; --quick = quick; tiny = synthetic data, seconds)")
     p.add_argument("--config", default=None, help="ExperimentConfig TOML file (instead of a size)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

@@ -4,7 +4,7 @@
 the requested methods of :mod:`rfmitsuba.experiments.methods` (Ours reuses that seed's Baseline as its
 Stage 1, so Baseline and Ours share one background), evaluates each by both protocols
 (dynamic: unseen antenna x unseen human positions; static: the background alone) with the
-nearest-neighbour and mean-image floors, and writes
+nearest-neighbour, IDW-3 and mean-image floors, and writes
 
     DIR/compare.toml        the configuration (a folder of other training sizes is refused; seeds
                             and methods may be added later: their jobs are new folders)
@@ -17,7 +17,6 @@ Jobs with a DONE marker are not run again, so a killed comparison resumes where 
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 from dataclasses import dataclass
 from dataclasses import field as dc_field
@@ -28,30 +27,23 @@ import numpy as np
 from ..core import config as C
 from ..core.atomic import write_json, write_text
 from ..core.errors import ConfigError, RunError
-from ..train.config import TrainConfig, config_diff
+from ..train.config import config_diff
 from .methods import METHODS, MethodConfig, get_method
 from .methods import run_job as methods_run_job
-
-
-def default_methods_config() -> MethodConfig:
-    """The coherent model at the sizes of the README's bedroom figures (900 positions x 35 walk
-    positions; about 25 min per seed for Baseline, Ours and End-to-End on 2 cores)."""
-    s1 = TrainConfig(model="coherent", iterations=3000, batch_views=8, downsample=1, val_every=500,
-                     checkpoint_every=500, log_every=50)
-    s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4
-    return MethodConfig(stage1=s1, stage2_iterations=1500,
-                        stage2_optim=dataclasses.replace(s1.optim, lr_amp=3e-3, lr_amp_final=3e-4,
-                                                         lr_means=3e-3, lr_means_final=3e-4))
+from .sizes import TrainSize, method_config
 
 
 @dataclass
 class CompareConfig:
     """What :func:`compare` runs: ``methods`` (names of :data:`rfmitsuba.experiments.methods.METHODS`),
-    ``seeds`` (training seeds) and ``training`` (the sizes every method shares)."""
+    ``seeds`` (training seeds) and ``train`` (the sizes every method shares, the one sizes
+    config of :mod:`rfmitsuba.experiments.sizes`; the defaults are the coherent model at the sizes
+    of the README's bedroom figures: 900 positions x 35 walk positions take about 25 min per seed
+    for Baseline, Ours and End-to-End on 2 cores)."""
 
     methods: list[str] = dc_field(default_factory=lambda: ["baseline", "end_to_end", "ours"])
     seeds: list[int] = dc_field(default_factory=lambda: [0, 1, 2])
-    training: MethodConfig = dc_field(default_factory=default_methods_config)
+    train: TrainSize = dc_field(default_factory=TrainSize)
 
     def __post_init__(self) -> None:
         for m in self.methods:
@@ -66,7 +58,7 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
     f = out / "compare.toml"
     if f.is_file():
         # more seeds or methods may be added to a comparison; the training sizes must not change
-        diff = config_diff(C.to_dict(C.load(CompareConfig, f).training), C.to_dict(cfg.training), "training.")
+        diff = config_diff(C.to_dict(C.load(CompareConfig, f).train), C.to_dict(cfg.train), "train.")
         if diff:
             raise RunError(f"output folder {out} holds another comparison: {'; '.join(diff)}. Use another --out "
                            "(nothing was changed)")
@@ -110,19 +102,22 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     out.mkdir(parents=True, exist_ok=True)
     C.save(cfg, out / "compare.toml")
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
+    from ..data.views import TrainData
+
+    mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
     results = []
     with bar(len(cfg.seeds) * len(order), desc="compare", unit="job", quiet=not progress) as pb:
         for seed in cfg.seeds:
             for m in order:
-                results.append(run_job(m, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
+                results.append(run_job(m, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
                 pb.update(1)
     # jobs of earlier seeds / methods of the same comparison stay in the results
     ran = {(x["method"], x["seed"]) for x in results}
     for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
         method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
         if (method, seed) not in ran:
-            results.append(run_job(method, seed, dataset, out, cfg.training, quiet=quiet, reevaluate=reevaluate))
+            results.append(run_job(method, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
     write_json(out / "results.json", results, allow_nan=True)
     _speed_accuracy(out / "speed_accuracy.png", results)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
@@ -148,9 +143,9 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
              "over seeds.", ""]
     for part in ("dynamic", "static"):
         lines += [f"## {part.capitalize()} evaluation", "",
-                  "| method | mean SSIM | median SSIM | nearest neighbour | mean image | beats NN | train time (s) | "
-                  "render (ms / PAS) | sources / Gaussians |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| method | mean SSIM | median SSIM | nearest neighbour | IDW-3 | mean image | beats NN | "
+                  "train time (s) | render (ms / PAS) | sources / Gaussians |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for m in _method_order(results, cfg):
             rs = [r for r in results if r["method"] == m and r["eval"].get(part)]
             if not rs:
@@ -159,7 +154,9 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
             beats = sum(e["beats_nearest_neighbour"] for e in ev)
             lines.append(
                 f"| {METHODS[m].label} | {_ms(e['model']['mean'] for e in ev)} | {_ms(e['model']['median'] for e in ev)}"
-                f" | {_ms(e['nearest_neighbour']['mean'] for e in ev)} | {_ms(e['mean_image']['mean'] for e in ev)}"
+                f" | {_ms(e['nearest_neighbour']['mean'] for e in ev)}"
+                f" | {_ms(e['idw3']['mean'] if e.get('idw3') else None for e in ev)}"
+                f" | {_ms(e['mean_image']['mean'] for e in ev)}"
                 f" | {beats}/{len(ev)} | {_ms((r['train']['train_time_s'] for r in rs), 0)}"
                 f" | {_ms((r['eval']['render_ms_per_pas'] for r in rs), 1)} | {rs[0]['eval']['num_gaussians']} |")
         lines.append("")

@@ -7,68 +7,38 @@ and End-to-End with equal budgets, evaluates dynamic and static SSIM with both f
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core import plots
 from ..core.errors import ConfigError
+from .sizes import ExperimentConfig, method_config, size_config
 
 
-@dataclass
-class DemoConfig:
-    """Sizes and model of the demo (defaults finish in about 10 minutes on 2 idle cores).
-
-    model: "coherent" (image sources + Bartlett readout, :mod:`rfmitsuba.models.coherent`; ``downsample``
-    and the Gaussian counts are not used) or "splat" (Gaussian splatting, WRF-GS+ style).
-    """
-
-    positions: int = 300
-    human_positions: int = 8
-    samples_per_src: int = 20000
-    stage1_iterations: int = 600
-    stage2_iterations: int = 300
-    downsample: int = 3
-    num_gaussians: int = 1500
-    human_gaussians: int = 96
-    seed: int = 0
-    model: str = "coherent"
-    room_order: int = 2
-
-
-SIZES = {"default": DemoConfig(),
-         "tiny": DemoConfig(positions=30, human_positions=5, stage1_iterations=40, stage2_iterations=30,
-                            downsample=10, num_gaussians=200, human_gaussians=24, room_order=1)}
-
-
-def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "bedroom", quiet: bool = False,
+def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: bool = False,
              dataset: str | Path | None = None) -> Path:
     """Run the demo into ``out``; returns the report path.
 
     Args:
         out: output folder (created; resumes).
-        cfg: sizes (default :class:`DemoConfig`).
-        scene: built-in scene name.
+        cfg: the sizes (default ``SIZES["demo"]`` of :mod:`rfmitsuba.experiments.sizes`): ``data``
+            (positions, walk positions, ray samples), ``train`` (every method's sizes),
+            ``rooms[0]`` (the built-in scene) and ``seeds[0]`` (data and training seed).
         quiet: no progress bars.
         dataset: use this dataset folder instead of generating ``out/data``.
     """
     from ..core import config as C
     from ..eval.dynamic_static import evaluate
-    from ..models.coherent import CoherentConfig
-    from ..models.splat import FieldConfig
-    from ..models.splat_person import SplatPersonConfig
-    from ..train.config import TrainConfig
-    from ..train.density import DensityConfig
-    from .methods import MethodConfig, load_model, train_method
+    from .methods import load_model, train_method
 
-    cfg = cfg or DemoConfig()
-    if cfg.positions < 10 or cfg.human_positions < 2:
-        raise ConfigError("DemoConfig needs >= 10 positions and >= 2 human positions")
-    if cfg.model not in ("coherent", "splat"):
-        raise ConfigError(f"DemoConfig.model must be 'coherent' or 'splat', got {cfg.model!r}")
+    cfg = cfg or size_config("demo")
+    d, seed, scene = cfg.data, cfg.seeds[0], cfg.rooms[0]
+    if d.positions < 10 or d.human_positions < 2:
+        raise ConfigError("the demo needs data.positions >= 10 and data.human_positions >= 2")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -77,43 +47,32 @@ def run_demo(out: str | Path, *, cfg: DemoConfig | None = None, scene: str = "be
         from ..sim.simulate import SolverConfig
 
         dataset = out / "data"
-        g = gen.GenerateConfig(scene=scene, task="rx", positions=cfg.positions, human_positions=cfg.human_positions,
-                             seed=cfg.seed, solver=SolverConfig(samples_per_src=cfg.samples_per_src))
+        g = gen.GenerateConfig(scene=scene, task="rx", positions=d.positions, human_positions=d.human_positions,
+                               seed=seed, solver=SolverConfig(samples_per_src=d.samples_per_src))
         gen.generate(dataset, g, quiet=quiet)
     t_data = time.perf_counter() - t0
     from ..data.views import TrainData
 
     has_scene = TrainData.open(dataset).scene_xml is not None
-    init = "mesh" if has_scene else "random"
-    model = cfg.model if has_scene else "splat"  # the coherent model needs the room's geometry
-    if model == "coherent":
-        s1 = TrainConfig(model="coherent", iterations=cfg.stage1_iterations, batch_views=8, downsample=1,
-                         val_every=100, checkpoint_every=100,
-                         coherent=CoherentConfig(room_order=cfg.room_order, furniture_order=1))
-    else:
-        s1 = TrainConfig(iterations=cfg.stage1_iterations, downsample=cfg.downsample, val_every=100,
-                         checkpoint_every=100, field=FieldConfig(init=init, num_gaussians=cfg.num_gaussians),
-                         density=DensityConfig(start=cfg.stage1_iterations // 4,
-                                               every=max(1, cfg.stage1_iterations // 8),
-                                               max_gaussians=3 * cfg.num_gaussians))
-    mcfg = MethodConfig(stage1=s1, stage2_iterations=cfg.stage2_iterations,
-                        human=SplatPersonConfig(num_gaussians=cfg.human_gaussians))
+    train = cfg.train if has_scene or cfg.train.model == "splat" else dataclasses.replace(cfg.train, model="splat")
+    model = train.model  # the coherent model needs the room's geometry
+    mcfg = method_config(train, scene_known=has_scene)
     C.save(mcfg, out / "method_config.toml") if not (out / "method_config.toml").exists() else None
     res = {}
     for m in ("baseline", "ours", "end_to_end"):
         t1 = time.perf_counter()
-        tr = train_method(m, dataset, out / m, mcfg=mcfg, seed=cfg.seed, quiet=quiet,
+        tr = train_method(m, dataset, out / m, mcfg=mcfg, seed=seed, quiet=quiet,
                           stage1_dir=(out / "baseline" / "train") if m == "ours" else None)
         ev = evaluate(load_model(m, out / m), dataset, keep=True)
         res[m] = {"train": tr, "eval": ev, "wall_s": time.perf_counter() - t1}
     _plots(out, res)
     lines = [f"# rfmitsuba demo: Baseline vs Ours vs End-to-End ({model} model)", "",
-             *([f"The dataset names no scene, so the {model} model is used instead of {cfg.model}.", ""]
-               if model != cfg.model else []),
-             f"Dataset `{dataset}` ({scene}, moving RX, {cfg.positions} antenna positions x (1 + "
-             f"{cfg.human_positions}) states; data step {t_data:.0f} s). Budgets: Baseline {cfg.stage1_iterations} "
-             f"steps; Ours = Baseline + {cfg.stage2_iterations} Stage-2 steps; End-to-End "
-             f"{cfg.stage1_iterations + cfg.stage2_iterations} steps.", "",
+             *([f"The dataset names no scene, so the {model} model is used instead of {cfg.train.model}.", ""]
+               if model != cfg.train.model else []),
+             f"Dataset `{dataset}` ({scene}, moving RX, {d.positions} antenna positions x (1 + "
+             f"{d.human_positions}) states; data step {t_data:.0f} s). Budgets: Baseline {train.stage1_iterations} "
+             f"steps; Ours = Baseline + {train.stage2_iterations} Stage-2 steps; End-to-End "
+             f"{train.stage1_iterations + train.stage2_iterations} steps.", "",
              "| method | dynamic mean | dynamic median | static mean | static median | train s | render ms/PAS |",
              "|---|---|---|---|---|---|---|"]
     for m, r in res.items():

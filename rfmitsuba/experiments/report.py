@@ -93,7 +93,7 @@ def _model_line(cfg) -> str:
     if t.model == "coherent":
         return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.models.coherent`): "
                 "training images 90x360, one source per image of each room, Stage 2 of kind "
-                f"`{method_config(cfg).coherent_human.kind}`")
+                f"`{method_config(cfg.train, scene_known=cfg.source == 'sionna').coherent_human.kind}`")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
             f"background Gaussians, {t.human_gaussians} human Gaussians")
 

@@ -184,7 +184,7 @@ def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet
     from .methods import run_job as methods_run_job
 
     jd = job.folder(out)
-    mcfg = method_config(cfg)
+    mcfg = method_config(cfg.train, scene_known=cfg.source == "sionna")
     if not (jd / "DONE").is_file():
         want = {"job": job.record(), "method_config": config_dict(mcfg)}
         jt = jd / "job.json"

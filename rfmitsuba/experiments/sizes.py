@@ -1,11 +1,13 @@
-"""The sizes of the paper's experiments: one configuration for every table.
+"""The one sizes configuration of every job runner: ``reproduce``, ``compare`` and ``demo``.
 
-:class:`ExperimentConfig` (with :class:`DataSize` and :class:`TrainSize`) says which
-datasets are generated and how long every method trains; :data:`SIZES` holds the named sizes
-``tiny`` (synthetic data, tests), ``quick`` and ``full``; :func:`size_config` returns a copy of
-one. :class:`DatasetSpec` names one dataset of a table; :func:`method_config` turns an
-experiment's sizes into the :class:`~rfmitsuba.experiments.methods.MethodConfig` every
-method shares.
+:class:`DataSize` says how big a generated dataset is, :class:`TrainSize` how long and how big
+every method trains (and, through ``overrides``, any finer setting). :class:`ExperimentConfig`
+holds both plus what ``reproduce`` runs; ``compare`` holds a :class:`TrainSize` and ``demo`` an
+:class:`ExperimentConfig`. :data:`SIZES` holds the named sizes ``tiny`` (synthetic data,
+tests), ``quick``, ``full`` (the paper's tables) and ``demo`` / ``demo_tiny`` (the README's main
+job); :func:`size_config` returns a copy of one. :func:`method_config` is the one place a
+:class:`TrainSize` becomes the :class:`~rfmitsuba.experiments.methods.MethodConfig` every
+method shares. :class:`DatasetSpec` names one dataset of a table.
 """
 from __future__ import annotations
 
@@ -30,21 +32,43 @@ class DataSize:
 
 @dataclass
 class TrainSize:
-    """Training sizes shared by every method (steps, image downsampling, Gaussians) and the model
-    family: "coherent" (image sources read out by Bartlett, :mod:`rfmitsuba.models.coherent`; trains at
-    full resolution whatever ``downsample`` says; needs a scene, so Sionna data only) or "splat"
-    (Gaussian splatting, WRF-GS+ style)."""
+    """Training sizes shared by every method.
+
+    model: the Stage-1 field kind, "coherent" (image sources read out by Bartlett,
+    :mod:`rfmitsuba.models.coherent`; trains at full resolution whatever ``downsample`` says; needs
+    a scene, so Sionna data only) or "splat" (Gaussian splatting, WRF-GS+ style).
+    stage1_iterations / stage2_iterations: n1 / n2 optimizer steps; batch_views: PAS per step;
+    downsample: training image reduction (splat); num_gaussians / max_gaussians: splat Gaussians
+    at the start / at most (density control ``density``); human_gaussians: Stage-2 person Gaussians
+    (splat); val_every: validation and checkpoint cadence [steps]; room_order / furniture_order:
+    image-source orders of the coherent model.
+    overrides: ``KEY=VALUE`` settings of the resulting
+    :class:`~rfmitsuba.experiments.methods.MethodConfig` applied last (e.g.
+    ``"stage1.optim.lr_amp=0.02"``, ``"coherent_human.num_points=8"``): every finer setting
+    without a size of its own.
+    """
 
     model: str = "coherent"
     stage1_iterations: int = 3000
-    stage2_iterations: int = 1000
+    stage2_iterations: int = 1500
     downsample: int = 2
-    batch_views: int = 4
+    batch_views: int = 8
     num_gaussians: int = 3000
     max_gaussians: int = 20000
     human_gaussians: int = 300
-    val_every: int = 250
+    val_every: int = 500
     density: bool = True
+    room_order: int = 3
+    furniture_order: int = 2
+    overrides: list[str] = dc_field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.model not in ("splat", "coherent"):
+            raise ConfigError(f"TrainSize.model must be 'splat' or 'coherent', got {self.model!r}")
+        for k in ("stage1_iterations", "stage2_iterations", "batch_views", "num_gaussians", "human_gaussians",
+                  "val_every"):
+            if getattr(self, k) < 1:
+                raise ConfigError(f"TrainSize.{k} must be >= 1, got {getattr(self, k)}")
 
 
 @dataclass
@@ -82,12 +106,13 @@ class ExperimentConfig:
             raise ConfigError("ExperimentConfig: seeds, rooms and tasks must not be empty")
         if any(t not in ("rx", "tx") for t in self.tasks):
             raise ConfigError(f"ExperimentConfig.tasks must be 'rx' / 'tx', got {self.tasks}")
-        if self.train.model not in ("splat", "coherent"):
-            raise ConfigError(f"ExperimentConfig.train.model must be 'splat' or 'coherent', got {self.train.model!r}")
         if self.train.model == "coherent" and self.source == "synthetic":
             raise ConfigError("train.model = 'coherent' needs Sionna data with a scene; synthetic data has none "
                               "(use train.model = 'splat')")
 
+
+#: the sizes of ``reproduce`` (the paper's tables, 3 seeds); the others are the demo's
+PAPER_SIZES = ("tiny", "quick", "full")
 
 SIZES = {
     "tiny": ExperimentConfig(
@@ -102,6 +127,17 @@ SIZES = {
                         num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
         snr_db=[10.0], position_counts=[12]),
     "full": ExperimentConfig(),
+    # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
+    "demo": ExperimentConfig(
+        size="demo", seeds=[0], data=DataSize(positions=300, human_positions=8, samples_per_src=20000),
+        train=TrainSize(stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
+                        max_gaussians=4500, human_gaussians=96, val_every=100, room_order=2, furniture_order=1),
+        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
+    "demo_tiny": ExperimentConfig(
+        size="demo_tiny", seeds=[0], data=DataSize(positions=30, human_positions=5, samples_per_src=20000),
+        train=TrainSize(stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
+                        max_gaussians=600, human_gaussians=24, val_every=100, room_order=1, furniture_order=1),
+        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
 }
 
 
@@ -125,22 +161,44 @@ class DatasetSpec:
         return f"{self.scene}_{self.task}_{self.material}"
 
 
-def method_config(cfg: ExperimentConfig):
-    """The :class:`rfmitsuba.experiments.methods.MethodConfig` of an experiment's training sizes."""
+def method_config(train: TrainSize, *, scene_known: bool = True):
+    """The :class:`rfmitsuba.experiments.methods.MethodConfig` of a :class:`TrainSize`: the one
+    place sizes become training configurations (``reproduce``, ``compare`` and ``demo`` all call it).
+
+    Args:
+        train: the sizes.
+        scene_known: the datasets name their room (Sionna data); without one the splat field
+            starts uniform in the bounds instead of on the room's surfaces. The coherent model
+            needs the room.
+    Returns:
+        the MethodConfig, with ``train.overrides`` applied last.
+    """
+    import dataclasses
+
+    from ..core import config as C
+    from ..models.coherent import CoherentConfig
     from ..models.splat import FieldConfig
     from ..models.splat_person import SplatPersonConfig
     from ..train.config import TrainConfig
     from ..train.density import DensityConfig
     from .methods import MethodConfig
 
-    t = cfg.train
+    t = train
+    if t.model == "coherent" and not scene_known:
+        raise ConfigError("train.model = 'coherent' needs datasets with a scene; use train.model = 'splat'")
     s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,
                      downsample=1 if t.model == "coherent" else t.downsample,
-                     val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 4),
-                     field=FieldConfig(init="random" if cfg.source == "synthetic" else "mesh",
-                                       num_gaussians=t.num_gaussians),
+                     val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 10),
+                     field=FieldConfig(init="mesh" if scene_known else "random", num_gaussians=t.num_gaussians),
+                     coherent=CoherentConfig(room_order=t.room_order, furniture_order=t.furniture_order),
                      density=DensityConfig(enabled=t.density, max_gaussians=t.max_gaussians,
                                            start=max(1, t.stage1_iterations // 4),
                                            every=max(1, t.stage1_iterations // 8)))
-    return MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
+    mcfg = MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
                         human=SplatPersonConfig(num_gaussians=t.human_gaussians))
+    if t.model == "coherent":
+        # the learning rates of the README's bedroom figures (network 3e-3 -> 3e-4; Stage 2 slower)
+        s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4
+        mcfg.stage2_optim = dataclasses.replace(s1.optim, lr_amp=3e-3, lr_amp_final=3e-4, lr_means=3e-3,
+                                                lr_means_final=3e-4)
+    return C.override(mcfg, list(t.overrides)) if t.overrides else mcfg

@@ -13,6 +13,12 @@ the one that makes the peak point at the source for Sionna RT's channels
 peak 180 degrees away in azimuth.
 
 All K images come from one complex matrix product ``[pixels, 16] x [16, K]``.
+
+Phase-only read-out (``bartlett(..., phase_only=True)``): NeRF2's RFID spectra use each
+element's measured phase with unit magnitude, ``h_m / |h_m|`` (:func:`unit_modulus`), so the
+per-element amplitudes do not matter. NeRF2 writes its steering vector as ``exp(-j ...)``
+because its measured phases have the opposite sign to Sionna's channel; applied to
+``conj(h)`` that is the same image as the ``+j`` convention here applied to ``h``.
 """
 from __future__ import annotations
 
@@ -32,8 +38,16 @@ def beamformer(*, frequency_hz: float, positions: np.ndarray | None = None,
     return (np.exp(-1j * k * (d @ pos.T)) / pos.shape[0]).astype(np.complex64)
 
 
+def unit_modulus(channels: np.ndarray) -> np.ndarray:
+    """Each element's phase with unit magnitude, ``h / |h|``: complex128 of the same shape
+    (elements with ``h = 0`` have no phase and stay 0)."""
+    h = np.asarray(channels, np.complex128)
+    mag = np.abs(h)
+    return np.where(mag > 0, h / np.where(mag > 0, mag, 1.0), 0)
+
+
 def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray | None = None,
-             resolution_deg: float = 1.0, batch: int = 256) -> np.ndarray:
+             resolution_deg: float = 1.0, batch: int = 256, phase_only: bool = False) -> np.ndarray:
     """Bartlett PAS of K channels.
 
     Args:
@@ -42,14 +56,18 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
         positions: element offsets float [M, 3], metres (default: the 4x4 URA).
         resolution_deg: angular step (1 -> [90, 360] images).
         batch: images per matrix product (bounds memory).
+        phase_only: use ``h_m / |h_m|`` (:func:`unit_modulus`) instead of ``h_m``, as NeRF2's
+            RFID spectra do; the image is then independent of the per-element amplitudes.
     Returns:
-        float32 [K, H, W], raw linear amplitude.
+        float32 [K, H, W], raw linear amplitude (at most 1 with ``phase_only``).
     """
     h = np.asarray(channels)
     if h.ndim != 2:
         raise ConfigError(f"channels must be [K, M], got shape {h.shape}")
     if not np.isfinite(h).all():
         raise ConfigError("channels contain NaN or inf")
+    if phase_only:
+        h = unit_modulus(h)
     B = beamformer(frequency_hz=frequency_hz, positions=positions, resolution_deg=resolution_deg)
     if h.shape[1] != B.shape[1]:
         raise ConfigError(f"channels have {h.shape[1]} elements, the array has {B.shape[1]}")

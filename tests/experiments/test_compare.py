@@ -13,10 +13,9 @@ def tiny_compare_cfg(**over):
     from rfmitsuba.core import config as C
     from rfmitsuba.experiments.compare import CompareConfig
 
-    sets = ["methods=['baseline','ours']", "seeds=[0]", "training.stage1.iterations=8",
-            "training.stage1.val_every=8", "training.stage1.checkpoint_every=8", "training.stage2_iterations=6",
-            "training.stage1.coherent.room_order=1", "training.stage1.coherent.furniture_order=0",
-            "training.coherent_human.num_points=4"]
+    sets = ["methods=['baseline','ours']", "seeds=[0]", "train.stage1_iterations=8", "train.val_every=8",
+            "train.stage2_iterations=6", "train.room_order=1", "train.furniture_order=0",
+            "train.overrides=['coherent_human.num_points=4']"]
     return C.override(CompareConfig(), sets + [f"{k}={v}" for k, v in over.items()])
 
 
@@ -37,7 +36,7 @@ def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
     assert sorted((r["method"], r["seed"]) for r in res) == [("baseline", 0), ("baseline", 1), ("ours", 0),
                                                               ("ours", 1)]
     with pytest.raises(RunError, match="another comparison"):
-        compare(quick_dataset.path, out, cfg=tiny_compare_cfg(**{"training.stage2_iterations": 7}), progress=False)
+        compare(quick_dataset.path, out, cfg=tiny_compare_cfg(**{"train.stage2_iterations": 7}), progress=False)
     # --reevaluate: metrics of an older evaluation (no "affected" part) are evaluated again, nothing retrains
     mfile = out / "seed1" / "ours" / "metrics.json"
     old = age_metrics(mfile)
@@ -53,6 +52,12 @@ def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
 
 
 def test_compare_config_errors():
+    with pytest.raises(ConfigError, match="TrainSize.model"):
+        tiny_compare_cfg(**{"train.model": "'nerf'"})
+    with pytest.raises(ConfigError, match="nope"):
+        from rfmitsuba.experiments.sizes import method_config
+
+        method_config(tiny_compare_cfg(**{"train.overrides": "['stage1.nope=1']"}).train)
     with pytest.raises(ConfigError, match="unknown method"):
         tiny_compare_cfg(methods="['nope']")
     with pytest.raises(ConfigError, match="repeat"):
