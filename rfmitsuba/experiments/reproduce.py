@@ -20,78 +20,22 @@ no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 core
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.errors import RunError
+from .job import Job
+from .paper_tables import TABLES
 from .sizes import DatasetSpec, ExperimentConfig, method_config
 
 
-@dataclass(frozen=True)
-class Job:
-    """One training + evaluation: dataset, method, seed, noise SNR (None = clean), training
-    antenna positions (0 = all)."""
-
-    dataset: DatasetSpec
-    method: str
-    seed: int
-    snr_db: float | None = None
-    positions: int = 0
-
-    @property
-    def key(self) -> str:
-        k = f"{self.method}_s{self.seed}"
-        if self.snr_db is not None:
-            k += f"_snr{self.snr_db:g}"
-        if self.positions:
-            k += f"_n{self.positions}"
-        return k
-
-    def folder(self, out: Path) -> Path:
-        return Path(out) / "jobs" / self.dataset.key / self.key
-
-    def stage1_job(self) -> "Job":
-        return dataclasses.replace(self, method="baseline")
-
-    def record(self) -> dict:
-        return {"dataset": self.dataset.key, "scene": self.dataset.scene, "task": self.dataset.task,
-                "material": self.dataset.material, "method": self.method, "seed": self.seed,
-                "snr_db": "none" if self.snr_db is None else float(self.snr_db), "positions": self.positions}
-
-
 def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:
-    """The jobs of every configured table (a job may serve several tables)."""
-    room, task = cfg.rooms[0], cfg.tasks[0]
-    ref = DatasetSpec(room, task)
-    out: dict[str, list[Job]] = {}
-    for t in cfg.tables:
-        jobs: list[Job] = []
-        for seed in cfg.seeds:
-            if t == "main":
-                jobs += [Job(DatasetSpec(r, k), m, seed) for r in cfg.rooms for k in cfg.tasks
-                         for m in ("baseline", "end_to_end", "ours")]
-            elif t == "two_stage":
-                jobs += [Job(ref, m, seed) for m in ("baseline", "end_to_end", "continued", "ours")]
-            elif t == "perturbation":
-                jobs += [Job(ref, m, seed) for m in ("baseline", "duplicated", "baseline_human", "ours")]
-            elif t == "material":
-                jobs += [Job(DatasetSpec(room, task, mat), m, seed) for mat in cfg.materials for m in ("baseline", "ours")]
-            elif t == "large_room" and cfg.large_room:
-                jobs += [Job(DatasetSpec(cfg.large_room, "rx"), m, seed) for m in ("baseline", "ours")]
-                jobs += [Job(DatasetSpec(room, "rx"), m, seed) for m in ("baseline", "ours")]
-            elif t == "positions":
-                for n in list(cfg.position_counts) + [0]:
-                    jobs += [Job(ref, m, seed, positions=n) for m in ("baseline", "ours")]
-            elif t == "noise":
-                for snr in [None] + list(cfg.snr_db):
-                    jobs += [Job(ref, m, seed, snr_db=snr) for m in ("baseline", "end_to_end", "ours")]
-        out[t] = jobs
-    return out
+    """The jobs of every configured table (:data:`rfmitsuba.experiments.paper_tables.TABLES`; a job
+    may serve several tables)."""
+    return {t: [j for seed in cfg.seeds for j in TABLES[t].jobs(cfg, seed)] for t in cfg.tables}
 
 
 def all_jobs(cfg: ExperimentConfig) -> list[Job]:

@@ -1,0 +1,43 @@
+"""One job of a reproduction: a training and evaluation of one method on one dataset with one
+seed (and optionally noisy training data or fewer training positions). Tables
+(:mod:`rfmitsuba.experiments.paper_tables`) list their jobs; :mod:`rfmitsuba.experiments.reproduce`
+runs each once."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from .sizes import DatasetSpec
+
+
+@dataclass(frozen=True)
+class Job:
+    """One training + evaluation: dataset, method, seed, noise SNR (None = clean), training
+    antenna positions (0 = all)."""
+
+    dataset: DatasetSpec
+    method: str
+    seed: int
+    snr_db: float | None = None
+    positions: int = 0
+
+    @property
+    def key(self) -> str:
+        k = f"{self.method}_s{self.seed}"
+        if self.snr_db is not None:
+            k += f"_snr{self.snr_db:g}"
+        if self.positions:
+            k += f"_n{self.positions}"
+        return k
+
+    def folder(self, out: Path) -> Path:
+        return Path(out) / "jobs" / self.dataset.key / self.key
+
+    def stage1_job(self) -> "Job":
+        return dataclasses.replace(self, method="baseline")
+
+    def record(self) -> dict:
+        return {"dataset": self.dataset.key, "scene": self.dataset.scene, "task": self.dataset.task,
+                "material": self.dataset.material, "method": self.method, "seed": self.seed,
+                "snr_db": "none" if self.snr_db is None else float(self.snr_db), "positions": self.positions}

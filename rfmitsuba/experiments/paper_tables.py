@@ -1,0 +1,302 @@
+"""The paper's tables, one object each: its jobs, its report section and its claims.
+
+A :class:`Table` says which jobs (:class:`rfmitsuba.experiments.job.Job`) it needs for one seed
+(:meth:`Table.jobs`) and writes its Markdown section from the finished jobs' results, adding its
+verdicts on the paper's claims (:meth:`Table.section`). :data:`TABLES` holds them by the names
+of :data:`rfmitsuba.experiments.sizes.TABLES`; ``reproduce`` runs the union of their jobs and
+``report`` writes their sections in order. A new table is one class here.
+"""
+from __future__ import annotations
+
+import math
+
+from ..eval.dynamic_static import AFFECTED_SSIM
+from . import paper
+from .job import Job
+from .results import (
+    AFF,
+    AFF_EMPTY,
+    AFF_NN,
+    DYN,
+    DYN_MED,
+    DYN_MI,
+    DYN_NN,
+    LABEL,
+    STAT,
+    STAT_MED,
+    STAT_MI,
+    STAT_NN,
+    Claims,
+    fmt,
+    mean,
+    mean_std_n,
+    paper_fmt,
+    select,
+)
+from .sizes import TABLES as TABLE_NAMES
+from .sizes import DatasetSpec, ExperimentConfig
+
+
+def _ref(cfg: ExperimentConfig) -> DatasetSpec:
+    """The reference dataset of the ablations: the first room and task."""
+    return DatasetSpec(cfg.rooms[0], cfg.tasks[0])
+
+
+class Table:
+    """One table of the paper: ``key`` (its name in ``ExperimentConfig.tables``), its jobs per seed
+    and its report section."""
+
+    key = ""
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        """The jobs this table needs for training seed ``seed``."""
+        raise NotImplementedError
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        """Markdown lines of this table from ``results`` (jobs not yet run show as "-"); adds the
+        verdicts of its claims to ``claims``."""
+        raise NotImplementedError
+
+
+class MainTable(Table):
+    """Every room x task: Baseline, End-to-End and Ours, with the floors (paper Table `tab:generalization_combined_concise`)."""
+
+    key = "main"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(DatasetSpec(r, k), m, seed) for r in cfg.rooms for k in cfg.tasks
+                for m in ("baseline", "end_to_end", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        L: list[str] = []
+        L += ["## Main table (paper Table `tab:generalization_combined_concise`)", "",
+              "*Where the person matters* = the dynamic test PAS whose SSIM against the empty room's PAS at the "
+              f"same antenna is below {AFFECTED_SSIM:g} (`methods.evaluate`, part \"affected\"); its floor row adds the "
+              "empty room's own PAS as a prediction, what a perfect background model reaches there.", "",
+              "| scene | task | method | dynamic mean | dynamic median | static mean | where the person matters | "
+              "paper mean / median |",
+              "|---|---|---|---|---|---|---|---|"]
+        n_ob, n_oe, n_tot = 0, 0, 0
+        for r in cfg.rooms:
+            for k in cfg.tasks:
+                ds = DatasetSpec(r, k).key
+                for m in ("baseline", "end_to_end", "ours"):
+                    rs = select(results, dataset=ds, method=m)
+                    L.append(f"| {paper.ROOM_LABELS.get(r, r)} | moving {k.upper()} | {LABEL[m]} | {fmt(rs, DYN)} | "
+                             f"{fmt(rs, DYN_MED)} | {fmt(rs, STAT)} | {fmt(rs, AFF)} | {paper_fmt(paper.MAIN.get((r, k, m)))} |")
+                rb = select(results, dataset=ds, method="baseline")
+                L.append(f"| | | *nearest neighbour / mean image (empty room)* | {fmt(rb, DYN_NN)} / "
+                         f"{fmt(rb, DYN_MI)} | | {fmt(rb, STAT_NN)} / {fmt(rb, STAT_MI)} | {fmt(rb, AFF_NN)} "
+                         f"({fmt(rb, AFF_EMPTY)}) | |")
+                o = mean(select(results, dataset=ds, method="ours"), DYN)
+                b = mean(rb, DYN)
+                e = mean(select(results, dataset=ds, method="end_to_end"), DYN)
+                if all(math.isfinite(x) for x in (o, b, e)):
+                    n_tot += 1
+                    n_ob += o > b
+                    n_oe += o > e
+        L.append("")
+        claims.add("Ours beats Baseline (every scene and task)", "Table main: +0.03 to +0.10",
+                   f"{n_ob} of {n_tot} scene/task pairs (dynamic mean)", (n_ob == n_tot) if n_tot else None)
+        claims.add("Ours beats End-to-End (every scene and task)", "Table main",
+                   f"{n_oe} of {n_tot} pairs (dynamic mean)", (n_oe == n_tot) if n_tot else None)
+        return L
+
+
+class TwoStageTable(Table):
+    """Two-stage ablation: Baseline, End-to-End, Continued, Ours on the first room and task
+    (paper Table `tab:ablation_strategy`)."""
+
+    key = "two_stage"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(_ref(cfg), m, seed) for m in ("baseline", "end_to_end", "continued", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        ref = _ref(cfg).key
+        ref = DatasetSpec(room, task).key
+        L: list[str] = []
+        L += [f"## Two-stage ablation (paper Table `tab:ablation_strategy`; {room}, moving {task.upper()})", "",
+              "| method | steps | dynamic mean | static mean | paper mean |", "|---|---|---|---|---|"]
+        for m in ("baseline", "end_to_end", "continued", "ours"):
+            rs = select(results, dataset=ref, method=m)
+            steps = fmt(rs, "train.steps", 0).split(" ±")[0]
+            L.append(f"| {LABEL[m]} | {steps} | {fmt(rs, DYN)} | {fmt(rs, STAT)} | "
+                     f"{paper_fmt(paper.TWO_STAGE.get(m, paper.PERTURBATION.get(m)))} |")
+        L.append("")
+        b, c = select(results, dataset=ref, method="baseline"), select(results, dataset=ref, method="continued")
+        if b and c:
+            d = mean(c, STAT) - mean(b, STAT)
+            sd = max(mean_std_n(b, STAT)[1], mean_std_n(c, STAT)[1], 0.005)
+            claims.add("Training the baseline longer gives no gain", "0.844 -> 0.844",
+                       f"static {mean(b, STAT):.3f} -> {mean(c, STAT):.3f} (diff {d:+.3f}, std {sd:.3f})",
+                       d <= sd)
+        o, e = select(results, dataset=ref, method="ours"), select(results, dataset=ref, method="end_to_end")
+        if o and e and b:
+            claims.add("End-to-End gains little over Baseline; two-stage is needed", "0.858 vs 0.927",
+                       f"E2E {mean(e, DYN):.3f}, Ours {mean(o, DYN):.3f}, Baseline {mean(b, DYN):.3f} (dynamic)",
+                       mean(o, DYN) > mean(e, DYN))
+        return L
+
+
+class PerturbationTable(Table):
+    """Role of perturbation data: Baseline, Duplicated, Baseline (human), Ours (paper Table `tab:ablation_info`)."""
+
+    key = "perturbation"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(_ref(cfg), m, seed) for m in ("baseline", "duplicated", "baseline_human", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        ref = _ref(cfg).key
+        ref = DatasetSpec(room, task).key
+        L: list[str] = []
+        L += [f"## Role of perturbation data (paper Table `tab:ablation_info`; {room}, moving {task.upper()})", "",
+              "| method | dynamic mean | static mean | paper mean |", "|---|---|---|---|"]
+        for m in ("baseline", "duplicated", "baseline_human", "ours"):
+            rs = select(results, dataset=ref, method=m)
+            L.append(f"| {LABEL[m]} | {fmt(rs, DYN)} | {fmt(rs, STAT)} | {paper_fmt(paper.PERTURBATION.get(m))} |")
+        L.append("")
+        b, du, h, o = (select(results, dataset=ref, method=m) for m in ("baseline", "duplicated", "baseline_human", "ours"))
+        if b and du:
+            claims.add("Duplicating the empty data collapses the baseline", "0.844 -> 0.761",
+                       f"static {mean(b, STAT):.3f} -> {mean(du, STAT):.3f}", mean(du, STAT) < mean(b, STAT) - 0.02)
+        if b and h:
+            margin = max(mean_std_n(b, STAT)[1], mean_std_n(h, STAT)[1], 0.005)
+            claims.add("Human-present data (no position) improves the background model", "0.844 -> 0.895",
+                       f"static {mean(b, STAT):.3f} -> {mean(h, STAT):.3f} (needs > +{margin:.3f}, the seed std)",
+                       mean(h, STAT) > mean(b, STAT) + margin)
+        if h and o:
+            claims.add("Ours beats Baseline (human)", "0.927 vs 0.895",
+                       f"dynamic {mean(o, DYN):.3f} vs {mean(h, DYN):.3f}", mean(o, DYN) > mean(h, DYN))
+        return L
+
+
+class MaterialTable(Table):
+    """Perturber material: Baseline and Ours per material (paper Table `tab:material_properties`)."""
+
+    key = "material"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        return [Job(DatasetSpec(room, task, mat), m, seed) for mat in cfg.materials for m in ("baseline", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        L: list[str] = []
+        L += [f"## Perturber material (paper Table `tab:material_properties`; {room}, moving {task.upper()})", "",
+              "| material | Baseline dynamic mean | Ours dynamic mean | Ours dynamic median | paper Ours mean / median |",
+              "|---|---|---|---|---|"]
+        got = {}
+        for mat in cfg.materials:
+            ds = DatasetSpec(room, task, mat).key
+            rb, ro = select(results, dataset=ds, method="baseline"), select(results, dataset=ds, method="ours")
+            got[mat] = mean(ro, DYN)
+            L.append(f"| {mat} | {fmt(rb, DYN)} | {fmt(ro, DYN)} | {fmt(ro, DYN_MED)} | {paper_fmt(paper.MATERIAL.get(mat))} |")
+        L.append("")
+        if all(k in got and math.isfinite(got[k]) for k in ("concrete", "tissue", "metal")):
+            claims.add("Concrete > human tissue > metal for Ours", "0.935 > 0.927 > 0.915",
+                       f"{got['concrete']:.3f}, {got['tissue']:.3f}, {got['metal']:.3f}",
+                       got["concrete"] > got["tissue"] > got["metal"])
+        return L
+
+
+class LargeRoomTable(Table):
+    """Large room against the first room, moving RX: where Ours overfits (paper Table `tab:large_scene_limitations`)."""
+
+    key = "large_room"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        if not cfg.large_room:
+            return []
+        return [Job(DatasetSpec(sc, "rx"), m, seed) for sc in (cfg.large_room, cfg.rooms[0]) for m in ("baseline", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room = cfg.rooms[0]
+        L: list[str] = []
+        L += ["## Large room (paper Table `tab:large_scene_limitations`, moving RX)", "",
+              "| scene | Baseline dynamic mean | Ours test (dynamic) | Ours val (Stage-2 validation) | "
+              "NN floor | paper Baseline / Ours test / Ours val |", "|---|---|---|---|---|---|"]
+        for sc in (room, cfg.large_room):
+            ds = DatasetSpec(sc, "rx").key
+            rb, ro = select(results, dataset=ds, method="baseline"), select(results, dataset=ds, method="ours")
+            L.append(f"| {paper.ROOM_LABELS.get(sc, sc)} | {fmt(rb, DYN)} | {fmt(ro, DYN)} | {fmt(ro, 'train.val_ssim')} | "
+                     f"{fmt(rb, DYN_NN)} | {paper_fmt(paper.LARGE_ROOM.get(sc))} |")
+        L.append("")
+        ds = DatasetSpec(cfg.large_room, "rx").key
+        rb, ro = select(results, dataset=ds, method="baseline"), select(results, dataset=ds, method="ours")
+        if rb and ro:
+            claims.add("In the large room Ours overfits: test below Baseline, validation far above test",
+                       "test 0.731 < Baseline 0.866; val 0.928",
+                       f"test {mean(ro, DYN):.3f} vs Baseline {mean(rb, DYN):.3f}; val {mean(ro, 'train.val_ssim'):.3f}",
+                       mean(ro, DYN) < mean(rb, DYN) and mean(ro, "train.val_ssim") > mean(ro, DYN))
+        return L
+
+
+class PositionsTable(Table):
+    """Number of training positions: Baseline and Ours at each count (paper Table `tab:motivation`)."""
+
+    key = "positions"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(_ref(cfg), m, seed, positions=n) for n in list(cfg.position_counts) + [0]
+                for m in ("baseline", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        ref = _ref(cfg).key
+        ref = DatasetSpec(room, task).key
+        L: list[str] = []
+        L += [f"## Number of training positions (paper Table `tab:motivation`; {room}, moving {task.upper()})", "",
+              "| training antenna positions | Baseline static mean | Baseline static median | Ours dynamic mean | "
+              "static NN floor |", "|---|---|---|---|---|"]
+        series = []
+        counts = sorted(set(cfg.position_counts)) + [0]
+        for n in counts:
+            rb = select(results, dataset=ref, method="baseline", positions=n)
+            ro = select(results, dataset=ref, method="ours", positions=n)
+            label = str(n) if n else f"all ({int(round(cfg.data.positions * 0.8))})"
+            series.append(mean(rb, STAT))
+            L.append(f"| {label} | {fmt(rb, STAT)} | {fmt(rb, STAT_MED)} | {fmt(ro, DYN)} | {fmt(rb, STAT_NN)} |")
+        L += ["", "Paper (Baseline, empty room, 900 to 10000 RX locations): "
+              + ", ".join(f"{k}: {paper_fmt(v)}" for k, v in paper.POSITIONS.items()), ""]
+        ok = [x for x in series if math.isfinite(x)]
+        if len(ok) >= 2:
+            claims.add("More static positions improve the baseline", "0.844 (900) -> 0.929 (10000)",
+                       " -> ".join(f"{x:.3f}" for x in ok), all(b >= a - 0.005 for a, b in zip(ok, ok[1:])))
+        return L
+
+
+class NoiseTable(Table):
+    """Measurement noise on the training channels at each SNR (not in the paper)."""
+
+    key = "noise"
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(_ref(cfg), m, seed, snr_db=snr) for snr in [None] + list(cfg.snr_db)
+                for m in ("baseline", "end_to_end", "ours")]
+
+    def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
+        room, task = cfg.rooms[0], cfg.tasks[0]
+        ref = _ref(cfg).key
+        ref = DatasetSpec(room, task).key
+        L: list[str] = []
+        L += [f"## Measurement noise on the training data ({room}, moving {task.upper()}; not in the paper)", "",
+              "Complex white noise added to the training channels at the given SNR (PAS recomputed); test data clean.", "",
+              "| SNR (dB) | Baseline dynamic | End-to-End dynamic | Ours dynamic | dynamic NN floor (clean) |",
+              "|---|---|---|---|---|"]
+        for snr in [None] + list(cfg.snr_db):
+            row = [fmt(select(results, dataset=ref, method=m, snr=snr), DYN) for m in ("baseline", "end_to_end", "ours")]
+            nn = fmt(select(results, dataset=ref, method="baseline"), DYN_NN)
+            L.append(f"| {'clean' if snr is None else f'{snr:g}'} | " + " | ".join(row) + f" | {nn} |")
+        L.append("")
+        return L
+
+
+
+#: every table by name, in report order
+TABLES: dict[str, Table] = {t.key: t for t in (MainTable(), TwoStageTable(), PerturbationTable(), MaterialTable(),
+                                                LargeRoomTable(), PositionsTable(), NoiseTable())}
+assert tuple(TABLES) == tuple(TABLE_NAMES), "paper_tables.TABLES and sizes.TABLES must name the same tables"

@@ -1,0 +1,41 @@
+"""rfmitsuba.experiments.paper_tables: one object per paper table, its jobs and its section."""
+from __future__ import annotations
+
+import pytest
+
+from rfmitsuba.experiments.paper_tables import TABLES, MainTable
+from rfmitsuba.experiments.results import Claims
+from rfmitsuba.experiments.sizes import TABLES as TABLE_NAMES
+from rfmitsuba.experiments.sizes import size_config
+
+
+def _result(job, dyn: float, stat: float) -> tuple[str, dict]:
+    part = lambda m: {"model": {"mean": m, "median": m}, "nearest_neighbour": {"mean": 0.5}, "mean_image": {"mean": 0.3}}
+    return f"{job.dataset.key}/{job.key}", {"job": job.record(), "train": {"steps": 10, "val_ssim": 0.9},
+                                           "eval": {"dynamic": part(dyn), "static": part(stat)}}
+
+
+def test_every_named_table_is_one_object_with_jobs_for_each_seed():
+    assert tuple(TABLES) == tuple(TABLE_NAMES)
+    cfg = size_config("full")
+    for key, table in TABLES.items():
+        jobs = table.jobs(cfg, 7)
+        assert jobs and all(j.seed == 7 for j in jobs), key
+        lines = table.section(cfg, {}, Claims())  # nothing run yet: the section still renders
+        assert lines[0].startswith("## "), key
+
+
+@pytest.mark.parametrize("ours", [0.8, 0.6])
+def test_main_table_section_and_claims_follow_the_results(ours):
+    cfg = size_config("quick")
+    results = {}
+    for seed in cfg.seeds:
+        for job in MainTable().jobs(cfg, seed):
+            dyn = {"baseline": 0.7, "end_to_end": 0.65, "ours": ours}[job.method] + 0.001 * seed
+            results.update([_result(job, dyn, 0.75)])
+    claims = Claims()
+    text = "\n".join(MainTable().section(cfg, results, claims))
+    assert f"{ours + 0.001:.3f} ± 0.001" in text  # mean +- std over the 3 seeds
+    verdicts = "\n".join(claims.rows)
+    assert "Ours beats Baseline" in verdicts
+    assert ("**holds**" if ours > 0.7 else "**does not hold**") in verdicts.splitlines()[0]
