@@ -107,7 +107,7 @@ def _point(value, name: str) -> np.ndarray:
 
 def _box_probe(lo: np.ndarray, hi: np.ndarray, *, spacing: float = 0.1) -> np.ndarray:
     """Grid points [N, 3] filling the box lo..hi (both faces included), about ``spacing`` apart."""
-    axes = [np.linspace(a, b, max(2, int(math.ceil((b - a) / spacing)) + 1)) for a, b in zip(lo, hi)]
+    axes = [np.linspace(a, b, max(2, math.ceil((b - a) / spacing) + 1)) for a, b in zip(lo, hi)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
 
@@ -142,8 +142,9 @@ def auto_layout(geom, *, region_size=REGION_SIZE, distance_m: float = DISTANCE_M
                 spacing: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """A tag-region centre and a gateway position for a room without a built-in layout.
 
-    Searches a ``spacing`` grid (metres) for a free region (its bottom :data:`REGION_BOTTOM` above the
-    floor, or the lowest height above it, in 0.1 m steps, where the region fits beside the furniture) and a free gateway (:data:`GATEWAY_HEIGHT` above the floor) whose distance is closest to
+    Searches a ``spacing`` grid (metres) for a free region (its bottom :data:`REGION_BOTTOM` above
+    the floor, or the lowest height above it, in 0.1 m steps, where the region fits beside the
+    furniture) and a free gateway (:data:`GATEWAY_HEIGHT` above the floor) whose distance is closest to
     ``distance_m``, preferring pairs with a clear line of sight; ties go to the first in grid order.
     Returns (region centre float64 [3], gateway float64 [3]), metres; ConfigError when none fits.
     """
@@ -256,7 +257,9 @@ def scene_for_carrier(xml: Path, frequency_hz: float, folder: Path) -> tuple[Pat
             raise SceneError(f"{xml}: material {mid!r} has unknown ITU type {itu!r}")
         table = ITU_MATERIALS_PROPERTIES[itu]
         inside = [r for r in table if r[0] <= f_ghz <= r[1]]
-        rng_ = inside[0] if inside else min(table, key=lambda r: abs(math.log(f_ghz / (r[0] if f_ghz < r[0] else r[1]))))
+        # the covering range, else the nearest one (in log frequency)
+        rng_ = inside[0] if inside else min(
+            table, key=lambda r: abs(math.log(f_ghz / (r[0] if f_ghz < r[0] else r[1]))))
         a, b, c, d = table[rng_]
         thick = float(kids["thickness"].get("value")) if "thickness" in kids else None
         record[mid] = {"itu_type": itu, "thickness_m": thick, "relative_permittivity": a * f_ghz ** b,
@@ -274,7 +277,7 @@ def scene_for_carrier(xml: Path, frequency_hz: float, folder: Path) -> tuple[Pat
     for s in tree.getroot().iter("string"):
         if s.get("name") == "filename" and not Path(s.get("value", "")).is_absolute():
             s.set("value", str((xml.parent / s.get("value")).resolve()))
-    out = Path(folder) / f"{xml.stem}-{int(round(frequency_hz))}hz.xml"
+    out = Path(folder) / f"{xml.stem}-{round(float(frequency_hz))}hz.xml"
     tree.write(out)
     return out, record
 
@@ -335,7 +338,9 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
 
     Args:
         out: the folder to write [path]; new, empty, or a complete folder of the same configuration
-            (then returned as it is, nothing is simulated).
+            (then returned as it is, nothing is simulated). The folder is written as
+            ``.<name>.tmp-<pid>`` beside it and renamed when complete, so ``out`` is either complete
+            or absent; a temporary folder left by a run that died is removed by the next call.
         num_tags: tag (moving TX) positions, >= 10 [count].
         snr_db: signal-to-noise ratio of the mean element power over all tags [dB]; ``inf`` for no noise.
         phase_error_deg: per-element phase offsets are uniform in +-this [degrees], in [0, 180].
@@ -378,13 +383,15 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     lam = antenna.wavelength(f_hz)
     num_trajectories = _integer(num_trajectories, "num_trajectories", lo=1)
     if num_tags < 2 * num_trajectories:
-        raise ConfigError(f"num_trajectories {num_trajectories} needs num_tags >= {2 * num_trajectories}, got {num_tags}")
+        raise ConfigError(f"num_trajectories {num_trajectories} needs num_tags >= {2 * num_trajectories}, "
+                          f"got {num_tags}")
     size = _point(region_size, "region_size")
     if np.any(size <= 0):
         raise ConfigError(f"region_size must be positive, got {size.tolist()}")
     step = _number(step_m, "step_m", lo=0.0)
     if not 0 < step < size.min() / 2:
-        raise ConfigError(f"step_m must be in (0, {size.min() / 2:g}) m (half the region's smallest side), got {step_m!r}")
+        raise ConfigError(f"step_m must be in (0, {size.min() / 2:g}) m (half the region's smallest side), "
+                          f"got {step_m!r}")
     pitch = lam / 2 if pitch_m is None else _number(pitch_m, "pitch_m", lo=0.0)
     if pitch <= 0:
         raise ConfigError(f"pitch_m must be positive, got {pitch_m!r}")
@@ -459,48 +466,52 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=tags, fixed_pos=gateway, split=split,
                                  human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
                                  path=f"sionna-rt:{xml.stem}")
-        nerf2.write(source, tmp)
-        d_tags = np.linalg.norm(tags - gateway, axis=1)
-        steps = np.linalg.norm(np.diff(tags, axis=0), axis=1)[np.diff(traj) == 0]
-        extra = json.loads((tmp / nerf2.EXTRA).read_text())
-        extra.update({
-            "generator": GENERATOR,
-            "protocol": "NeRF2-like (docs/conventions.md): moving TX, blind room",
-            "config": config,
-            "scene": _scene_record(xml),
-            "materials": materials,
-            "layout": {"region_lo": r_lo.tolist(), "region_hi": r_hi.tolist(), "region_center": centre.tolist(),
-                       "gateway_pos": gateway.tolist(), "gateway_orientation_xyzw": [0.0, 0.0, 0.0, 1.0],
-                       "gateway_to_region_center_m": float(np.linalg.norm(centre - gateway)),
-                       "gateway_to_tag_m": {"min": float(d_tags.min()), "max": float(d_tags.max())},
-                       "line_of_sight_to_center": bool(geom.segment_clear(gateway, centre))},
-            "trajectories": {"count": num_trajectories, "step_m": step, "turn_rad_per_step": TURN_RAD,
-                             "id": traj.tolist(), "step_m_measured_mean": float(steps.mean())},
-            "array": {"rows": antenna.ROWS, "cols": antenna.COLS, "pitch_m": pitch,
-                      "pitch_wavelengths": pitch / lam, "element_order": "x fastest: m = row * cols + col",
-                      "orientation": "horizontal: array frame = world frame, normal +z",
-                      "element_positions_m": pos.tolist()},
-            "impairments": {
-                "order": ["per-element phase offset", "additive complex Gaussian noise", "phase-only Bartlett"],
-                "phase_offset": {"distribution": "uniform", "max_deg": phase_err, "per_element_deg": offsets_deg.tolist(),
-                                 "applied_as": "h_m * exp(+j offset_m)"},
-                "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,
-                          "reference": "mean |h_m|^2 over all tags and elements (a fixed noise floor)"},
-                "readout": "phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
-                           "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
-                           "8-bit PNG",
-            },
-            "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "split": seed,
-                      "solver": solver.seed},
-            "solver": _config.to_dict(solver),
-            "timing": {"solver_s": solver_s, "total_s": time.perf_counter() - t_start},
-            "versions": versions(),
-        })
-        (tmp / nerf2.EXTRA).write_text(json.dumps(extra, indent=1, allow_nan=False) + "\n")
-        _fsync_tree(tmp)
-        if out.exists():
-            out.rmdir()                            # empty (checked by _existing)
-        os.replace(tmp, out)
+        try:
+            nerf2.write(source, tmp)
+            d_tags = np.linalg.norm(tags - gateway, axis=1)
+            steps = np.linalg.norm(np.diff(tags, axis=0), axis=1)[np.diff(traj) == 0]
+            extra = json.loads((tmp / nerf2.EXTRA).read_text())
+            extra.update({
+                "generator": GENERATOR,
+                "protocol": "NeRF2-like (docs/conventions.md): moving TX, blind room",
+                "config": config,
+                "scene": _scene_record(xml),
+                "materials": materials,
+                "layout": {"region_lo": r_lo.tolist(), "region_hi": r_hi.tolist(), "region_center": centre.tolist(),
+                           "gateway_pos": gateway.tolist(), "gateway_orientation_xyzw": [0.0, 0.0, 0.0, 1.0],
+                           "gateway_to_region_center_m": float(np.linalg.norm(centre - gateway)),
+                           "gateway_to_tag_m": {"min": float(d_tags.min()), "max": float(d_tags.max())},
+                           "line_of_sight_to_center": bool(geom.segment_clear(gateway, centre))},
+                "trajectories": {"count": num_trajectories, "step_m": step, "turn_rad_per_step": TURN_RAD,
+                                 "id": traj.tolist(), "step_m_measured_mean": float(steps.mean())},
+                "array": {"rows": antenna.ROWS, "cols": antenna.COLS, "pitch_m": pitch,
+                          "pitch_wavelengths": pitch / lam, "element_order": "x fastest: m = row * cols + col",
+                          "orientation": "horizontal: array frame = world frame, normal +z",
+                          "element_positions_m": pos.tolist()},
+                "impairments": {
+                    "order": ["per-element phase offset", "additive complex Gaussian noise", "phase-only Bartlett"],
+                    "phase_offset": {"distribution": "uniform", "max_deg": phase_err,
+                                     "per_element_deg": offsets_deg.tolist(), "applied_as": "h_m * exp(+j offset_m)"},
+                    "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,
+                              "reference": "mean |h_m|^2 over all tags and elements (a fixed noise floor)"},
+                    "readout": "phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
+                               "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
+                               "8-bit PNG",
+                },
+                "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "split": seed,
+                          "solver": solver.seed},
+                "solver": _config.to_dict(solver),
+                "timing": {"solver_s": solver_s, "total_s": time.perf_counter() - t_start},
+                "versions": versions(),
+            })
+            (tmp / nerf2.EXTRA).write_text(json.dumps(extra, indent=1, allow_nan=False) + "\n")
+            _fsync_tree(tmp)
+            if out.exists():
+                out.rmdir()                            # empty (checked by _existing)
+            os.replace(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
         pb.update(1)
     return out
 
