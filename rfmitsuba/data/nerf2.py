@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..rf.bartlett_ref import normalize
 from ..rf.grid import PAS_SHAPE
 from .split import Split, make_split
 
@@ -56,7 +57,6 @@ def quaternion_matrix(q) -> np.ndarray:
 
 def to_uint8(pas: np.ndarray) -> np.ndarray:
     """Min-max normalise each image and quantise: uint8 [..., 90, 360]."""
-    from ..rf.bartlett_ref import normalize
 
     return np.round(normalize(pas) * 255.0).astype(np.uint8)
 
@@ -248,6 +248,12 @@ class NerfDataset:
                 raise DatasetError(f"{self.path / EXTRA}:{e.lineno}: not valid JSON ({e.msg})") from None
             if not isinstance(extra, dict):
                 raise DatasetError(f"{self.path / EXTRA}: expected a JSON object")
+        #: a folder as published (no rfmitsuba.json): measured spectra of NeRF2's tool
+        self.measured = not extra
+        imp = extra.get("impairments") if isinstance(extra.get("impairments"), dict) else {}
+        ro = str(extra.get("readout", imp.get("readout", ""))).lower().replace("-", "_")
+        #: "phase_only" (NeRF2's read-out; published folders and our NeRF2-like simulations) or "amplitude"
+        self.readout = "phase_only" if (self.measured or ro.startswith("phase_only")) else "amplitude"
         self.task = extra.get("task", "tx")
         if self.task not in ("rx", "tx"):
             raise DatasetError(f"{self.path / EXTRA}: task must be 'rx' or 'tx', got {self.task!r}")
@@ -289,7 +295,8 @@ class NerfDataset:
         self.split = self._read_split(A)
         self.meta = {"format": "nerf2", "task": self.task, "frequency_hz": self.frequency_hz,
                      "num_antenna_positions": A, "num_states": 1, "fixed_pos": self.fixed_pos.tolist(),
-                     "gateway_orientation_xyzw": quat.tolist(), "nerf2": extra, "warnings": self.warnings}
+                     "gateway_orientation_xyzw": quat.tolist(), "nerf2": extra, "warnings": self.warnings,
+                     "readout": self.readout, "measured": self.measured}
 
     def _read_split(self, A: int) -> Split:
         """The published index files; without them, the seeded 80/20 split of :func:`make_split`."""

@@ -24,8 +24,10 @@ import numpy as np
 
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
+from ..rf import bartlett_ref as _pas
 from ..rf.bartlett_ref import normalize as minmax
 from ..rf.grid import PAS_SHAPE
+from .store import open_dataset
 from .views import TrainData, downsample
 
 STATE_SETS = ("empty", "human", "all")
@@ -124,7 +126,6 @@ class SampleData(TrainData):
         if duplicate < 1:
             raise ConfigError(f"duplicate must be >= 1, got {duplicate}")
         base = TrainData.open(path, state=0)
-        from .store import open_dataset
 
         ds = open_dataset(path)
         A, S = ds.num_antennas, ds.num_states
@@ -205,7 +206,6 @@ class SampleData(TrainData):
             except DatasetError:
                 ch = None
             if ch is not None and np.abs(ch).sum() > 0:
-                from ..rf import bartlett_ref as _pas
 
                 noisy = add_noise_channels(ch, float(self.noise_snr_db), rng=rng)
                 img = _pas.bartlett(noisy, frequency_hz=float(self._ds.frequency_hz))[0]

@@ -31,9 +31,11 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import write_json
-from ..core.errors import DatasetError
+from ..core.errors import DatasetError, SceneError
+from ..rf import array as antenna
 from ..rf.array import NUM_ELEMENTS
 from ..rf.grid import PAS_SHAPE
+from . import nerf2
 from .split import Split, make_split
 
 FORMAT = "rfmitsuba-dataset/1"
@@ -284,7 +286,6 @@ def open_dataset(path: str | Path, *, check: bool = True) -> Dataset:
     """
     p = Path(path)
     if not (p / "meta.json").exists() and (p / "spectrum").is_dir():
-        from . import nerf2
 
         return nerf2.read(p)
     return Dataset(p, check=check)
@@ -355,7 +356,6 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
 def base_meta(*, task: str, frequency_hz: float, num_antennas: int, human_positions: np.ndarray,
               fixed_pos: np.ndarray, extra: dict | None = None) -> dict:
     """The meta.json keys every dataset has, plus ``extra`` (scene, solver, seeds, versions...)."""
-    from ..rf import array as antenna
 
     if task not in ("rx", "tx"):
         raise DatasetError(f"task must be 'rx' or 'tx', got {task!r}")
@@ -423,7 +423,6 @@ def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray,
 
 def resolve_scene(scene: str | Path) -> Path:
     """A built-in scene name (``bedroom``...) or an XML path -> the XML path (SceneError if missing)."""
-    from ..core.errors import SceneError
 
     p = Path(scene)
     if p.suffix.lower() == ".xml":

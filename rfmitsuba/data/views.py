@@ -19,6 +19,8 @@ from ..rf.bartlett_ref import (
 )
 from ..rf.grid import PAS_SHAPE
 from .nerf2 import quaternion_matrix
+from .scene_xml import read_shapes
+from .store import open_dataset
 
 
 def downsample(x: np.ndarray, d: int) -> np.ndarray:
@@ -77,6 +79,12 @@ class TrainData:
     state: int = 0
     #: carrier, Hz
     frequency_hz: float = 2.4e9
+    #: how the dataset's PAS were read out: "amplitude" (our simulations) or "phase_only" (NeRF2's
+    #: tool: each element's phase with unit magnitude)
+    readout: str = "amplitude"
+    #: measured data (a NeRF2 folder as published, not written by this package): exact geometry
+    #: and impairments are unknown, so models should expect calibration errors
+    measured: bool = False
 
     @classmethod
     def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
@@ -85,7 +93,6 @@ class TrainData:
         Raises:
             DatasetError: missing folder/arrays, mismatched shapes, unknown task.
         """
-        from .store import open_dataset
 
         path = Path(path)
         if not path.exists():
@@ -118,7 +125,8 @@ class TrainData:
         bounds = (pts.min(0), pts.max(0))
         data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
                    scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
-                   frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)))
+                   frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
+                   readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))
         if shp != (len(ap), *PAS_SHAPE):
@@ -156,7 +164,6 @@ class TrainData:
         scene_xml = scene_xml or self.scene_xml
         if scene_xml is None:
             return None
-        from .scene_xml import read_shapes
 
         return [(np.asarray(sh.mesh.vertices, np.float64), np.asarray(sh.mesh.faces, np.int64))
                 for sh in read_shapes(scene_xml)]

@@ -21,8 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import RunError
+from ..core.ssim import ssim_images
 from ..data.samples import SampleData
 from ..rf.bartlett_ref import normalize as minmax
+from .metrics import floors, stats
 
 
 def test_sets(data: SampleData) -> dict:
@@ -49,8 +51,6 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
         per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
         evaluation on the PAS the person changes most (:func:`_affected`).
     """
-    from ..core.ssim import ssim_images
-    from .metrics import floors, stats
 
     data = SampleData.open_samples(dataset, states="all")
     sets = test_sets(data)
@@ -106,8 +106,6 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
         PAS ("empty_room" = the empty room's true PAS used as the prediction: what a perfect
         background model scores), "threshold", "fraction" (affected / all dynamic test PAS)}.
     """
-    from ..core.ssim import ssim_images
-    from .metrics import stats
 
     empty = {int(a): int(k) for k, a in enumerate(data.antennas) if data.states[k] == 0}
     ref = np.array([empty.get(int(a), -1) for a in data.antennas[test]])

@@ -18,6 +18,7 @@ import numpy as np
 from ..core.errors import RunError
 from ..core.ssim import ssim_images
 from ..rf.bartlett_ref import normalize as minmax
+from ..train.trainer import load_run
 from .figures import plot_cdf, plot_grid, plot_time
 from .metrics import best_floor, floors, stats
 
@@ -31,7 +32,6 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     Raises:
         RunError: not a run folder, or training not finished.
     """
-    from ..train.trainer import load_run
 
     rd = Path(run_dir)
     cfg, data, renderer = load_run(rd)

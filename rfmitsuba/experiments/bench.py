@@ -32,6 +32,10 @@ import time
 
 import numpy as np
 
+from ..core import backend as B
+from ..splat.render import render
+from ..train import loss as ssim
+
 #: Gaussian counts of the full benchmark and of ``--quick``.
 SIZES = (2_000, 10_000, 50_000)
 QUICK_SIZES = (300,)
@@ -116,9 +120,6 @@ def _figures(forward, forward_backward, iteration, repeats: int) -> dict:
 def _drjit_step_functions(n: int, height: int, width: int, views: int = 1):
     import drjit as dr
 
-    from ..core import backend as B
-    from ..splat.render import render
-    from ..train import loss as ssim
 
     B.ensure()
     (means, ls, rot, op, sig), rx = make_scene(n, views=views)

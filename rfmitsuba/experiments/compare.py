@@ -25,8 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from ..core import config as C
+from ..core import plots
 from ..core.atomic import write_json, write_text
 from ..core.errors import ConfigError, RunError
+from ..core.progress import bar
+from ..data.views import TrainData
+from ..eval.metrics import mean_std
 from ..train.config import config_diff
 from .methods import METHODS, MethodConfig, get_method
 from .methods import run_job as methods_run_job
@@ -94,7 +98,6 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
         RunError: ``out`` holds another configuration or dataset; DatasetError: a dataset
         without human-present states (the methods need them).
     """
-    from ..core.progress import bar
 
     cfg = cfg or CompareConfig()
     dataset, out = Path(dataset), Path(out)
@@ -102,7 +105,6 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     out.mkdir(parents=True, exist_ok=True)
     C.save(cfg, out / "compare.toml")
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
-    from ..data.views import TrainData
 
     mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
@@ -125,7 +127,6 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 
 def _ms(values, digits: int = 3) -> str:
     """``mean ± std`` of finite values (rfmitsuba.eval.metrics.mean_std), the value alone for one, n/a for none."""
-    from ..eval.metrics import mean_std
 
     v = [float(x) for x in values if x is not None]
     m, sd = mean_std(v)
@@ -196,7 +197,6 @@ def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
 
 
 def _speed_accuracy(path: Path, results: list[dict]) -> None:
-    from ..core import plots
 
     fig, ax = plots.subplots(figsize=(5, 3.5))
     for m in sorted({r["method"] for r in results}):

@@ -14,8 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import config as C
 from ..core import plots
 from ..core.errors import ConfigError
+from ..data.views import TrainData
+from ..eval.dynamic_static import evaluate
+from ..eval.figures import plot_cdf
+from .methods import load_model, train_method
 from .sizes import ExperimentConfig, method_config, size_config
 
 
@@ -31,9 +36,6 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
         quiet: no progress bars.
         dataset: use this dataset folder instead of generating ``out/data``.
     """
-    from ..core import config as C
-    from ..eval.dynamic_static import evaluate
-    from .methods import load_model, train_method
 
     cfg = cfg or size_config("demo")
     d, seed, scene = cfg.data, cfg.seeds[0], cfg.rooms[0]
@@ -51,7 +53,6 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
                                seed=seed, solver=SolverConfig(samples_per_src=d.samples_per_src))
         gen.generate(dataset, g, quiet=quiet)
     t_data = time.perf_counter() - t0
-    from ..data.views import TrainData
 
     has_scene = TrainData.open(dataset).scene_xml is not None
     train = cfg.train if has_scene or cfg.train.model == "splat" else dataclasses.replace(cfg.train, model="splat")
@@ -104,7 +105,6 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
 
 
 def _plots(out: Path, res: dict) -> None:
-    from ..eval.figures import plot_cdf
 
     plot_cdf(out / "ssim_cdf.png", {f"{m} dynamic": r["eval"]["dynamic"]["model_ssim"] for m, r in res.items()})
     gt = res["ours"]["eval"]["dynamic"]["gt"]

@@ -43,6 +43,7 @@ from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.errors import ConfigError, RunError
 from ..data.samples import SampleData, num_human_features
+from ..data.store import open_dataset
 from ..eval.dynamic_static import evaluate
 from ..models.base import FieldSet, field_class, load_field
 from ..models.coherent_person import CoherentPersonConfig
@@ -128,7 +129,6 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
     that every method sees the same positions)."""
     dup = 1
     if method.duplicate:
-        from ..data.store import open_dataset
 
         dup = 1 + len(open_dataset(dataset).split.human_train)
     return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,

@@ -28,11 +28,11 @@ from .results import (
     mean_std_n,
     value,
 )
+from .sizes import method_config
 
 
 def _model_line(cfg) -> str:
     """What the training sizes of an experiment mean for its model family."""
-    from .sizes import method_config
 
     t = cfg.train
     if t.model == "coherent":

@@ -26,9 +26,15 @@ from pathlib import Path
 
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
-from ..core.errors import RunError
+from ..core.errors import PlacementError, RfmError, RunError
+from ..core.progress import bar
+from ..data.store import resolve_scene
+from ..train.config import config_diff
 from .job import Job
+from .methods import config_dict
+from .methods import run_job as methods_run_job
 from .paper_tables import TABLES
+from .report import write_report
 from .sizes import DatasetSpec, ExperimentConfig, method_config
 
 
@@ -84,8 +90,6 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
     Raises:
         PlacementError: no seed works.
     """
-    from ..core.errors import PlacementError, RfmError
-    from ..data.store import resolve_scene
     from ..sim import person as human
     from ..sim.geometry import RoomGeometry
 
@@ -102,7 +106,6 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
 
 
 def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
-    from ..train.config import config_diff
 
     f = out / "experiment.toml"
     if f.is_file():
@@ -123,9 +126,6 @@ def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet
     Raises:
         RunError: the job folder holds a job of another configuration (``job.json`` differs).
     """
-    from ..train.config import config_diff
-    from .methods import config_dict
-    from .methods import run_job as methods_run_job
 
     jd = job.folder(out)
     mcfg = method_config(cfg.train, scene_known=cfg.source == "sionna")
@@ -171,7 +171,6 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     Raises:
         RunError: ``out`` holds another configuration (the differing key is named).
     """
-    from ..core.progress import bar
 
     out = Path(out)
     _check_experiment(out, cfg)
@@ -199,7 +198,6 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
                     raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
     wall = time.perf_counter() - t_start
     _write_json(out / "results.json", results)
-    from .report import write_report
 
     return write_report(out, cfg, results, wall_s=wall)
 

@@ -16,6 +16,12 @@ from dataclasses import field as dc_field
 
 from ..core import config as C
 from ..core.errors import ConfigError
+from ..models.coherent import CoherentConfig
+from ..models.splat import FieldConfig
+from ..models.splat_person import SplatPersonConfig
+from ..train.config import TrainConfig
+from ..train.density import DensityConfig
+from .methods import MethodConfig
 
 TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise")
 
@@ -175,13 +181,6 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     """
     import dataclasses
 
-    from ..core import config as C
-    from ..models.coherent import CoherentConfig
-    from ..models.splat import FieldConfig
-    from ..models.splat_person import SplatPersonConfig
-    from ..train.config import TrainConfig
-    from ..train.density import DensityConfig
-    from .methods import MethodConfig
 
     t = train
     if t.model == "coherent" and not scene_known:

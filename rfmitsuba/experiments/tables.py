@@ -21,6 +21,7 @@ from ..core import config as C
 from ..core import plots
 from ..core.errors import ConfigError
 from ..data.views import TrainData
+from ..eval.run import evaluate_run
 from ..train.config import TrainConfig
 from ..train.trainer import Trainer
 
@@ -29,7 +30,6 @@ QUICK_MOTIVATION_COUNTS = (150, 300, 600, 900)
 
 
 def _run_and_eval(cfg: TrainConfig, data: TrainData, run_dir: Path, *, quiet: bool) -> dict:
-    from ..eval.run import evaluate_run
 
     Trainer(cfg, data, run_dir, quiet=quiet).run()
     return evaluate_run(run_dir)

@@ -47,6 +47,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
+from ..core.atomic import write_npz
 from ..core.errors import ConfigError, RunError
 
 #: registry name -> field class
@@ -181,6 +182,13 @@ class Field:
     def assign(self, values: dict) -> None:
         raise NotImplementedError
 
+    @staticmethod
+    def lr_group(name: str) -> str:
+        """The learning-rate schedule of parameter ``name`` (a key of the trainer's learning
+        rates: "means", "log_scales", "rotations", "opacity_logits", "amp", "embed", "offsets" or
+        "net"). Default: "net" for packed network weights (names with a dot), else the name."""
+        return "net" if "." in name else name
+
     def freeze(self) -> None:
         raise NotImplementedError
 
@@ -197,7 +205,6 @@ class Field:
 
     def save(self, path: str | Path) -> Path:
         """Write :meth:`state_dict` to an ``.npz`` file atomically."""
-        from ..core.atomic import write_npz
 
         return write_npz(Path(path), self.state_dict())
 

@@ -41,11 +41,15 @@ from pathlib import Path
 import numpy as np
 
 from ..core import backend as B
+from ..core.config import from_dict, to_dict
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
-from ..rf.images import ImageMaps
+from ..rf.bartlett import bartlett
+from ..rf.images import ImageMaps, scene_image_maps
 from .base import Field, Views, register
+from .nn import MLP
+from .splat import columns, write_ply_arrays
 
 
 @dataclass
@@ -88,7 +92,6 @@ def _columns(a: np.ndarray) -> list:
     """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
     (:func:`rfmitsuba.models.splat.columns`: kernels stay independent of the host arrays' values and
     alignment, so they compile once)."""
-    from .splat import columns
 
     return columns(np.asarray(a, np.float32).reshape(len(a), -1))
 
@@ -125,7 +128,6 @@ def _extra_array(extra, nb: int, n: int) -> np.ndarray:
 def _write_points_ply(path: str | Path, points: np.ndarray, magnitude: np.ndarray) -> Path:
     """Points (float [N, 3] metres) as small isotropic Gaussians (5 cm) in the 3DGS PLY layout, with
     opacity and signal the magnitude relative to the largest, so a splat viewer shows them."""
-    from .splat import write_ply_arrays
 
     rel = np.clip(magnitude / max(float(np.max(magnitude)), 1e-30), 1e-6, 1 - 1e-6)
     n = len(points)
@@ -257,7 +259,6 @@ class CoherentFamily(Field):
         Returns:
             ``TensorXf`` [B, height, width], min-max normalised per image when ``normalize``.
         """
-        from ..rf.bartlett import bartlett
 
         hr = hi = None
         for f in fields:
@@ -284,7 +285,6 @@ class CoherentField(CoherentFamily):
     def __init__(self, maps: ImageMaps, *, box: np.ndarray, cfg: CoherentConfig | None = None,
                  frequency_hz: float = 2.4e9, seed: int = 0, name: str = "bg", params: dict | None = None,
                  extra_inputs: int = 0):
-        from .nn import MLP
 
         B.ensure()
         self.maps = maps
@@ -320,7 +320,6 @@ class CoherentField(CoherentFamily):
             rng: unused (the initialisation is deterministic in ``cfg.seed``); extra_inputs, name:
                 as :class:`CoherentField`.
         """
-        from ..rf.images import scene_image_maps
         from ..sim.geometry import RoomGeometry
 
         if scene_xml is None:
@@ -448,13 +447,11 @@ class CoherentField(CoherentFamily):
         return self.maps.to_arrays()
 
     def _meta(self) -> dict:
-        from ..core.config import to_dict
 
         return {"format": FORMAT, "config": to_dict(self.cfg), "extra_inputs": self.extra_inputs}
 
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentField":
-        from ..core.config import from_dict
 
         return cls(ImageMaps.from_arrays(geometry), box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
                    frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,

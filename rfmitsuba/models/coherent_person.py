@@ -23,8 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core import backend as B
+from ..core.config import from_dict, to_dict
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError
+from ..data.samples import num_human_features
 from ..rf import array as antenna
 from ..rf.images import ImageMaps
 from .base import Views, register
@@ -37,6 +39,7 @@ from .coherent import (
     _write_points_ply,
     sum_terms,
 )
+from .nn import MLP
 
 HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
 
@@ -140,8 +143,6 @@ class CoherentPersonField(CoherentFamily):
     def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentPersonConfig | None = None,
                  frequency_hz: float = 2.4e9, reference_amplitude: float = 1.0, seed: int = 0,
                  name: str = "human", params: dict | None = None):
-        from ..data.samples import num_human_features
-        from .nn import MLP
 
         B.ensure()
         self.cfg = cfg or CoherentPersonConfig(kind="scatter")
@@ -272,13 +273,11 @@ class CoherentPersonField(CoherentFamily):
         return self.paths
 
     def _meta(self) -> dict:
-        from ..core.config import to_dict
 
         return {"format": HUMAN_FORMAT, "config": to_dict(self.cfg), "reference_amplitude": self.reference_amplitude}
 
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPersonField":
-        from ..core.config import from_dict
 
         return cls(geometry, box=state["box"], cfg=from_dict(CoherentPersonConfig, meta["config"]),
                    frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
@@ -364,8 +363,6 @@ class CoherentPerturbField(CoherentFamily):
 
     def __init__(self, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
                  name: str = "human", params: dict | None = None):
-        from ..data.samples import num_human_features
-        from .nn import MLP
 
         self.bg = bg
         self.cfg = cfg or CoherentPersonConfig()
@@ -425,13 +422,11 @@ class CoherentPerturbField(CoherentFamily):
         return self.bg.state_dict()
 
     def _meta(self) -> dict:
-        from ..core.config import to_dict
 
         return {"format": self.format, "config": to_dict(self.cfg)}
 
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPerturbField":
-        from ..core.config import from_dict
 
         bg = CoherentField.from_state_dict(geometry)
         bg.freeze()

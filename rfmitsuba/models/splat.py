@@ -31,7 +31,11 @@ from typing import Literal
 import numpy as np
 
 from ..core import backend as B
+from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError, SceneError
+from ..data.scene_xml import read_shapes
+from ..rf.readout import BartlettReadout
+from ..splat import render
 from .base import Field, Views, register
 from .nn import EMNetwork, NetConfig
 
@@ -102,7 +106,6 @@ def scene_meshes(xml_path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     Raises:
         SceneError: missing file, malformed XML, missing mesh file, or no mesh.
     """
-    from ..data.scene_xml import read_shapes
 
     meshes = [(np.asarray(s.mesh.vertices, dtype=np.float64), np.asarray(s.mesh.faces, dtype=np.int64))
               for s in read_shapes(xml_path)]
@@ -506,7 +509,6 @@ class SplatField(Field):
 
         Keys: per-Gaussian arrays, ``net.<module>`` weights, ``box``, and ``meta`` (a JSON
         string as a 0-d unicode array: config, extra_inputs, seed, name, frozen)."""
-        from ..core.config import to_dict
 
         out = self.gaussians_numpy()
         for k, m in self.net.modules().items():
@@ -536,7 +538,6 @@ class SplatField(Field):
     @classmethod
     def from_state_dict(cls, state: dict) -> "SplatField":
         """Rebuild a field (architecture from the stored metadata)."""
-        from ..core.config import from_dict
 
         if "meta" not in state:
             raise RunError("field state has no 'meta' entry")
@@ -564,14 +565,12 @@ class SplatField(Field):
         Returns:
             ``TensorXf`` [B, height, width].
         """
-        from ..splat import render
 
         readouts = {f.cfg.readout for f in fields}
         if len(readouts) != 1:
             raise ConfigError(f"splat fields with different read-outs cannot be rendered together: {sorted(readouts)}")
         s = Splats.concat([f.splats(views.antenna_pos, view_pos=views.view_pos, extra=views.extra(f)) for f in fields])
         if readouts.pop() == "bartlett":
-            from ..rf.readout import BartlettReadout
 
             ha, wa = fields[0].cfg.arrival_grid
             arr = render(s.means, s.log_scales, s.rotations, s.opacities, s.signals, views.view_pos,

@@ -26,11 +26,12 @@ from dataclasses import field as dc_field
 import numpy as np
 
 from ..core import backend as B
+from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
 from ..data.samples import num_human_features
 from .base import register
 from .nn import MLP, NetConfig, encode
-from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, _logit, columns
+from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, Splats, _logit, columns
 
 
 @dataclass
@@ -207,7 +208,6 @@ class SplatPersonField(SplatField):
         """
         import drjit as dr
 
-        from .splat import Splats
 
         if extra is None:
             raise ValueError(f"human field {self.name!r} needs the human inputs of every view")
@@ -255,7 +255,6 @@ class SplatPersonField(SplatField):
 
     # ---- state ----------------------------------------------------------------------
     def state_dict(self) -> dict:
-        from ..core.config import to_dict
 
         out = super().state_dict()
         if self.deform is not None:
@@ -278,7 +277,6 @@ class SplatPersonField(SplatField):
 
     @classmethod
     def from_state_dict(cls, state: dict) -> "SplatPersonField":
-        from ..core.config import from_dict
 
         if "meta" not in state:
             raise RunError("human field state has no 'meta' entry")

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError
+from . import bartlett_ref as _pas
 from .array import NUM_ELEMENTS
 
 _cache: dict = {}
@@ -33,7 +34,6 @@ _cache: dict = {}
 def weights(*, frequency_hz: float, height: int = 90, width: int = 360):
     """Beamformer weights of a ``height x width`` grid as two Dr.Jit ``Float`` [H*W*16]
     (real, imaginary; layout ``pixel*16 + m``). Cached per (frequency, grid, backend)."""
-    from . import bartlett_ref as _pas
 
     if 90 % height or 360 % width or 360 // width != 90 // height:
         raise ConfigError(f"PAS grid must be 90/d x 360/d, got {height} x {width}")

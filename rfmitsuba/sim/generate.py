@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DatasetError, PlacementError
+from ..core import config as _config
+from ..core import progress
+from ..core.errors import ConfigError, DatasetError, PlacementError
 from ..data.split import make_split
 from ..data.store import (
     Dataset,
@@ -30,6 +32,10 @@ from ..data.store import (
     resolve_scene,
     write_chunk,
 )
+from ..rf import bartlett_ref as _pas
+from . import person as human
+from .geometry import RoomGeometry
+from .simulate import Simulator, SolverConfig, versions
 
 
 @dataclass
@@ -64,7 +70,6 @@ QUICK = {"positions": 36, "human_positions": 4, "samples_per_src": 20_000}
 
 def quick_config(scene: str = "bedroom", **overrides) -> GenerateConfig:
     """The ``--quick`` configuration: 36 positions x (1 + 4) states at 2e4 samples per source."""
-    from .simulate import SolverConfig
 
     # the walk keeps the full walk's step (60 s / 35 positions), so its straight steps stay short
     kw = {"scene": scene, "positions": QUICK["positions"], "human_positions": QUICK["human_positions"],
@@ -106,7 +111,6 @@ def place_antennas(geometry, n: int, *, rng: np.random.Generator, z_range: tuple
 
 def default_solver(geometry, *, quick: bool = False):
     """SolverConfig for a room: 1e5 samples per source, 3e5 for rooms over 50 m^2 floor (environment facts, docs/conventions.md)."""
-    from .simulate import SolverConfig
 
     area = float(np.prod(geometry.size[:2]))
     samples = 300_000 if area > 50 else 100_000
@@ -134,12 +138,6 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
     """
     import time
 
-    from ..core import config as _config
-    from ..core import progress
-    from ..core.errors import ConfigError
-    from . import person as human
-    from .geometry import RoomGeometry
-    from .simulate import Simulator, SolverConfig, versions
 
     if cfg.task not in ("rx", "tx"):
         raise ConfigError(f"task must be 'rx' or 'tx', got {cfg.task!r}")
@@ -225,7 +223,6 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
                 paths = sim.solve()
                 timing["solver_s"] += sim.timing.solver_s - t0
                 t1 = time.perf_counter()
-                from ..rf import bartlett_ref as _pas
 
                 h = paths.channels(cfg.task, frequency_hz=cfg.frequency_hz)
                 img = _pas.bartlett(h, frequency_hz=cfg.frequency_hz)

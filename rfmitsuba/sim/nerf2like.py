@@ -44,10 +44,17 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from ..core import backend, progress
+from ..core import config as _config
 from ..core.errors import ConfigError, DatasetError, SceneError
 from ..data import nerf2
 from ..data.split import make_split
+from ..data.store import _scene_record, config_diff, resolve_scene
 from ..rf import array as antenna
+from ..rf.bartlett_ref import bartlett
+from .generate import default_solver
+from .geometry import RoomGeometry
+from .simulate import Simulator, SolverConfig, versions
 
 #: generator name recorded in rfmitsuba.json
 GENERATOR = "rfmitsuba.sim.nerf2like"
@@ -236,7 +243,6 @@ def scene_for_carrier(xml: Path, frequency_hz: float, folder: Path) -> tuple[Pat
     Returns (XML path, {material id: record}) with, per material, its ITU type, thickness (m),
     relative permittivity, conductivity (S/m) and whether it was extrapolated (``itu_range_ghz``).
     """
-    from ..core import backend
 
     backend.variant()
     from sionna.rt.radio_materials.itu import ITU_MATERIALS_PROPERTIES
@@ -304,7 +310,6 @@ def _stale_tmp(out: Path) -> None:
 def _existing(out: Path, config: dict) -> bool:
     """True when ``out`` is a complete folder of this configuration; False when it is absent or
     empty; DatasetError when it holds something else (the first differing key named)."""
-    from ..data.store import config_diff
 
     if not out.exists():
         return False
@@ -364,13 +369,6 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             or in furniture, ...). DatasetError: ``out`` is not empty and holds something else.
         SceneError: unknown or broken scene.
     """
-    from ..core import config as _config
-    from ..core import progress
-    from ..data.store import _scene_record, resolve_scene
-    from ..rf.bartlett_ref import bartlett
-    from .generate import default_solver
-    from .geometry import RoomGeometry
-    from .simulate import Simulator, SolverConfig, versions
 
     t_start = time.perf_counter()
     num_tags = _integer(num_tags, "num_tags", lo=10)

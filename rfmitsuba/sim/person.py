@@ -39,7 +39,10 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
+from .. import plugins
+from ..core import backend
 from ..core.errors import PlacementError
+from ..plugins.human_tissue import HumanTissueMaterial
 from .geometry import RoomGeometry
 
 HEIGHT = 1.7        # m
@@ -152,7 +155,6 @@ def radio_material(kind: str = "tissue", *, name: str | None = None):
     plugin, params = _perturber(kind)
     name = name or f"human_{kind}"
     if plugin == "human-tissue":
-        from ..plugins.human_tissue import HumanTissueMaterial
 
         return HumanTissueMaterial(name=name, **params)
     from sionna.rt import ITURadioMaterial
@@ -168,8 +170,6 @@ def scene_object(folder: str | Path, *, kind: str = "tissue", name: str = "human
     object's name, as Sionna requires). With ``position`` (float [3], metres, the feet) the
     object is placed there, else it stands at the origin.
     """
-    from .. import plugins
-    from ..core import backend
 
     backend.variant()
     plugins.register()

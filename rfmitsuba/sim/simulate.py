@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import backend
 from ..core.errors import ConfigError, PlacementError, SceneError
 from ..rf import array as antenna
 
@@ -135,7 +136,6 @@ class Simulator:
                  solver: SolverConfig | None = None):
         import rfmitsuba  # noqa: F401  (libLLVM first)
 
-        from ..core import backend
 
         backend.variant()  # selects the default variant on first use
         import mitsuba as mi

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..data.store import write_dataset
+from ..splat import render
 
 ROOM = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.8]])
 
@@ -41,7 +43,6 @@ def _human(pos: np.ndarray, k: int = 8) -> dict:
 def render_sets(sets: list[dict], views: np.ndarray, *, height: int = 90, width: int = 360) -> np.ndarray:
     """Render isotropic Gaussian sets (dicts of means [N, 3] m, scales [N] m, signals [N],
     opacities [N]) together at array positions ``views`` float [B, 3]: float32 [B, height, width]."""
-    from ..splat import render
 
     means = np.concatenate([s["means"] for s in sets]).astype(np.float32)
     n = len(means)
@@ -68,7 +69,6 @@ def make_dataset(path: str | Path, *, antennas: int = 30, humans: int = 6, backg
         seed: randomness of the scene and positions.
         task: recorded task ("rx" renders from the antenna positions).
     """
-    from ..data.store import write_dataset
 
     if antennas < 5 or humans < 2:
         raise ConfigError(f"make_dataset needs >= 5 antennas and >= 2 humans, got {antennas}, {humans}")

@@ -17,7 +17,9 @@ from typing import Literal
 
 from ..core import config as C
 from ..core.errors import ConfigError
+from ..models.base import field_class
 from ..models.coherent import CoherentConfig
+from ..models.coherent_gaussians import CoherentGaussianConfig
 from ..models.splat import FieldConfig
 from .density import DensityConfig
 
@@ -59,7 +61,9 @@ class TrainConfig:
     model: a registered Stage-1 field kind (:func:`rfmitsuba.models.base.field_class`): "splat"
     (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or "coherent" (image
     sources summed coherently and read out by the Bartlett beamformer,
-    :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1).
+    :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1)
+    or "coherent_gaussians" (virtual sources and scatterers with complex gains, for known and unknown
+    rooms and measured data, :mod:`rfmitsuba.models.coherent_gaussians`; ``coherent_gaussians``).
     split: which positions are test positions: "dataset" (the dataset's own split: its
     split.json, or a NeRF2 folder's published index files), "block" (the 20% of all positions
     with the largest x, a held-out slab: :func:`rfmitsuba.data.split.block_split`) or "random"
@@ -85,6 +89,7 @@ class TrainConfig:
     scene: str = ""
     field: FieldConfig = dc_field(default_factory=FieldConfig)
     coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
+    coherent_gaussians: CoherentGaussianConfig = dc_field(default_factory=CoherentGaussianConfig)
     density: DensityConfig = dc_field(default_factory=DensityConfig)
     optim: OptimConfig = dc_field(default_factory=OptimConfig)
 
@@ -98,7 +103,6 @@ class TrainConfig:
         for k in ("val_every", "checkpoint_every", "log_every"):
             if getattr(self, k) < 1:
                 raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
-        from ..models.base import field_class
 
         cls = field_class(self.model)  # ConfigError naming the known kinds
         if getattr(cls, "person", False):

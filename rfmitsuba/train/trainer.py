@@ -39,7 +39,10 @@ from ..core import backend as B
 from ..core import config as C
 from ..core.atomic import write_json
 from ..core.errors import ConfigError, RunError
+from ..core.progress import bar
 from ..core.ssim import ssim_images
+from ..data.split import block_split, make_split
+from ..data.store import resolve_scene
 from ..data.views import TrainData
 from ..models.base import Field, FieldSet, Views, field_class, load_field, render
 from ..rf.bartlett_ref import (
@@ -48,6 +51,7 @@ from ..rf.bartlett_ref import (
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
 from .density import make_strategy
+from .loss import loss
 
 
 def _lr(v0: float, v1: float | None, t: float) -> float:
@@ -74,7 +78,6 @@ def _write_json(path: Path, obj) -> None:
 
 def load_loss():
     """The training loss ``loss(pred, gt) -> Float`` (0.8*L1 + 0.2*(1-SSIM), rfmitsuba.train.loss)."""
-    from .loss import loss
 
     return loss
 
@@ -166,11 +169,9 @@ class Trainer:
             return np.array(self.data.train), np.array(self.data.test)
         every = np.union1d(self.data.train, self.data.test)
         if self.cfg.split == "block":
-            from ..data.split import block_split
 
             tr, te = block_split(self.data.antenna_pos[every])
         else:
-            from ..data.split import make_split
 
             sp = make_split(len(every), 0, seed=self.cfg.seed)
             tr, te = sp.antenna_train, sp.antenna_test
@@ -203,7 +204,6 @@ class Trainer:
     def scene_xml(self) -> Path | None:
         """The room's XML: ``cfg.scene`` when set, else the dataset's scene (None when neither)."""
         if self.cfg.scene:
-            from ..data.store import resolve_scene
 
             return resolve_scene(self.cfg.scene)
         return self.data.scene_xml
@@ -363,7 +363,6 @@ class Trainer:
 
         probe_views = self.views(probe)
 
-        from ..core.progress import bar
 
         pbar = bar(total=cfg.iterations, desc=f"train {self.run_dir.name}", unit="step", quiet=self.quiet,
                    initial=start)
@@ -382,8 +381,7 @@ class Trainer:
                     break
                 lrs = self._lrs(step, train_time)
                 for k in list(opt.keys()):
-                    short = k[len(self.prefix):]
-                    opt.set_learning_rate({k: lrs["net"] if "." in short else lrs[short]})
+                    opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
                 pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
                 idx = fit[pick]
                 pred = self.render(field, idx)

@@ -1,0 +1,574 @@
+"""Coherent Gaussian field: virtual sources and scatterers with complex gains, summed coherently at
+the array's elements and read out by the Bartlett beamformer, for known and unknown rooms.
+
+A PAS is the Bartlett response to a *coherent* sum of paths (docs/conventions.md). This field
+models the paths themselves, with every parameter physical:
+
+* **Image sources** ``i`` (``S`` of them): a virtual source at ``s_i = A_i y + b_i``, the image of
+  the transmitter ``y`` under a fixed orthogonal map ``A_i`` (identity: the direct path; a
+  reflection across a plane; a product of reflections) plus a learned offset ``b_i`` [m]. The
+  images move with the transmitter, as a wall's image does in the moving-TX task. Path length
+  ``L = |s_i - e_m|`` to element ``m``.
+* **Scatterers** ``k`` (``P`` of them): a fixed point ``p_k`` [m] that re-radiates (furniture, an
+  edge, a scatterer the data implies). Path length ``|y - p_k| + |p_k - e_m|``.
+
+Each source carries a complex gain ``a`` (unitless: reflection coefficients and the rest) and a
+**visibility window** over the moving device's position ``q``: ``w(q) = exp(-|q - c|^2 / (2
+sigma^2))`` with centre ``c`` [m] and extent ``sigma`` [m], the Gaussian of the name; it sets
+where a contribution is seen (a finite wall, an occluded path). The channel at element ``m`` is
+
+    h_m = cal_m * sum_sources  a * w(q) * exp(-j k L_m) / D,
+
+with ``D`` the spreading (``L`` for an image, ``|y - p| |p - e_m|`` for a scatterer), ``k = 2 pi /
+lambda``, and ``cal_m`` a learned complex per-element calibration (cable and phase-centre errors of a
+measured array). Phase comes from the exact path length to each element (``wavefront =
+"spherical"``) or from the plane-wave rule about the array centre (``"plane"``, what Sionna's
+synthetic array simulates). The array's pose is learned too: a small rotation (rotation vector
+``omega`` [rad]) and a translation ``t`` [m] of the array relative to its stated pose.
+
+The read-out is the amplitude Bartlett (:func:`rfmitsuba.rf.bartlett.bartlett`) or, for NeRF2's
+measured spectra, its **phase-only** variant, which uses ``h_m / |h_m|``.
+
+Initialisation (:meth:`CoherentGaussianField.for_training`):
+
+* **known room** (the dataset names a scene): the image maps of the room's planes
+  (:func:`rfmitsuba.rf.images.scene_image_maps`);
+* **unknown room**: from the training PAS alone. Candidate images across axis-aligned planes at
+  offsets every ``scan_step`` metres and candidate scatterers on a grid are scored by the mean
+  training PAS in the direction each would arrive from at every training view; the best
+  ``images`` planes and ``scatterers`` points, kept apart by non-maximum suppression, start the
+  field (:func:`scan_images`, :func:`scan_scatterers`). The direct path is always there.
+
+Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
+
+=================  ============  ==========  ==========
+``img_offset``     S*3           m           means
+``img_amp``        S*2 (re, im)  1           amp
+``sc_pos``         P*3           m           means
+``sc_amp``         P*2           1           amp
+``vis_center``     (S+P)*3       m           means
+``vis_log_extent`` S+P           log m       log_scales
+``cal``            16*2          1           amp
+``pose``           6             rad, m      rotations
+=================  ============  ==========  ==========
+
+All are differentiable (tests/models/test_coherent_gaussians.py checks each against finite
+differences). State is plain NumPy (npz, no pickle).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.config import from_dict, to_dict
+from ..core.errors import ConfigError, RunError
+from ..rf import array as antenna
+from ..rf.bartlett import bartlett
+from ..rf.images import scene_image_maps
+from .base import Field, Views, register
+from .coherent import _columns, _write_points_ply
+
+FORMAT = "rfmitsuba-coherent-gaussians/1"
+
+#: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
+LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "sc_pos": "means", "sc_amp": "amp", "vis_center": "means",
+             "vis_log_extent": "log_scales", "cal": "amp", "pose": "rotations"}
+
+
+@dataclass
+class CoherentGaussianConfig:
+    """Architecture and initialisation of a :class:`CoherentGaussianField`.
+
+    init: "auto" (the room's image sources when the dataset names a scene, else the data scan),
+    "room" or "data".
+    room_order / furniture_order / min_face_area: image maps of a known room (as
+    :class:`~rfmitsuba.models.coherent.CoherentConfig`).
+    images: reflecting planes found by the data scan (unknown room; the direct path comes extra).
+    scatterers: fixed scatterers found by the data scan (both rooms; 0 = none).
+    scan_step: offset step of candidate planes and grid step of candidate scatterers [m].
+    scan_margin: how far beyond the known positions candidates reach [m].
+    readout: "auto" (phase-only for a NeRF2 folder that does not say otherwise, amplitude for
+    simulated data), "amplitude" or "phase_only".
+    wavefront: "auto" (plane for simulated data, whose truth uses the plane-wave rule; spherical
+    for measured folders), "plane" or "spherical".
+    calibrate: learn the per-element complex calibration; learn_pose: learn the array's pose.
+    init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
+    init_reflection: initial gain of an image of order n is ``init_reflection ** n``.
+    scatterer_gain: initial contribution of a scatterer relative to the direct path.
+    """
+
+    init: Literal["auto", "room", "data"] = "auto"
+    room_order: int = 2
+    furniture_order: int = 1
+    min_face_area: float = 0.05
+    images: int = 6
+    scatterers: int = 24
+    scan_step: float = 0.1
+    scan_margin: float = 4.0
+    readout: Literal["auto", "amplitude", "phase_only"] = "auto"
+    wavefront: Literal["auto", "plane", "spherical"] = "auto"
+    calibrate: bool = True
+    learn_pose: bool = True
+    init_extent: float = 5.0
+    init_reflection: float = 0.5
+    scatterer_gain: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.init not in ("auto", "room", "data"):
+            raise ConfigError(f"CoherentGaussianConfig.init must be 'auto', 'room' or 'data', got {self.init!r}")
+        if self.readout not in ("auto", "amplitude", "phase_only"):
+            raise ConfigError(f"CoherentGaussianConfig.readout must be 'auto', 'amplitude' or 'phase_only', "
+                              f"got {self.readout!r}")
+        if self.wavefront not in ("auto", "plane", "spherical"):
+            raise ConfigError(f"CoherentGaussianConfig.wavefront must be 'auto', 'plane' or 'spherical', "
+                              f"got {self.wavefront!r}")
+        if min(self.images, self.scatterers, self.room_order) < 0 or self.furniture_order not in (0, 1, 2):
+            raise ConfigError("CoherentGaussianConfig: images, scatterers, room_order >= 0 and furniture_order "
+                              "0, 1 or 2 required")
+        if not (self.scan_step > 0 and self.scan_margin >= 0 and self.init_extent > 0):
+            raise ConfigError("CoherentGaussianConfig: scan_step > 0, scan_margin >= 0, init_extent > 0 required")
+        if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0):
+            raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1] and scatterer_gain > 0 required")
+
+
+# ------------------------------------------------------------------------------ initialisation
+
+def pas_lookup(pas: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Value of each view's PAS in the arrival direction ``u``.
+
+    Args:
+        pas: float [N, H, W] normalised PAS (grid of :mod:`rfmitsuba.rf.grid`, any 90/d x 360/d).
+        u: float [N, C, 3] unit directions in the array frame (C candidates per view); arrivals
+            from below fold onto the upper hemisphere, as the horizontal array folds them.
+    Returns:
+        float64 [N, C].
+    """
+    n, h, w = pas.shape
+    res = 90.0 / h
+    el = np.degrees(np.arcsin(np.clip(np.abs(u[..., 2]), 0.0, 1.0)))
+    az = np.degrees(np.arctan2(u[..., 1], u[..., 0])) % 360.0
+    row = np.clip(np.rint(el / res).astype(np.int64) - 1, 0, h - 1)
+    col = np.rint(az / res).astype(np.int64) % w
+    return np.asarray(pas, np.float64)[np.arange(n)[:, None], row, col]
+
+
+def _unit(d: np.ndarray) -> np.ndarray:
+    return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+
+
+def _fold(u: np.ndarray) -> np.ndarray:
+    """Directions folded onto the upper hemisphere (what a horizontal array sees)."""
+    return np.concatenate([u[..., :2], np.abs(u[..., 2:])], axis=-1)
+
+
+class _Residual:
+    """The training PAS with the directions already explained masked out (matching pursuit on
+    arrival directions): :meth:`score` is the mean remaining PAS in each candidate's direction,
+    :meth:`explain` masks a beam width around a chosen source's direction at every view."""
+
+    def __init__(self, pas: np.ndarray, radius_deg: float):
+        from ..rf.grid import directions
+
+        self.pas = np.array(pas, np.float64, copy=True)
+        n, h, w = self.pas.shape
+        self.dirs = directions(resolution_deg=90.0 / h).reshape(-1, 3)
+        self.cos_r = np.cos(np.radians(radius_deg))
+
+    def score(self, u: np.ndarray) -> np.ndarray:
+        """u: float [N, C, 3] array-frame directions -> float [C]."""
+        return pas_lookup(self.pas, u).mean(0)
+
+    def explain(self, u: np.ndarray) -> None:
+        """u: float [N, 3], one chosen source's direction at every view."""
+        n, h, w = self.pas.shape
+        near = (_fold(u) @ self.dirs.T) >= self.cos_r                  # [N, H*W]
+        self.pas.reshape(n, -1)[near] = 0.0
+
+
+def _greedy(res: _Residual, dirs: np.ndarray, count: int, *, allowed: np.ndarray | None = None) -> list[int]:
+    """Pick ``count`` candidates one by one by their score on the residual, explaining each away.
+
+    dirs: float [N, C, 3] directions of every candidate at every view."""
+    chosen: list[int] = []
+    ok = np.ones(dirs.shape[1], bool) if allowed is None else allowed.copy()
+    for _ in range(count):
+        if not ok.any():
+            break
+        sc = np.where(ok, res.score(dirs), -np.inf)
+        i = int(np.argmax(sc))
+        if not np.isfinite(sc[i]) or sc[i] <= 0:
+            break
+        chosen.append(i)
+        ok[i] = False
+        res.explain(dirs[:, i])
+    return chosen
+
+
+def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scatterers: int, step: float,
+         margin: float, rx_to_world: np.ndarray | None = None, radius_deg: float = 12.0) -> dict:
+    """Sources that the training PAS imply, for an unknown room (matching pursuit on arrival
+    directions; the direct path is explained first).
+
+    Candidates: the images of every transmitter across axis-aligned planes ``coord_a = d`` (offset
+    every ``step`` metres within the positions' bounds padded by ``margin``, planes through the
+    positions' own span excluded) and fixed scatterers on a grid (every ``max(step, 0.25)`` metres,
+    at most about 40 000 points, none within 0.3 m of a position). A candidate's score is the mean
+    of the residual PAS in the direction it would arrive from at every training view; the best is
+    kept and a ``radius_deg`` beam around its directions is masked, ``images`` times for planes,
+    then ``scatterers`` times for points.
+
+    Args:
+        pas: float [N, H, W] normalised training PAS; x, y: float [N, 3] array centres and
+            transmitters [m]; rx_to_world: float [3, 3] array frame -> world, or None.
+    Returns:
+        {"A": float [S, 3, 3] reflections, "b": float [S, 3] [m], "image_score": [S],
+         "points": float [P, 3] [m], "point_score": [P]}.
+    """
+    R = np.eye(3) if rx_to_world is None else np.asarray(rx_to_world, np.float64)
+    res = _Residual(pas, radius_deg)
+    res.explain(_unit(y - x) @ R)                                    # the direct path
+    pts = np.concatenate([x, y])
+    lo, hi = pts.min(0) - margin, pts.max(0) + margin
+    axis = np.concatenate([np.full(len(np.arange(lo[a], hi[a] + 1e-9, step)), a) for a in range(3)])
+    off = np.concatenate([np.arange(lo[a], hi[a] + 1e-9, step) for a in range(3)])
+    inside = (off > pts.min(0)[axis] - 0.2) & (off < pts.max(0)[axis] + 0.2)
+    img = np.repeat(y[:, None, :], len(off), 1)
+    img[:, np.arange(len(off)), axis] = 2 * off[None, :] - y[:, axis]
+    sc0 = res.score(_unit(img - x[:, None, :]) @ R)
+    pick = _greedy(res, _unit(img - x[:, None, :]) @ R, images, allowed=~inside)
+    A = np.repeat(np.eye(3)[None], len(pick), 0)
+    b = np.zeros((len(pick), 3))
+    for n, i in enumerate(pick):
+        A[n, axis[i], axis[i]] = -1.0
+        b[n, axis[i]] = 2 * off[i]
+    out = {"A": A, "b": b, "image_score": sc0[pick]}
+    g = max(step, 0.25, float(np.prod(hi - lo) / 40000.0) ** (1 / 3))
+    grid = np.stack(np.meshgrid(*[np.arange(lo[a] + g / 2, hi[a], g) for a in range(3)], indexing="ij"), -1)
+    grid = grid.reshape(-1, 3)
+    sub = pts[::max(1, len(pts) // 256)]
+    far = np.min(np.linalg.norm(grid[:, None, :] - sub[None], axis=-1), axis=1) >= 0.3
+    grid = grid[far]
+    if scatterers and len(grid):
+        # for a fixed array, points along one ray look alike: keep one candidate per direction cell
+        dirs = _unit(grid[None] - x[:, None, :]) @ R                 # [N, G, 3]
+        pick = _greedy(res, dirs, scatterers)
+        out["points"], out["point_score"] = grid[pick], np.zeros(len(pick))
+    else:
+        out["points"], out["point_score"] = np.zeros((0, 3)), np.zeros(0)
+    return out
+
+
+# ------------------------------------------------------------------------------ the field
+
+def _rodrigues(w0, w1, w2, v0, v1, v2):
+    """Rotate vectors ``v`` by the rotation vector ``w`` (Dr.Jit arrays, broadcast)."""
+    import drjit as dr
+
+    th = dr.sqrt(w0 * w0 + w1 * w1 + w2 * w2 + 1e-24)
+    k0, k1, k2 = w0 / th, w1 / th, w2 / th
+    c, s = dr.cos(th), dr.sin(th)
+    kv = k0 * v0 + k1 * v1 + k2 * v2
+    cx0, cx1, cx2 = k1 * v2 - k2 * v1, k2 * v0 - k0 * v2, k0 * v1 - k1 * v0
+    return (v0 * c + cx0 * s + k0 * kv * (1 - c), v1 * c + cx1 * s + k1 * kv * (1 - c),
+            v2 * c + cx2 * s + k2 * kv * (1 - c))
+
+
+@register
+class CoherentGaussianField(Field):
+    """The coherent Gaussian field (see the module docstring).
+
+    Args:
+        A: float [S, 3, 3] fixed orthogonal maps of the image sources (identity = direct path).
+        order: int [S] reflections of each image (0 = direct path), for the initial gains.
+        scatterers: float [P, 3] initial scatterer positions [m].
+        cfg: :class:`CoherentGaussianConfig`; readout / wavefront: resolved ("amplitude" or
+            "phase_only"; "plane" or "spherical").
+        vis_center: float [3] initial visibility centre (the moving positions' centre) [m].
+        frequency_hz: carrier [Hz]; seed, name: as the other fields.
+        params: stored parameters (name -> float32 array) instead of the initial ones.
+    """
+
+    kind = "coherent_gaussians"
+    family = "coherent_gaussians"
+    format = FORMAT
+
+    def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
+                 readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,
+                 name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0):
+        B.ensure()
+        self.A = np.asarray(A, np.float64).reshape(-1, 3, 3)
+        self.order = np.asarray(order, np.int64).reshape(-1)
+        if len(self.order) != len(self.A) or len(self.A) == 0:
+            raise ConfigError("CoherentGaussianField: one order per image map, and at least one image")
+        if not np.allclose(np.einsum("sij,skj->sik", self.A, self.A), np.eye(3), atol=1e-6):
+            raise ConfigError("CoherentGaussianField: image maps must be orthogonal")
+        if readout not in ("amplitude", "phase_only") or wavefront not in ("plane", "spherical"):
+            raise ConfigError(f"CoherentGaussianField: readout {readout!r} / wavefront {wavefront!r} not resolved")
+        self.cfg, self.readout, self.wavefront = cfg, readout, wavefront
+        self.frequency_hz = float(frequency_hz)
+        antenna.wavelength(self.frequency_hz)
+        self.seed, self.name = int(seed), name
+        self.frozen = False
+        self.scatterer_scale = float(scatterer_scale)
+        sc = np.asarray(scatterers, np.float64).reshape(-1, 3)
+        S, P = len(self.A), len(sc)
+        self.num_images, self.num_scatterers = S, P
+        if params is None:
+            a = cfg.init_reflection ** self.order.astype(np.float64)
+            params = {"img_offset": np.zeros(S * 3), "img_amp": np.stack([a, np.zeros(S)], 1).ravel(),
+                      "sc_pos": sc.ravel(),
+                      "sc_amp": np.tile([cfg.scatterer_gain * self.scatterer_scale, 0.0], P),
+                      "vis_center": np.tile(np.asarray(vis_center, np.float64).reshape(3), S + P),
+                      "vis_log_extent": np.full(S + P, np.log(cfg.init_extent)),
+                      "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
+        self.params: dict = {}
+        self.load_state_dict(params)
+
+    # ---- construction ----------------------------------------------------------------------
+    @classmethod
+    def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator | None = None,
+                     extra_inputs: int = 0, name: str = "bg") -> "CoherentGaussianField":
+        """The Stage-1 initial field: the room's image sources (known room) or the data scan
+        (unknown room), plus scanned scatterers; read-out and wavefront resolved from the dataset.
+
+        Args:
+            cfg: the :class:`~rfmitsuba.train.config.TrainConfig` (``coherent_gaussians``, ``seed``).
+            data: the :class:`~rfmitsuba.data.views.TrainData`; only its training positions and
+                PAS are read.
+            scene_xml: the room's XML, or None when it is unknown.
+            extra_inputs: must be 0 (this field takes no per-view network inputs).
+        """
+        if extra_inputs:
+            raise ConfigError("model 'coherent_gaussians' takes no extra per-view inputs (no End-to-End variant)")
+        c = cfg.coherent_gaussians
+        init = c.init if c.init != "auto" else ("room" if scene_xml is not None else "data")
+        if init == "room" and scene_xml is None:
+            raise ConfigError(f"coherent_gaussians.init = 'room' but dataset {data.path} names no scene")
+        measured = bool(getattr(data, "measured", False))
+        readout = c.readout if c.readout != "auto" else str(getattr(data, "readout", "amplitude"))
+        wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
+        idx = np.asarray(data.train, np.int64)
+        x, y, q = data.positions(idx)
+        pas = data.pas(idx, d=2)
+        if init == "room":
+            from ..sim.geometry import RoomGeometry
+
+            maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
+                                    furniture_order=c.furniture_order, min_face_area=c.min_face_area)
+            A, order = maps.A, maps.order
+            b0 = maps.b
+        found = scan(pas, x, y, images=0 if init == "room" else c.images, scatterers=c.scatterers,
+                     step=c.scan_step, margin=c.scan_margin, rx_to_world=data.rx_to_world)
+        if init != "room":
+            A = np.concatenate([np.eye(3)[None], found["A"]])
+            b0 = np.concatenate([np.zeros((1, 3)), found["b"]])
+            order = np.concatenate([[0], np.ones(len(found["A"]), np.int64)])
+        sc = found["points"]
+        # a scatterer's spreading is |y-p||p-x| against the direct path's |y-x|: start it at
+        # ``scatterer_gain`` of the direct path at the median view
+        if len(sc):
+            l1 = np.linalg.norm(y[:, None] - sc[None], axis=-1)
+            l2 = np.linalg.norm(sc[None] - x[:, None], axis=-1)
+            scale = float(np.median(l1 * l2 / np.maximum(np.linalg.norm(y - x, axis=-1), 1e-3)[:, None]))
+        else:
+            scale = 1.0
+        f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
+                frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale)
+        f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
+        f.init = init
+        return f
+
+    # ---- parameters ------------------------------------------------------------------------
+    def _sizes(self) -> dict:
+        S, P = self.num_images, self.num_scatterers
+        return {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
+                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
+
+    @property
+    def num_primitives(self) -> int:
+        """The Gaussians: image sources plus scatterers."""
+        return self.num_images + self.num_scatterers
+
+    @property
+    def num_parameters(self) -> int:
+        return sum(self._sizes().values())
+
+    @property
+    def network_parameters(self) -> int:
+        return 0
+
+    def parameters(self) -> dict:
+        return dict(self.params)
+
+    def trainable(self) -> dict:
+        if self.frozen:
+            return {}
+        out = dict(self.params)
+        if not self.cfg.calibrate:
+            out.pop("cal")
+        if not self.cfg.learn_pose:
+            out.pop("pose")
+        return out
+
+    @staticmethod
+    def lr_group(name: str) -> str:
+        """The optimizer group (learning-rate schedule) of parameter ``name``."""
+        return LR_GROUPS[name]
+
+    def assign(self, values: dict) -> None:
+        for k, v in values.items():
+            if k not in self.params:
+                raise ConfigError(f"CoherentGaussianField has no parameter {k!r}")
+            self.params[k] = v
+
+    def freeze(self) -> None:
+        import drjit as dr
+
+        self.frozen = True
+        for k in list(self.params):
+            self.params[k] = dr.detach(self.params[k])
+
+    def load_state_dict(self, state: dict) -> None:
+        for k, n in self._sizes().items():
+            if k not in state:
+                raise RunError(f"CoherentGaussianField state lacks {k!r}")
+            v = np.asarray(state[k], np.float32).ravel()
+            if v.shape != (n,) or not np.isfinite(v).all():
+                raise RunError(f"CoherentGaussianField state {k!r}: expected {n} finite values, got {v.shape}")
+            self.params[k] = B.Float(v)
+
+    def state_dict(self) -> dict:
+        out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.params.items()}
+        out["geometry.A"] = self.A.copy()
+        out["geometry.order"] = self.order.copy()
+        out["meta"] = np.asarray(json.dumps({
+            "format": FORMAT, "config": to_dict(self.cfg), "readout": self.readout, "wavefront": self.wavefront,
+            "frequency_hz": self.frequency_hz, "seed": self.seed, "name": self.name, "frozen": self.frozen,
+            "scatterer_scale": self.scatterer_scale, "init": getattr(self, "init", None)}))
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> "CoherentGaussianField":
+        try:
+            meta = json.loads(str(state["meta"]))
+            if meta.get("format") != FORMAT:
+                raise RunError(f"not a CoherentGaussianField state (format {meta.get('format')!r})")
+            P = len(np.asarray(state["sc_pos"]).ravel()) // 3
+            f = cls(state["geometry.A"], state["geometry.order"], np.zeros((P, 3)),
+                    cfg=from_dict(CoherentGaussianConfig, meta["config"]), readout=meta["readout"],
+                    wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
+                    seed=meta["seed"], name=meta.get("name", "bg"), params=state,
+                    scatterer_scale=meta.get("scatterer_scale", 1.0))
+        except KeyError as e:
+            raise RunError(f"CoherentGaussianField state lacks {e}") from None
+        f.init = meta.get("init")
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+
+    # ---- evaluation ------------------------------------------------------------------------
+    def channels(self, views: Views) -> tuple:
+        """Calibrated channels at the 16 elements for ``views``: (re, im) ``Float`` [B*16],
+        differentiable in every parameter. Raises ConfigError on non-finite positions."""
+        import drjit as dr
+
+        x = np.asarray(views.view_pos, np.float64).reshape(-1, 3)
+        y = np.asarray(views.transmitter, np.float64).reshape(-1, 3)
+        q = np.asarray(views.antenna_pos, np.float64).reshape(-1, 3)
+        if not (x.shape == y.shape == q.shape) or not (np.isfinite(x).all() and np.isfinite(y).all()
+                                                       and np.isfinite(q).all()):
+            raise ConfigError(f"views need finite positions of one shape [B, 3], got {x.shape}, {y.shape}, {q.shape}")
+        nb, M = len(x), antenna.NUM_ELEMENTS
+        R = np.eye(3) if views.rx_to_world is None else np.asarray(views.rx_to_world, np.float64).reshape(3, 3)
+        e_world = antenna.element_positions(self.frequency_hz) @ R.T          # [16, 3] world offsets
+        kw = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
+        pose = self.params["pose"]
+        w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, 1)) for i in range(6))
+        hr = hi = None
+        for group, K in (("img", self.num_images), ("sc", self.num_scatterers)):
+            if K == 0:
+                continue
+            lane = dr.arange(B.UInt32, nb * M * K)
+            k = lane % dr.opaque(B.UInt32, K)
+            bm = lane // dr.opaque(B.UInt32, K)
+            m = bm % M
+            b = bm // M
+            xb = [dr.gather(B.Float, c, b) for c in _columns(x)]
+            yb = [dr.gather(B.Float, c, b) for c in _columns(y)]
+            qb = [dr.gather(B.Float, c, b) for c in _columns(q)]
+            r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in _columns(e_world)))
+            cen = [xb[0] + t0, xb[1] + t1, xb[2] + t2]
+            el = [cen[i] + r[i] for i in range(3)]
+            gi_ = k if group == "img" else k + self.num_images                 # index of visibility params
+            if group == "img":
+                Ak = [dr.gather(B.Float, c, k) for c in _columns(self.A.reshape(-1, 9))]
+                off = self.params["img_offset"]
+                s = [Ak[3 * i] * yb[0] + Ak[3 * i + 1] * yb[1] + Ak[3 * i + 2] * yb[2]
+                     + dr.gather(B.Float, off, 3 * k + i) for i in range(3)]
+                amp = self.params["img_amp"]
+                lead = 0.0
+                spread0 = 1.0
+            else:
+                pos = self.params["sc_pos"]
+                s = [dr.gather(B.Float, pos, 3 * k + i) for i in range(3)]
+                amp = self.params["sc_amp"]
+                lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
+                spread0 = lead
+            if self.wavefront == "spherical":
+                L = dr.sqrt(sum((s[i] - el[i]) ** 2 for i in range(3)) + 1e-12)
+                phase = -kw * (L + lead)
+            else:
+                L = dr.sqrt(sum((s[i] - cen[i]) ** 2 for i in range(3)) + 1e-12)
+                u = [(s[i] - cen[i]) / L for i in range(3)]
+                phase = kw * (r[0] * u[0] + r[1] * u[1] + r[2] * u[2]) - kw * (L + lead)
+            vc = self.params["vis_center"]
+            d2 = sum((qb[i] - dr.gather(B.Float, vc, 3 * gi_ + i)) ** 2 for i in range(3))
+            ext = dr.exp(dr.gather(B.Float, self.params["vis_log_extent"], gi_))
+            w = dr.exp(-0.5 * d2 / (ext * ext)) / (L * spread0)
+            ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
+            c, sn = dr.cos(phase), dr.sin(phase)
+            cr, ci = dr.block_sum(w * (ar * c - ai * sn), K), dr.block_sum(w * (ar * sn + ai * c), K)
+            hr, hi = (cr, ci) if hr is None else (hr + cr, hi + ci)
+        m16 = dr.arange(B.UInt32, nb * M) % M
+        cal = self.params["cal"]
+        calr, cali = dr.gather(B.Float, cal, 2 * m16), dr.gather(B.Float, cal, 2 * m16 + 1)
+        return hr * calr - hi * cali, hr * cali + hi * calr
+
+    @classmethod
+    def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
+        """PAS of the fields' summed channels through one Bartlett read-out (phase-only when the
+        first field's ``readout`` says so): ``TensorXf`` [B, height, width]."""
+        import drjit as dr
+
+        hr = hi = None
+        for f in fields:
+            fr, fi = f.channels(views)
+            hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+        if fields[0].readout == "phase_only":
+            mag = dr.sqrt(hr * hr + hi * hi + 1e-20)
+            hr, hi = hr / mag, hi / mag
+        return bartlett(hr, hi, frequency_hz=views.frequency_hz, height=height, width=width, normalize=normalize)
+
+    # ---- export ------------------------------------------------------------------------------
+    def source_points(self, y: np.ndarray) -> np.ndarray:
+        """Where the sources are for a transmitter at ``y`` (float [3] m): float64 [S+P, 3] m."""
+        off = np.asarray(self.params["img_offset"].numpy(), np.float64).reshape(-1, 3)
+        img = np.einsum("sij,j->si", self.A, np.asarray(y, np.float64)) + off
+        return np.concatenate([img, np.asarray(self.params["sc_pos"].numpy(), np.float64).reshape(-1, 3)])
+
+    def magnitudes(self) -> np.ndarray:
+        """|gain| of every source (images then scatterers): float64 [S+P]."""
+        a = np.concatenate([np.asarray(self.params["img_amp"].numpy(), np.float64).reshape(-1, 2),
+                            np.asarray(self.params["sc_amp"].numpy(), np.float64).reshape(-1, 2)])
+        return np.hypot(a[:, 0], a[:, 1])
+
+    def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
+        """``sources.ply``: the sources for the first view's transmitter, as small Gaussians whose
+        opacity is the gain's magnitude relative to the largest."""
+        return [_write_points_ply(Path(folder) / "sources.ply", self.source_points(views.transmitter[0]),
+                                  self.magnitudes())]
