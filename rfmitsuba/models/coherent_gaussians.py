@@ -89,6 +89,9 @@ class CoherentGaussianConfig:
     room_order / furniture_order / min_face_area: image maps of a known room (as
     :class:`~rfmitsuba.models.coherent.CoherentConfig`).
     images: reflecting planes found by the data scan (unknown room; the direct path comes extra).
+    image_order: reflections per image of an unknown room: the scanned planes' images are
+    composed up to this order (2: the images across two of the found planes, as a room's
+    double reflections), identical maps once.
     scatterers: fixed scatterers found by the data scan (both rooms; 0 = none).
     scan_step: offset step of candidate planes and grid step of candidate scatterers [m].
     scan_margin: how far beyond the known positions candidates reach [m].
@@ -107,6 +110,7 @@ class CoherentGaussianConfig:
     furniture_order: int = 1
     min_face_area: float = 0.05
     images: int = 6
+    image_order: int = 2
     scatterers: int = 24
     scan_step: float = 0.1
     scan_margin: float = 4.0
@@ -127,7 +131,8 @@ class CoherentGaussianConfig:
         if self.wavefront not in ("auto", "plane", "spherical"):
             raise ConfigError(f"CoherentGaussianConfig.wavefront must be 'auto', 'plane' or 'spherical', "
                               f"got {self.wavefront!r}")
-        if min(self.images, self.scatterers, self.room_order) < 0 or self.furniture_order not in (0, 1, 2):
+        if min(self.images, self.scatterers, self.room_order) < 0 or self.image_order < 1 \
+                or self.furniture_order not in (0, 1, 2):
             raise ConfigError("CoherentGaussianConfig: images, scatterers, room_order >= 0 and furniture_order "
                               "0, 1 or 2 required")
         if not (self.scan_step > 0 and self.scan_margin >= 0 and self.init_extent > 0):
@@ -263,6 +268,36 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
     return out
 
 
+def compose_images(A: np.ndarray, b: np.ndarray, *, max_order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The direct path plus the images of up to ``max_order`` reflections across the given planes.
+
+    Args:
+        A, b: float [n, 3, 3] / [n, 3], single reflections ``y -> A y + b``.
+        max_order: reflections per image (>= 1); consecutive reflections across one plane cancel
+            and are left out, identical maps appear once.
+    Returns:
+        (A float64 [S, 3, 3], b float64 [S, 3] [m], order int64 [S]), the direct path first.
+    """
+    out = [(np.eye(3), np.zeros(3), 0, -1)]
+    seen = {tuple(np.round(np.concatenate([np.eye(3).ravel(), np.zeros(3)]), 6))}
+    frontier = [out[0]]
+    for order in range(1, max_order + 1):
+        nxt = []
+        for Am, bm, _, last in frontier:
+            for i in range(len(A)):
+                if i == last:
+                    continue
+                An, bn = A[i] @ Am, A[i] @ bm + b[i]
+                key = tuple(np.round(np.concatenate([An.ravel(), bn]), 6))
+                if key in seen:
+                    continue
+                seen.add(key)
+                nxt.append((An, bn, order, i))
+        out += nxt
+        frontier = nxt
+    return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]), np.array([o[2] for o in out], np.int64))
+
+
 # ------------------------------------------------------------------------------ the field
 
 def _rodrigues(w0, w1, w2, v0, v1, v2):
@@ -365,9 +400,7 @@ class CoherentGaussianField(Field):
         found = scan(pas, x, y, images=0 if init == "room" else c.images, scatterers=c.scatterers,
                      step=c.scan_step, margin=c.scan_margin, rx_to_world=data.rx_to_world)
         if init != "room":
-            A = np.concatenate([np.eye(3)[None], found["A"]])
-            b0 = np.concatenate([np.zeros((1, 3)), found["b"]])
-            order = np.concatenate([[0], np.ones(len(found["A"]), np.int64)])
+            A, b0, order = compose_images(found["A"], found["b"], max_order=c.image_order)
         sc = found["points"]
         # a scatterer's spreading is |y-p||p-x| against the direct path's |y-x|: start it at
         # ``scatterer_gain`` of the direct path at the median view

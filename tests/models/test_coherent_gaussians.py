@@ -204,3 +204,19 @@ def test_bad_input_is_named():
                 rx_to_world=None, frequency_hz=F)
     with pytest.raises(ConfigError, match="finite"):
         f.channels(bad)
+
+
+def test_compose_images_builds_a_rooms_double_reflections():
+    """Two parallel walls x = 0 and x = 4 and a floor z = 0, order 2: the direct path, 3 single and
+    the double images (across both x walls, two orders; across a wall and the floor, two), each once."""
+    from rfmitsuba.models.coherent_gaussians import compose_images
+
+    A = np.stack([np.diag([-1.0, 1, 1]), np.diag([-1.0, 1, 1]), np.diag([1.0, 1, -1])])
+    b = np.array([[0.0, 0, 0], [8.0, 0, 0], [0, 0, 0]])
+    A2, b2, order = compose_images(A, b, max_order=2)
+    assert list(np.bincount(order)) == [1, 3, 4]  # perpendicular reflections commute: one image each
+    y = np.array([1.0, 2.0, 0.5])
+    imgs = {tuple(np.round(a @ y + c, 6)) for a, c in zip(A2, b2)}
+    assert len(imgs) == len(A2)
+    assert (9.0, 2.0, 0.5) in imgs and (-7.0, 2.0, 0.5) in imgs and (-1.0, 2.0, -0.5) in imgs
+    assert len(compose_images(A, b, max_order=1)[0]) == 4
