@@ -5,8 +5,9 @@
   trains on ``round(0.8 * C)`` positions drawn from the dataset's training split (the 80/20 rule
   of docs/conventions.md) and is evaluated on the dataset's whole test split, the same for every row, so rows
   are comparable. The dataset must hold enough training positions for the largest row.
-* :func:`parsimony_curve` - test SSIM against the number of Gaussians, from runs whose density
-  control is capped at different sizes ("a model no larger than the scene needs").
+* :func:`parsimony_curve` - test SSIM against the number of Gaussians ("a model no larger than
+  the scene needs"): splat runs whose density control is capped at different sizes, or coherent
+  Gaussian runs with different numbers of scatterers; :func:`knee` picks the knee of the curve.
 
 Each run is an ordinary run folder ``OUT/<name>`` (resumable, evaluated by
 :func:`rfmitsuba.eval.run.evaluate_run`); the table is written to ``OUT/table.md`` and
@@ -37,18 +38,21 @@ def _run_and_eval(cfg: TrainConfig, data: TrainData, run_dir: Path, *, quiet: bo
 
 def _write_table(out: Path, title: str, key: str, rows: list[dict], note: str) -> None:
     lines = [f"# {title}", "", note, "",
-             f"| {key} | train positions | Gaussians | mean SSIM | median SSIM | NN mean | NN median | train s |",
-             "|---|---|---|---|---|---|---|---|"]
+             f"| {key} | train positions | Gaussians | parameters | mean SSIM | median SSIM | NN mean | NN median | "
+             "IDW-3 mean | mean image | train s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r[key]} | {r['train_positions']} | {r['num_gaussians']} | {r['mean']:.4f} | "
-                     f"{r['median']:.4f} | {r['nn_mean']:.4f} | {r['nn_median']:.4f} | {r['train_time_s']:.0f} |")
+        lines.append(f"| {r[key]} | {r['train_positions']} | {r['num_gaussians']} | {r['num_parameters']} | "
+                     f"{r['mean']:.4f} | {r['median']:.4f} | {r['nn_mean']:.4f} | {r['nn_median']:.4f} | "
+                     f"{r['idw3_mean']:.4f} | {r['mean_image_mean']:.4f} | {r['train_time_s']:.0f} |")
     (out / "table.md").write_text("\n".join(lines) + "\n")
     (out / "table.json").write_text(json.dumps(rows, indent=1))
 
 
 def _row(m: dict) -> dict:
     return {"mean": m["model"]["mean"], "median": m["model"]["median"], "nn_mean": m["nearest_neighbour"]["mean"],
-            "nn_median": m["nearest_neighbour"]["median"], "num_gaussians": m["num_gaussians"],
+            "nn_median": m["nearest_neighbour"]["median"], "idw3_mean": m["idw3"]["mean"],
+            "mean_image_mean": m["mean_image"]["mean"], "num_gaussians": m["num_gaussians"],
             "num_parameters": m["num_parameters"], "train_time_s": m["train_time_s"],
             "train_positions": m["train_positions"]}
 
@@ -87,32 +91,64 @@ def motivation_table(dataset: str | Path, out: str | Path, *, counts=MOTIVATION_
     return rows
 
 
+def knee(counts, ssim) -> int:
+    """Index of the knee of an SSIM-against-size curve (Kneedle: with log size and SSIM scaled
+    to [0, 1], the point farthest above the chord from the smallest to the largest model).
+
+    Args:
+        counts: model sizes (Gaussians), increasing; ssim: the mean SSIM of each.
+    Returns:
+        the index of the knee (0 when the curve does not rise).
+    """
+    import numpy as np
+
+    x = np.log(np.maximum(np.asarray(counts, np.float64), 1.0))
+    y = np.asarray(ssim, np.float64)
+    if len(x) < 3 or np.ptp(x) == 0 or np.ptp(y) == 0 or y[-1] <= y[0]:
+        return int(np.argmax(y)) if len(y) else 0
+    xn, yn = (x - x[0]) / (x[-1] - x[0]), (y - y[0]) / (y[-1] - y[0])
+    return int(np.argmax(yn - xn))
+
+
 def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 2000, 4000, 8000),
                     cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
-    """Test SSIM against the number of Gaussians: one run per cap on density control
-    (initial Gaussians = min(cap, cfg.field.num_gaussians))."""
+    """Test SSIM against the number of Gaussians, one run per entry of ``caps``: for the splat
+    field a cap on density control (initial Gaussians = min(cap, cfg.field.num_gaussians)); for
+    the coherent Gaussian field (``cfg.model == "coherent_gaussians"``) the number of scatterers.
+    The table marks the knee (:func:`knee`)."""
     cfg = cfg or TrainConfig()
     data = TrainData.open(dataset, state=cfg.state)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    coherent = cfg.model == "coherent_gaussians"
     rows = []
     for cap in caps:
-        rc = C.override(cfg, [f"density.max_gaussians={cap}",
-                              f"field.num_gaussians={min(cap, cfg.field.num_gaussians)}"])
+        if coherent:
+            rc = C.override(cfg, [f"coherent_gaussians.scatterers={cap}"])
+        else:
+            rc = C.override(cfg, [f"density.max_gaussians={cap}",
+                                  f"field.num_gaussians={min(cap, cfg.field.num_gaussians)}"])
         m = _run_and_eval(rc, data, out / f"cap_{cap}", quiet=quiet)
         rows.append({"cap": cap, **_row(m)})
+        k = knee([r["num_gaussians"] for r in rows], [r["mean"] for r in rows])
+        what = "the number of scatterers" if coherent else "the cap of density control"
         _write_table(out, "Parsimony: test SSIM against the number of Gaussians", "cap", rows,
-                     f"Dataset `{dataset}`; runs differ only in the cap of density control.")
-    _plot(out / "parsimony.png", rows, "num_gaussians", "number of Gaussians")
+                     f"Dataset `{dataset}`, model {cfg.model}; runs differ only in {what}. Knee (Kneedle on log "
+                     f"size): {rows[k]['num_gaussians']} Gaussians, mean SSIM {rows[k]['mean']:.4f}.")
+    _plot(out / "parsimony.png", rows, "num_gaussians", "number of Gaussians",
+          knee=knee([r["num_gaussians"] for r in rows], [r["mean"] for r in rows]))
     return rows
 
 
-def _plot(path: Path, rows: list[dict], key: str, label: str) -> None:
+def _plot(path: Path, rows: list[dict], key: str, label: str, *, knee: int | None = None) -> None:
     fig, ax = plots.subplots(figsize=(5, 3.5))
-    x = [r[key] for r in rows]
+    x = [max(r[key], 1) for r in rows]
     ax.plot(x, [r["mean"] for r in rows], "o-", label="model mean")
     ax.plot(x, [r["median"] for r in rows], "s--", label="model median")
     ax.plot(x, [r["nn_mean"] for r in rows], "^:", label="nearest neighbour mean")
+    ax.plot(x, [r["idw3_mean"] for r in rows], "v:", label="IDW-3 mean")
+    if knee is not None:
+        ax.plot([x[knee]], [rows[knee]["mean"]], "r*", markersize=12, label="knee")
     ax.set_xscale("log")
     plots.label(ax, xlabel=label, ylabel="test SSIM", legend_fontsize=8)
     plots.save(fig, path, dpi=110)

@@ -99,7 +99,9 @@ class CoherentGaussianConfig:
     simulated data), "amplitude" or "phase_only".
     wavefront: "auto" (plane for simulated data, whose truth uses the plane-wave rule; spherical
     for measured folders), "plane" or "spherical".
-    calibrate: learn the per-element complex calibration; learn_pose: learn the array's pose.
+    calibrate: learn the per-element complex calibration; learn_pose: learn the array's pose;
+    visibility: learn the visibility windows (False: every source keeps its initial, wide window,
+    which extrapolates better beyond the training positions).
     init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
     init_reflection: initial gain of an image of order n is ``init_reflection ** n``.
     scatterer_gain: initial contribution of a scatterer relative to the direct path.
@@ -118,6 +120,7 @@ class CoherentGaussianConfig:
     wavefront: Literal["auto", "plane", "spherical"] = "auto"
     calibrate: bool = True
     learn_pose: bool = True
+    visibility: bool = True
     init_extent: float = 5.0
     init_reflection: float = 0.5
     scatterer_gain: float = 0.2
@@ -441,12 +444,10 @@ class CoherentGaussianField(Field):
     def trainable(self) -> dict:
         if self.frozen:
             return {}
-        out = dict(self.params)
-        if not self.cfg.calibrate:
-            out.pop("cal")
-        if not self.cfg.learn_pose:
-            out.pop("pose")
-        return out
+        out = {k: v for k, v in self.params.items() if self._sizes()[k] > 0}  # no scatterers: no empty arrays
+        drop = ([] if self.cfg.calibrate else ["cal"]) + ([] if self.cfg.learn_pose else ["pose"]) \
+            + ([] if self.cfg.visibility else ["vis_center", "vis_log_extent"])
+        return {k: v for k, v in out.items() if k not in drop}
 
     @staticmethod
     def lr_group(name: str) -> str:

@@ -58,7 +58,9 @@ class TrainConfig:
     schedules then also advance with the share of this time used);
     max_train_positions: use only this many training positions (0 = all; motivation table);
     state: dataset state to train on (0 = empty room).
-    model: a registered Stage-1 field kind (:func:`rfmitsuba.models.base.field_class`): "splat"
+    model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
+    :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
+    (:func:`rfmitsuba.models.base.field_class`): "splat"
     (Gaussians splatted into the PAS, WRF-GS+ style; ``field``, ``density``) or "coherent" (image
     sources summed coherently and read out by the Bartlett beamformer,
     :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1)
@@ -104,7 +106,7 @@ class TrainConfig:
             if getattr(self, k) < 1:
                 raise ConfigError(f"TrainConfig.{k} must be >= 1, got {getattr(self, k)}")
 
-        cls = field_class(self.model)  # ConfigError naming the known kinds
+        cls = field_class(self.model) if self.model != "auto" else None  # ConfigError naming the known kinds
         if getattr(cls, "person", False):
             raise ConfigError(f"TrainConfig.model {self.model!r} is a Stage-2 person field; Stage 1 trains a "
                               "background field (e.g. 'splat' or 'coherent')")

@@ -51,6 +51,7 @@ from ..rf.bartlett_ref import (
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
 from .density import make_strategy
+from .select import select_model
 from .loss import loss
 
 
@@ -129,7 +130,7 @@ class Trainer:
         cfg_file = rd / "config.toml"
         if rd.exists() and not rd.is_dir():
             raise RunError(f"run folder {rd} exists and is not a folder")
-        if rd.is_dir() and any(rd.iterdir()):
+        if rd.is_dir() and any(p.name != "select" for p in rd.iterdir()):  # select/: model = "auto" trials
             if not cfg_file.is_file():
                 raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
             try:
@@ -467,11 +468,14 @@ class Trainer:
 
 
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
-    """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``.
+    """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``
+    (``cfg.model == "auto"`` first chooses the field, :func:`rfmitsuba.train.select.select_model`).
 
     Returns the summary dict (also in ``out/final/summary.json``)."""
     cfg = cfg or TrainConfig()
     data = TrainData.open(dataset, state=cfg.state)
+    if cfg.model == "auto":
+        cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
     return Trainer(cfg, data, out, quiet=quiet).run()
 
 

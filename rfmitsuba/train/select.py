@@ -1,0 +1,71 @@
+"""``model = "auto"``: choose the Stage-1 field for a dataset by validation SSIM.
+
+Which field family suits a dataset is an empirical question: the coherent Gaussian field draws
+the interference of a simulated room's paths that splats cannot, while on measured spectra
+whose stated frame may be off, the splat field's freedom can serve better. :func:`select_model`
+trains every candidate of :data:`AUTO_KINDS` for a quarter of the budget (at least 50 steps) on
+the training positions and keeps the one with the best validation SSIM (validation positions
+are training positions; test positions are never seen). The trial runs stay in ``RUN/select/``
+with ``choice.json``; the chosen field then trains with the full budget into ``RUN`` itself,
+whose ``config.toml`` names it. The same command resumes at any point, and a finished choice
+is not made again.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from ..core.atomic import write_json
+from ..core.errors import ConfigError
+from ..data.views import TrainData
+
+#: candidate Stage-1 fields of ``model = "auto"``, in order of preference on a tie
+AUTO_KINDS = ("coherent_gaussians", "splat")
+#: the sub-folder of a run that holds the trial runs and ``choice.json``
+SELECT_DIR = "select"
+
+
+def trial_config(cfg, kind: str):
+    """The configuration of one trial: ``kind`` at a quarter of the budget (>= 50 steps)."""
+    it = max(50, cfg.iterations // 4)
+    every = max(1, min(cfg.val_every, it // 2))
+    return dataclasses.replace(cfg, model=kind, iterations=it, val_every=every, checkpoint_every=every,
+                               log_every=max(1, min(cfg.log_every, every)),
+                               time_limit_s=cfg.time_limit_s / 4 if cfg.time_limit_s else 0.0)
+
+
+def select_model(cfg, data: TrainData, run_dir: str | Path, *, trainer, quiet: bool = False):
+    """Resolve ``cfg.model == "auto"``: the configuration with the chosen kind.
+
+    Args:
+        cfg: the :class:`~rfmitsuba.train.config.TrainConfig`; data: the training data;
+        run_dir: the run folder (trials go to ``run_dir/select/<kind>``); trainer: the trainer
+        class (:class:`rfmitsuba.train.trainer.Trainer`); quiet: no progress bars.
+    Returns:
+        ``cfg`` with the chosen model (unchanged when its model is not "auto").
+    Raises:
+        ConfigError: no candidate can train on this dataset (each candidate's refusal is named).
+    """
+    if cfg.model != "auto":
+        return cfg
+    sel = Path(run_dir) / SELECT_DIR
+    choice = sel / "choice.json"
+    if choice.is_file():
+        return dataclasses.replace(cfg, model=json.loads(choice.read_text())["chosen"])
+    scores, refused = {}, {}
+    for kind in AUTO_KINDS:
+        try:
+            s = trainer(trial_config(cfg, kind), data, sel / kind, quiet=quiet).run()
+        except ConfigError as e:
+            refused[kind] = str(e)
+            continue
+        scores[kind] = {"best_val_ssim": s["best_val_ssim"], "train_time_s": s["train_time_s"], "steps": s["steps"],
+                        "num_gaussians": s["num_gaussians"], "num_parameters": s["num_parameters"]}
+    if not scores:
+        raise ConfigError("model = 'auto': no candidate field can train on this dataset: "
+                          + "; ".join(f"{k}: {v}" for k, v in refused.items()))
+    chosen = max(scores, key=lambda k: (scores[k]["best_val_ssim"] or -1.0, -AUTO_KINDS.index(k)))
+    write_json(choice, {"chosen": chosen, "trials": scores, "refused": refused,
+                        "rule": "best validation SSIM after a quarter of the budget"})
+    return dataclasses.replace(cfg, model=chosen)

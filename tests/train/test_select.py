@@ -1,0 +1,45 @@
+"""rfmitsuba.train.select: model = "auto" chooses the Stage-1 field by validation SSIM."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from stage1_data import make_dataset
+from test_trainer import tiny_cfg
+
+
+def test_auto_trains_each_candidate_keeps_the_best_and_resumes(tmp_path):
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.train.select import AUTO_KINDS, trial_config
+    from rfmitsuba.train.trainer import load_run, train
+
+    folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=30, task="tx")), tmp_path / "n")
+    cfg = tiny_cfg(model='"auto"', iterations=200, **{"coherent_gaussians.scatterers": 4})
+    assert trial_config(cfg, "splat").iterations == 50 and trial_config(cfg, "splat").model == "splat"
+    out = tmp_path / "run"
+    s = train(folder, out, cfg=cfg, quiet=True)
+    choice = json.loads((out / "select" / "choice.json").read_text())
+    assert set(choice["trials"]) == set(AUTO_KINDS)
+    best = max(choice["trials"], key=lambda k: choice["trials"][k]["best_val_ssim"])
+    assert choice["chosen"] == best and s["model"] == best and s["steps"] == 200
+    rcfg, _, renderer = load_run(out)
+    assert rcfg.model == best and renderer.fields[0].kind == best
+    assert evaluate_run(out)["model"]["n"] > 0
+    # the same command again: nothing is trained, the choice stands
+    stamp = {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")}
+    assert train(folder, out, cfg=cfg, quiet=True)["model"] == best
+    assert all(p.stat().st_mtime_ns == t for p, t in stamp.items())
+
+
+def test_auto_names_every_refusal(tmp_path, monkeypatch):
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train import select
+    from rfmitsuba.train.trainer import Trainer
+
+    data = TrainData.open(make_dataset(tmp_path / "ds", num_antennas=20))
+    monkeypatch.setattr(select, "AUTO_KINDS", ("coherent",))  # needs a scene the synthetic data lacks
+    with pytest.raises(ConfigError, match="no candidate field can train.*coherent:.*needs the scene geometry"):
+        select.select_model(tiny_cfg(model='"auto"'), data, tmp_path / "run", trainer=Trainer, quiet=True)
