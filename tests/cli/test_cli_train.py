@@ -1,0 +1,24 @@
+"""CLI ``rfmitsuba train``: without --config or --model it chooses the field by validation (model = "auto")."""
+import json
+
+from stage1_data import make_dataset
+
+TINY = ["--set", "iterations=40", "--set", "downsample=5", "--set", "val_every=10", "--set", "checkpoint_every=10",
+        "--set", "field.init='random'", "--set", "field.num_gaussians=100", "--set", "coherent_gaussians.scatterers=4",
+        "--quiet"]
+
+
+def test_train_cli_defaults_to_auto_and_takes_a_model(tmp_path, capsys):
+    from rfmitsuba.cli import main
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=24, task="tx")
+    assert main(["train", str(ds), "--out", str(tmp_path / "auto")] + TINY) == 0
+    choice = json.loads((tmp_path / "auto" / "select" / "choice.json").read_text())
+    assert choice["chosen"] in ("coherent_gaussians", "splat")
+    assert f'model = "{choice["chosen"]}"' in (tmp_path / "auto" / "config.toml").read_text()
+    assert main(["train", str(ds), "--out", str(tmp_path / "splat"), "--model", "splat", "--split", "block"] + TINY) == 0
+    assert not (tmp_path / "splat" / "select").exists()
+    text = (tmp_path / "splat" / "config.toml").read_text()
+    assert 'model = "splat"' in text and 'split = "block"' in text
+    assert main(["train", str(ds), "--out", str(tmp_path / "bad"), "--model", "nerf"] + TINY) == 2
+    assert "unknown field kind 'nerf'" in capsys.readouterr().err
