@@ -23,6 +23,18 @@ def variant() -> str:
     return backend.set_variant(os.environ.get("RFMITSUBA_VARIANT") or "llvm")
 
 
+@pytest.fixture
+def one_thread(variant):
+    """Dr.Jit on one thread, so gradient scatter-adds sum in a fixed order (finite-difference
+    checks); the thread count is restored afterwards."""
+    import drjit as dr
+
+    old = dr.thread_count()
+    dr.set_thread_count(1)
+    yield
+    dr.set_thread_count(old)
+
+
 # ----------------------------------------------------------------------------- tiny hand-made rooms
 def _quad_ply(path, corners) -> None:
     """Write one planar quad (two triangles, both windings) as an ASCII PLY file."""

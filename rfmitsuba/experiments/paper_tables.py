@@ -115,7 +115,6 @@ class TwoStageTable(Table):
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
         ref = _ref(cfg).key
-        ref = DatasetSpec(room, task).key
         L: list[str] = []
         L += [f"## Two-stage ablation (paper Table `tab:ablation_strategy`; {room}, moving {task.upper()})", "",
               "| method | steps | dynamic mean | static mean | paper mean |", "|---|---|---|---|---|"]
@@ -151,7 +150,6 @@ class PerturbationTable(Table):
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
         ref = _ref(cfg).key
-        ref = DatasetSpec(room, task).key
         L: list[str] = []
         L += [f"## Role of perturbation data (paper Table `tab:ablation_info`; {room}, moving {task.upper()})", "",
               "| method | dynamic mean | static mean | paper mean |", "|---|---|---|---|"]
@@ -247,7 +245,6 @@ class PositionsTable(Table):
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
         ref = _ref(cfg).key
-        ref = DatasetSpec(room, task).key
         L: list[str] = []
         L += [f"## Number of training positions (paper Table `tab:motivation`; {room}, moving {task.upper()})", "",
               "| training antenna positions | Baseline static mean | Baseline static median | Ours dynamic mean | "
@@ -281,7 +278,6 @@ class NoiseTable(Table):
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
         ref = _ref(cfg).key
-        ref = DatasetSpec(room, task).key
         L: list[str] = []
         L += [f"## Measurement noise on the training data ({room}, moving {task.upper()}; not in the paper)", "",
               "Complex white noise added to the training channels at the given SNR (PAS recomputed); test data clean.", "",

@@ -104,6 +104,26 @@ def load_field(path: str | Path) -> "Field":
     return FIELD_FORMATS[fmt].from_state_dict(state)
 
 
+def flat_parameters(state: dict, sizes: dict, *, owner: str) -> dict:
+    """Parameter arrays of a saved state as Dr.Jit ``Float``: name -> ``Float`` [sizes[name]].
+
+    Raises:
+        RunError: a name missing from ``state``, a size mismatch or a non-finite value, naming
+        ``owner`` (the field class) and the parameter.
+    """
+    from ..core import backend as B
+
+    out = {}
+    for k, n in sizes.items():
+        if k not in state:
+            raise RunError(f"{owner} state lacks {k!r}")
+        v = np.asarray(state[k], np.float32).ravel()
+        if v.shape != (n,) or not np.isfinite(v).all():
+            raise RunError(f"{owner} state {k!r}: expected {n} finite values, got {v.shape}")
+        out[k] = B.Float(v)
+    return out
+
+
 @dataclass
 class Views:
     """B views to render: where the array, the transmitter and the moving device are.

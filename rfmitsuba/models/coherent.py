@@ -47,7 +47,7 @@ from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
 from ..rf.images import ImageMaps, scene_image_maps
-from .base import Field, Views, register
+from .base import Field, Views, flat_parameters, register
 from .nn import MLP
 from .splat import columns, write_ply_arrays
 
@@ -212,13 +212,7 @@ class CoherentFamily(Field):
 
     def load_state_dict(self, state: dict) -> None:
         """Load parameter arrays (as written by :meth:`state_dict`); RunError on a size mismatch."""
-        for k, n in self._sizes().items():
-            if k not in state:
-                raise RunError(f"{type(self).__name__} state lacks {k!r}")
-            v = np.asarray(state[k], np.float32).ravel()
-            if v.shape != (n,) or not np.isfinite(v).all():
-                raise RunError(f"{type(self).__name__} state {k!r}: expected {n} finite values, got {v.shape}")
-            self.params[k] = B.Float(v)
+        self.params.update(flat_parameters(state, self._sizes(), owner=type(self).__name__))
         for k, m in self._modules().items():
             if k in state:
                 w = np.asarray(state[k], np.float32).ravel()

@@ -70,7 +70,7 @@ from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
 from ..rf.images import scene_image_maps
-from .base import Field, Views, register
+from .base import Field, Views, flat_parameters, register
 from .coherent import _columns, _write_points_ply
 
 FORMAT = "rfmitsuba-coherent-gaussians/1"
@@ -468,13 +468,7 @@ class CoherentGaussianField(Field):
             self.params[k] = dr.detach(self.params[k])
 
     def load_state_dict(self, state: dict) -> None:
-        for k, n in self._sizes().items():
-            if k not in state:
-                raise RunError(f"CoherentGaussianField state lacks {k!r}")
-            v = np.asarray(state[k], np.float32).ravel()
-            if v.shape != (n,) or not np.isfinite(v).all():
-                raise RunError(f"CoherentGaussianField state {k!r}: expected {n} finite values, got {v.shape}")
-            self.params[k] = B.Float(v)
+        self.params.update(flat_parameters(state, self._sizes(), owner=type(self).__name__))
 
     def state_dict(self) -> dict:
         out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.params.items()}

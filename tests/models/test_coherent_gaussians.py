@@ -15,14 +15,8 @@ F = 2.4e9
 PARAMS = ["img_offset", "img_amp", "sc_pos", "sc_amp", "vis_center", "vis_log_extent", "cal", "pose"]
 
 
-@pytest.fixture(autouse=True)
-def one_thread(variant):
-    import drjit as dr
-
-    old = dr.thread_count()
-    dr.set_thread_count(1)
-    yield
-    dr.set_thread_count(old)
+#: every test on one Dr.Jit thread (the ``one_thread`` fixture of tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _field(*, readout="amplitude", wavefront="plane", seed=0):

@@ -20,15 +20,8 @@ F = 2.4e9
 BOX = np.array([[0.0, 0.0, 0.0], [4.0, 3.0, 2.6]])
 
 
-@pytest.fixture(autouse=True)
-def one_thread(variant):
-    """Dr.Jit on one thread: gradient scatter-adds sum in a fixed order (restored afterwards)."""
-    import drjit as dr
-
-    old = dr.thread_count()
-    dr.set_thread_count(1)
-    yield
-    dr.set_thread_count(old)
+#: every test on one Dr.Jit thread (the ``one_thread`` fixture of tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _assert_fd(result, rtol, atol, min_entries=3):
