@@ -113,7 +113,7 @@ class CoherentGaussianConfig:
     min_face_area: float = 0.05
     images: int = 6
     image_order: int = 2
-    scatterers: int = 24
+    scatterers: int = 96
     scan_step: float = 0.1
     scan_margin: float = 4.0
     readout: Literal["auto", "amplitude", "phase_only"] = "auto"
@@ -218,14 +218,16 @@ def _greedy(res: _Residual, dirs: np.ndarray, count: int, *, allowed: np.ndarray
 
 
 def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scatterers: int, step: float,
-         margin: float, rx_to_world: np.ndarray | None = None, radius_deg: float = 12.0) -> dict:
+         margin: float, rx_to_world: np.ndarray | None = None, radius_deg: float = 12.0, max_views: int = 128,
+         max_points: int = 12000) -> dict:
     """Sources that the training PAS imply, for an unknown room (matching pursuit on arrival
     directions; the direct path is explained first).
 
     Candidates: the images of every transmitter across axis-aligned planes ``coord_a = d`` (offset
     every ``step`` metres within the positions' bounds padded by ``margin``, planes through the
     positions' own span excluded) and fixed scatterers on a grid (every ``max(step, 0.25)`` metres,
-    at most about 40 000 points, none within 0.3 m of a position). A candidate's score is the mean
+    at most about ``max_points`` points, none within 0.3 m of a position). Scores average over at
+    most ``max_views`` training views, evenly spaced. A candidate's score is the mean
     of the residual PAS in the direction it would arrive from at every training view; the best is
     kept and a ``radius_deg`` beam around its directions is masked, ``images`` times for planes,
     then ``scatterers`` times for points.
@@ -238,6 +240,9 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
          "points": float [P, 3] [m], "point_score": [P]}.
     """
     R = np.eye(3) if rx_to_world is None else np.asarray(rx_to_world, np.float64)
+    if len(pas) > max_views:  # the score is a mean over views: an even subset estimates it
+        keep = np.linspace(0, len(pas) - 1, max_views).round().astype(np.int64)
+        pas, x, y = pas[keep], x[keep], y[keep]
     res = _Residual(pas, radius_deg)
     res.explain(_unit(y - x) @ R)                                    # the direct path
     pts = np.concatenate([x, y])
@@ -255,7 +260,7 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
         A[n, axis[i], axis[i]] = -1.0
         b[n, axis[i]] = 2 * off[i]
     out = {"A": A, "b": b, "image_score": sc0[pick]}
-    g = max(step, 0.25, float(np.prod(hi - lo) / 40000.0) ** (1 / 3))
+    g = max(step, 0.25, float(np.prod(hi - lo) / max_points) ** (1 / 3))
     grid = np.stack(np.meshgrid(*[np.arange(lo[a] + g / 2, hi[a], g) for a in range(3)], indexing="ij"), -1)
     grid = grid.reshape(-1, 3)
     sub = pts[::max(1, len(pts) // 256)]
