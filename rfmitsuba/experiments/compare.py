@@ -33,7 +33,7 @@ from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
 from .methods import METHODS, MethodConfig, get_method
-from .methods import run_job as methods_run_job
+from .methods import run_job
 from .sizes import TrainSize, method_config
 
 
@@ -74,17 +74,16 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
         raise RunError(f"{out} is not empty and holds no compare.toml: not a comparison folder (nothing was changed)")
 
 
-def run_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
-            reevaluate: bool = False) -> dict:
+def compare_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
+                reevaluate: bool = False) -> dict:
     """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.experiments.methods.run_job`
     (skipped when done; Ours first runs that seed's Baseline, its Stage 1)."""
     stage1 = None
     if get_method(method).two_stage:
-        run_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
+        compare_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
         stage1 = out / f"seed{seed}" / "baseline" / "train"
-    return methods_run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
-                           record={"method": method, "seed": seed}, stage1_dir=stage1, reevaluate=reevaluate,
-                           quiet=quiet)
+    return run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
+                   record={"method": method, "seed": seed}, stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
@@ -112,14 +111,14 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     with bar(len(cfg.seeds) * len(order), desc="compare", unit="job", quiet=not progress) as pb:
         for seed in cfg.seeds:
             for m in order:
-                results.append(run_job(m, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
+                results.append(compare_job(m, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
                 pb.update(1)
     # jobs of earlier seeds / methods of the same comparison stay in the results
     ran = {(x["method"], x["seed"]) for x in results}
     for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
         method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
         if (method, seed) not in ran:
-            results.append(run_job(method, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
+            results.append(compare_job(method, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
     write_json(out / "results.json", results, allow_nan=True)
     _speed_accuracy(out / "speed_accuracy.png", results)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))

@@ -2,7 +2,7 @@
 mean +- std over seeds beside the published figures), claims checked, speed against accuracy,
 and where each method breaks.
 
-Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.run_job`}.
+Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.reproduce_job`}.
 Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png``.
 """
 from __future__ import annotations

@@ -32,7 +32,7 @@ from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
 from .methods import config_dict
-from .methods import run_job as methods_run_job
+from .methods import run_job
 from .paper_tables import TABLES
 from .report import write_report
 from .sizes import DatasetSpec, ExperimentConfig, method_config
@@ -118,8 +118,8 @@ def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
         raise RunError(f"{out} holds jobs but no experiment.toml; not an experiment folder (nothing was changed)")
 
 
-def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
-            reevaluate: bool = False) -> dict:
+def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
+                  reevaluate: bool = False) -> dict:
     """Train and evaluate one job by :func:`rfmitsuba.experiments.methods.run_job` (skipped when done, or
     evaluated again with ``reevaluate``); returns its metrics.
 
@@ -142,11 +142,11 @@ def run_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet
     stage1 = None
     if job.method == "ours":
         b = job.stage1_job()
-        run_job(b, out, cfg, data_dir, quiet=quiet)
+        reproduce_job(b, out, cfg, data_dir, quiet=quiet)
         stage1 = b.folder(out) / "train"
-    return methods_run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
-                           record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
-                           stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
+    return run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
+                   record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
+                   stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
 
 
 class Stopped(RunError):
@@ -190,7 +190,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     with bar(total=len(jobs), desc="jobs", unit="job", quiet=quiet) as pb:
         for j in jobs:
             was_done = (j.folder(out) / "DONE").is_file()
-            results[f"{j.dataset.key}/{j.key}"] = run_job(j, out, cfg, data_dir, quiet=True, reevaluate=reevaluate)
+            results[f"{j.dataset.key}/{j.key}"] = reproduce_job(j, out, cfg, data_dir, quiet=True, reevaluate=reevaluate)
             pb.update(1)
             if not was_done:
                 done_new += 1

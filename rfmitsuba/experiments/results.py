@@ -1,6 +1,6 @@
 """Selecting and formatting the results of a reproduction's jobs.
 
-``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.run_job`}, each
+``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.reproduce_job`}, each
 with ``job`` (its :meth:`rfmitsuba.experiments.job.Job.record`), ``train`` and ``eval``.
 :func:`select` picks the jobs of one configuration, :func:`value` reads a dotted path of one,
 :func:`mean_std_n` / :func:`fmt` / :func:`mean` summarise a path over seeds; the path constants

@@ -49,7 +49,7 @@ def test_other_configuration_is_refused(tiny_reproduction):
 
 
 def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
-    from rfmitsuba.experiments.reproduce import Job, run_job
+    from rfmitsuba.experiments.reproduce import Job, reproduce_job
     from rfmitsuba.experiments.sizes import DatasetSpec
 
     out, cfg, _, _ = tiny_reproduction
@@ -60,7 +60,7 @@ def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
     rec["job"]["seed"] = 99
     (jd / "job.json").write_text(json.dumps(rec))
     with pytest.raises(RunError, match="job.seed"):
-        run_job(job, tmp_path, cfg, out / "data")
+        reproduce_job(job, tmp_path, cfg, out / "data")
 
 
 def test_config_round_trip_and_jobs():
