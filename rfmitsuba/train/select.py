@@ -17,7 +17,7 @@ import json
 from pathlib import Path
 
 from ..core.atomic import write_json
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, RunError
 from ..data.views import TrainData
 
 #: candidate Stage-1 fields of ``model = "auto"``, in order of preference on a tie
@@ -45,7 +45,8 @@ def select_model(cfg, data: TrainData, run_dir: str | Path, *, trainer, quiet: b
     Returns:
         ``cfg`` with the chosen model (unchanged when its model is not "auto").
     Raises:
-        ConfigError: no candidate can train on this dataset (each candidate's refusal is named).
+        ConfigError: no candidate can train on this dataset (each candidate's refusal or
+        divergence is named).
     """
     if cfg.model != "auto":
         return cfg
@@ -57,7 +58,7 @@ def select_model(cfg, data: TrainData, run_dir: str | Path, *, trainer, quiet: b
     for kind in AUTO_KINDS:
         try:
             s = trainer(trial_config(cfg, kind), data, sel / kind, quiet=quiet).run()
-        except ConfigError as e:
+        except (ConfigError, RunError) as e:  # refused this dataset, or diverged: the other candidates go on
             refused[kind] = str(e)
             continue
         scores[kind] = {"best_val_ssim": s["best_val_ssim"], "train_time_s": s["train_time_s"], "steps": s["steps"],

@@ -43,3 +43,23 @@ def test_auto_names_every_refusal(tmp_path, monkeypatch):
     monkeypatch.setattr(select, "AUTO_KINDS", ("coherent",))  # needs a scene the synthetic data lacks
     with pytest.raises(ConfigError, match="no candidate field can train.*coherent:.*needs the scene geometry"):
         select.select_model(tiny_cfg(model='"auto"'), data, tmp_path / "run", trainer=Trainer, quiet=True)
+
+
+def test_a_candidate_that_diverges_is_left_out(tmp_path, monkeypatch):
+    """A candidate whose trial raises RunError (a diverging loss) is recorded as refused; the other wins."""
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train import select
+    from rfmitsuba.train.trainer import Trainer
+
+    class Diverging(Trainer):
+        def run(self, **kw):
+            if self.cfg.model == "coherent_gaussians":
+                raise RunError("loss became nan at step 3")
+            return super().run(**kw)
+
+    data = TrainData.open(make_dataset(tmp_path / "ds", num_antennas=20))
+    cfg = select.select_model(tiny_cfg(model='"auto"', iterations=40), data, tmp_path / "run", trainer=Diverging,
+                              quiet=True)
+    choice = json.loads((tmp_path / "run" / "select" / "choice.json").read_text())
+    assert cfg.model == "splat" and "nan" in choice["refused"]["coherent_gaussians"]
