@@ -11,7 +11,9 @@ The trainer calls the named hooks of :class:`Strategy`; :class:`DensityStrategy`
   ``grad_threshold`` (largest first, at most ``max_growth`` * N new ones, never more than
   ``max_gaussians`` in all), prunes Gaussians whose attenuation delta stays below
   ``prune_opacity`` in every probe view or whose largest scale exceeds ``prune_scale`` metres,
-  and every ``reset_every`` steps lowers every attenuation delta to ``reset_opacity``;
+  and every ``reset_every`` steps lowers every attenuation delta to ``reset_opacity``; given the
+  run's length, no reset comes after its first half and no densification in its last
+  ``every`` steps (as 3DGS stops both half-way), so the saved field is never a freshly reset one;
 * :meth:`~DensityStrategy.on_validation` after each validation: growth stops for good once
   validation SSIM has not improved by ``min_improvement`` for ``patience`` validations
   (a model no larger than the scene needs).
@@ -118,9 +120,12 @@ class DensityStrategy(Strategy):
         prefix: the field's key prefix in the optimizer (``"<field.name>."``).
     """
 
-    def __init__(self, cfg: DensityConfig, *, prefix: str = "bg."):
+    def __init__(self, cfg: DensityConfig, *, prefix: str = "bg.", iterations: int | None = None):
         self.cfg = cfg
         self.prefix = prefix
+        #: the run's length: no opacity reset after its first half and no densification in its
+        #: last ``every`` steps, so the final field has had time to recover from both
+        self.iterations = iterations
         self.grad_sum = None  # Float [N], accumulated position-gradient norm
         self.count = None  # Float [N], steps with a non-zero gradient
         self.growth_stopped = False
@@ -177,9 +182,11 @@ class DensityStrategy(Strategy):
         if not c.enabled:
             return False
         changed = False
-        if c.start <= step < c.stop and step % c.every == 0 and self.grad_sum is not None:
+        grow_until = c.stop if self.iterations is None else min(c.stop, self.iterations - c.every)
+        reset_until = c.stop if self.iterations is None else min(c.stop, self.iterations // 2 + 1)
+        if c.start <= step < grow_until and step % c.every == 0 and self.grad_sum is not None:
             changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_views=probe_views)
-        if c.reset_every > 0 and step % c.reset_every == 0 and step < c.stop:
+        if c.reset_every > 0 and step % c.reset_every == 0 and step < reset_until:
             self._reset_opacity(field, opt)
             changed = True
         return changed
@@ -329,7 +336,10 @@ class NoDensity(Strategy):
     their sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
 
 
-def make_strategy(cfg: DensityConfig, field, *, prefix: str) -> Strategy:
+def make_strategy(cfg: DensityConfig, field, *, prefix: str, iterations: int | None = None) -> Strategy:
     """The density strategy of ``field``: :class:`DensityStrategy` for fields whose class
-    allows densification (``Field.densify``), :class:`NoDensity` otherwise."""
-    return DensityStrategy(cfg, prefix=prefix) if getattr(field, "densify", False) else NoDensity()
+    allows densification (``Field.densify``), :class:`NoDensity` otherwise. ``iterations``: the
+    run's length (no reset after its first half, no densification in its last ``every`` steps)."""
+    if not getattr(field, "densify", False):
+        return NoDensity()
+    return DensityStrategy(cfg, prefix=prefix, iterations=iterations)

@@ -353,7 +353,7 @@ class Trainer:
         opt = Adam(lr=1e-3)
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
-        strategy = make_strategy(cfg.density, field, prefix=self.prefix)
+        strategy = make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
 
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0

@@ -130,3 +130,36 @@ def test_bad_density_config():
         DensityConfig(every=0)
     with pytest.raises(ConfigError, match="max_gaussians"):
         DensityConfig(max_gaussians=0)
+
+
+def test_no_reset_after_half_and_no_growth_at_the_end_of_a_run(variant):
+    """A 3000-step run with reset_every = 1500 resets at step 1500 only, never at its last step
+    (that reset used to leave the saved field transparent: test SSIM 0.06 after validation 0.93
+    on a NeRF2-like folder), and densifies no later than 3000 - every."""
+    from rfmitsuba.train.density import DensityConfig, DensityStrategy
+
+    class Spy(DensityStrategy):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self.events = []
+            self.grad_sum = object()
+
+        def _reset_opacity(self, field, opt):
+            self.events.append(("reset", self.step))
+
+        def _densify_and_prune(self, step, field, opt, *, rng, probe_views):
+            self.events.append(("grow", step))
+            return False
+
+    st = Spy(DensityConfig(start=100, every=100, reset_every=1500), iterations=3000)
+    for step in range(1, 3001):
+        st.step = step
+        st.step_end(step, None, None, rng=None, probe_views=None)
+    resets = [s for e, s in st.events if e == "reset"]
+    grows = [s for e, s in st.events if e == "grow"]
+    assert resets == [1500] and max(grows) == 2800
+    free = Spy(DensityConfig(start=100, every=100, reset_every=1500))  # length unknown: as configured
+    for step in (1500, 3000):
+        free.step = step
+        free.step_end(step, None, None, rng=None, probe_views=None)
+    assert [s for e, s in free.events if e == "reset"] == [1500, 3000]
