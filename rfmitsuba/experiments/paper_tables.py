@@ -108,9 +108,10 @@ class TwoStageTable(Table):
     (paper Table `tab:ablation_strategy`)."""
 
     key = "two_stage"
+    methods = ("baseline", "end_to_end", "continued", "ours")
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
-        return [Job(_ref(cfg), m, seed) for m in ("baseline", "end_to_end", "continued", "ours")]
+        return [Job(_ref(cfg), m, seed) for m in self.methods]
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
@@ -118,7 +119,7 @@ class TwoStageTable(Table):
         L: list[str] = []
         L += [f"## Two-stage ablation (paper Table `tab:ablation_strategy`; {room}, moving {task.upper()})", "",
               "| method | steps | dynamic mean | static mean | paper mean |", "|---|---|---|---|---|"]
-        for m in ("baseline", "end_to_end", "continued", "ours"):
+        for m in self.methods:
             rs = select(results, dataset=ref, method=m)
             steps = fmt(rs, "train.steps", 0).split(" ±")[0]
             L.append(f"| {LABEL[m]} | {steps} | {fmt(rs, DYN)} | {fmt(rs, STAT)} | "
@@ -143,9 +144,10 @@ class PerturbationTable(Table):
     """Role of perturbation data: Baseline, Duplicated, Baseline (human), Ours (paper Table `tab:ablation_info`)."""
 
     key = "perturbation"
+    methods = ("baseline", "duplicated", "baseline_human", "ours")
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
-        return [Job(_ref(cfg), m, seed) for m in ("baseline", "duplicated", "baseline_human", "ours")]
+        return [Job(_ref(cfg), m, seed) for m in self.methods]
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
@@ -153,11 +155,11 @@ class PerturbationTable(Table):
         L: list[str] = []
         L += [f"## Role of perturbation data (paper Table `tab:ablation_info`; {room}, moving {task.upper()})", "",
               "| method | dynamic mean | static mean | paper mean |", "|---|---|---|---|"]
-        for m in ("baseline", "duplicated", "baseline_human", "ours"):
+        for m in self.methods:
             rs = select(results, dataset=ref, method=m)
             L.append(f"| {LABEL[m]} | {fmt(rs, DYN)} | {fmt(rs, STAT)} | {paper_fmt(paper.PERTURBATION.get(m))} |")
         L.append("")
-        b, du, h, o = (select(results, dataset=ref, method=m) for m in ("baseline", "duplicated", "baseline_human", "ours"))
+        b, du, h, o = (select(results, dataset=ref, method=m) for m in self.methods)
         if b and du:
             claims.add("Duplicating the empty data collapses the baseline", "0.844 -> 0.761",
                        f"static {mean(b, STAT):.3f} -> {mean(du, STAT):.3f}", mean(du, STAT) < mean(b, STAT) - 0.02)
