@@ -125,11 +125,13 @@ def _coherent_mcfg(stage1, stage2, kind="perturb"):
 
 
 @pytest.mark.parametrize("kind", ["perturb", "scatter"])
-def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path, kind):
+def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path, kind, one_thread):
     """Coherent Ours: Stage 2 adds the person (kind "perturb": it modulates the background's own
     paths; "scatter": scattering points that move with the person). On the human-present training
     samples the background plus the person fits better than the frozen background alone, and the
-    static evaluation renders the background alone (the person off)."""
+    static evaluation renders the background alone (the person off). One Dr.Jit thread: with
+    several, the order of the gradient sums varies and the margin of the scatter kind (about
+    0.01) was once 0.003."""
     from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data.samples import SampleData
     from rfmitsuba.eval import dynamic_static
