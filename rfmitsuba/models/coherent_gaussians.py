@@ -33,11 +33,13 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
 
 * **known room** (the dataset names a scene): the image maps of the room's planes
   (:func:`rfmitsuba.rf.images.scene_image_maps`);
-* **unknown room**: from the training PAS alone. Candidate images across axis-aligned planes at
-  offsets every ``scan_step`` metres and candidate scatterers on a grid are scored by the mean
-  training PAS in the direction each would arrive from at every training view; the best
-  ``images`` planes and ``scatterers`` points, kept apart by non-maximum suppression, start the
-  field (:func:`scan_images`, :func:`scan_scatterers`). The direct path is always there.
+* **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
+  directions. The direct path is explained first; then candidate images across axis-aligned
+  planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
+  the mean remaining PAS in the direction each would arrive from at the training views, and
+  the best is kept and a beam around its directions masked, ``images`` times, then
+  ``scatterers`` times. The planes' images are composed up to ``image_order`` reflections
+  (:func:`compose_images`). A known room gets scanned scatterers beside its image sources too.
 
 Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 
@@ -260,8 +262,9 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
     inside = (off > pts.min(0)[axis] - 0.2) & (off < pts.max(0)[axis] + 0.2)
     img = np.repeat(y[:, None, :], len(off), 1)
     img[:, np.arange(len(off)), axis] = 2 * off[None, :] - y[:, axis]
-    sc0 = res.score(_unit(img - x[:, None, :]) @ R)
-    pick = _greedy(res, _unit(img - x[:, None, :]) @ R, images, allowed=~inside)
+    img_dirs = _unit(img - x[:, None, :]) @ R
+    sc0 = res.score(img_dirs)
+    pick = _greedy(res, img_dirs, images, allowed=~inside)
     A = np.repeat(np.eye(3)[None], len(pick), 0)
     b = np.zeros((len(pick), 3))
     for n, i in enumerate(pick):
@@ -350,7 +353,8 @@ class CoherentGaussianField(Field):
 
     def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
                  readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,
-                 name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0):
+                 name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0,
+                 init: str | None = None):
         B.ensure()
         self.A = np.asarray(A, np.float64).reshape(-1, 3, 3)
         self.order = np.asarray(order, np.int64).reshape(-1)
@@ -364,8 +368,12 @@ class CoherentGaussianField(Field):
         self.frequency_hz = float(frequency_hz)
         antenna.wavelength(self.frequency_hz)
         self.seed, self.name = int(seed), name
+        #: how the field was initialised: "room" or "data" (None when not known)
+        self.init = init
         self.frozen = False
         self.scatterer_scale = float(scatterer_scale)
+        #: the fixed image maps as 9 device columns, uploaded once
+        self._A_cols = _columns(self.A.reshape(-1, 9))
         sc = np.asarray(scatterers, np.float64).reshape(-1, 3)
         S, P = len(self.A), len(sc)
         self.num_images, self.num_scatterers = S, P
@@ -428,9 +436,8 @@ class CoherentGaussianField(Field):
         else:
             scale = 1.0
         f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
-                frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale)
+                frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init)
         f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
-        f.init = init
         return f
 
     # ---- parameters ------------------------------------------------------------------------
@@ -491,7 +498,7 @@ class CoherentGaussianField(Field):
         out["meta"] = np.asarray(json.dumps({
             "format": FORMAT, "config": to_dict(self.cfg), "readout": self.readout, "wavefront": self.wavefront,
             "frequency_hz": self.frequency_hz, "seed": self.seed, "name": self.name, "frozen": self.frozen,
-            "scatterer_scale": self.scatterer_scale, "init": getattr(self, "init", None)}))
+            "scatterer_scale": self.scatterer_scale, "init": self.init}))
         return out
 
     @classmethod
@@ -505,10 +512,9 @@ class CoherentGaussianField(Field):
                     cfg=from_dict(CoherentGaussianConfig, meta["config"]), readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
                     seed=meta["seed"], name=meta.get("name", "bg"), params=state,
-                    scatterer_scale=meta.get("scatterer_scale", 1.0))
+                    scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"))
         except KeyError as e:
             raise RunError(f"CoherentGaussianField state lacks {e}") from None
-        f.init = meta.get("init")
         if meta.get("frozen"):
             f.freeze()
         return f
@@ -531,6 +537,7 @@ class CoherentGaussianField(Field):
         kw = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         pose = self.params["pose"]
         w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, 1)) for i in range(6))
+        x_cols, y_cols, q_cols, e_cols = _columns(x), _columns(y), _columns(q), _columns(e_world)
         hr = hi = None
         for group, K in (("img", self.num_images), ("sc", self.num_scatterers)):
             if K == 0:
@@ -540,15 +547,15 @@ class CoherentGaussianField(Field):
             bm = lane // dr.opaque(B.UInt32, K)
             m = bm % M
             b = bm // M
-            xb = [dr.gather(B.Float, c, b) for c in _columns(x)]
-            yb = [dr.gather(B.Float, c, b) for c in _columns(y)]
-            qb = [dr.gather(B.Float, c, b) for c in _columns(q)]
-            r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in _columns(e_world)))
+            xb = [dr.gather(B.Float, c, b) for c in x_cols]
+            yb = [dr.gather(B.Float, c, b) for c in y_cols]
+            qb = [dr.gather(B.Float, c, b) for c in q_cols]
+            r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in e_cols))
             cen = [xb[0] + t0, xb[1] + t1, xb[2] + t2]
             el = [cen[i] + r[i] for i in range(3)]
             gi_ = k if group == "img" else k + self.num_images                 # index of visibility params
             if group == "img":
-                Ak = [dr.gather(B.Float, c, k) for c in _columns(self.A.reshape(-1, 9))]
+                Ak = [dr.gather(B.Float, c, k) for c in self._A_cols]
                 off = self.params["img_offset"]
                 s = [Ak[3 * i] * yb[0] + Ak[3 * i + 1] * yb[1] + Ak[3 * i + 2] * yb[2]
                      + dr.gather(B.Float, off, 3 * k + i) for i in range(3)]
