@@ -19,6 +19,15 @@ from ..core.ssim import ssim_images
 from ..rf.bartlett_ref import normalize as minmax
 
 
+def _joint(pos, human):
+    """Positions [N, 3], joined with person positions [N, 3] into 6-D points where given (NaN
+    rows, the empty room, count as a person far away)."""
+    a = np.asarray(pos, np.float64)
+    if human is None:
+        return a
+    return np.concatenate([a, np.nan_to_num(np.asarray(human, np.float64), nan=1e3)], 1)
+
+
 def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
                   query_human: np.ndarray | None = None) -> np.ndarray:
     """Index of the nearest training sample for every query.
@@ -36,25 +45,13 @@ def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: 
     """
     from scipy.spatial import cKDTree
 
-    a = np.asarray(train_pos, np.float64)
-    q = np.asarray(query_pos, np.float64)
-    if train_human is not None and query_human is not None:
-        th = np.nan_to_num(np.asarray(train_human, np.float64), nan=1e3)
-        qh = np.nan_to_num(np.asarray(query_human, np.float64), nan=1e3)
-        a, q = np.concatenate([a, th], 1), np.concatenate([q, qh], 1)
+    both = train_human is not None and query_human is not None
+    a = _joint(train_pos, train_human if both else None)
+    q = _joint(query_pos, query_human if both else None)
     if len(a) == 0:
         raise ValueError("nearest_index: no training samples")
     _, idx = cKDTree(a).query(q, k=1)
     return np.asarray(idx, dtype=np.int64)
-
-
-def _joint(pos, human):
-    """Positions [N, 3], joined with person positions [N, 3] into 6-D points where given (NaN
-    rows, the empty room, count as a person far away)."""
-    a = np.asarray(pos, np.float64)
-    if human is None:
-        return a
-    return np.concatenate([a, np.nan_to_num(np.asarray(human, np.float64), nan=1e3)], 1)
 
 
 def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndarray, *, k: int = 3,
@@ -73,8 +70,9 @@ def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndar
     """
     from scipy.spatial import cKDTree
 
-    a = _joint(train_pos, train_human if query_human is not None else None)
-    q = _joint(query_pos, query_human if train_human is not None else None)
+    both = train_human is not None and query_human is not None
+    a = _joint(train_pos, train_human if both else None)
+    q = _joint(query_pos, query_human if both else None)
     if len(a) == 0:
         raise ValueError("idw_predict: no training samples")
     k = min(int(k), len(a))
