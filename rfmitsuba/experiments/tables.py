@@ -121,7 +121,7 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     coherent = cfg.model == "coherent_gaussians"
-    rows = []
+    rows, k = [], None
     for cap in caps:
         if coherent:
             rc = C.override(cfg, [f"coherent_gaussians.scatterers={cap}"])
@@ -135,20 +135,19 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
         _write_table(out, "Parsimony: test SSIM against the number of Gaussians", "cap", rows,
                      f"Dataset `{dataset}`, model {cfg.model}; runs differ only in {what}. Knee (Kneedle on log "
                      f"size): {rows[k]['num_gaussians']} Gaussians, mean SSIM {rows[k]['mean']:.4f}.")
-    _plot(out / "parsimony.png", rows, "num_gaussians", "number of Gaussians",
-          knee=knee([r["num_gaussians"] for r in rows], [r["mean"] for r in rows]))
+    _plot(out / "parsimony.png", rows, "num_gaussians", "number of Gaussians", knee_index=k)
     return rows
 
 
-def _plot(path: Path, rows: list[dict], key: str, label: str, *, knee: int | None = None) -> None:
+def _plot(path: Path, rows: list[dict], key: str, label: str, *, knee_index: int | None = None) -> None:
     fig, ax = plots.subplots(figsize=(5, 3.5))
     x = [max(r[key], 1) for r in rows]
     ax.plot(x, [r["mean"] for r in rows], "o-", label="model mean")
     ax.plot(x, [r["median"] for r in rows], "s--", label="model median")
     ax.plot(x, [r["nn_mean"] for r in rows], "^:", label="nearest neighbour mean")
     ax.plot(x, [r["idw3_mean"] for r in rows], "v:", label="IDW-3 mean")
-    if knee is not None:
-        ax.plot([x[knee]], [rows[knee]["mean"]], "r*", markersize=12, label="knee")
+    if knee_index is not None:
+        ax.plot([x[knee_index]], [rows[knee_index]["mean"]], "r*", markersize=12, label="knee")
     ax.set_xscale("log")
     plots.label(ax, xlabel=label, ylabel="test SSIM", legend_fontsize=8)
     plots.save(fig, path, dpi=110)

@@ -51,7 +51,7 @@ from ..rf.bartlett_ref import (
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
 from .density import make_strategy
-from .select import select_model
+from .select import SELECT_DIR, select_model
 from .loss import loss
 
 
@@ -130,7 +130,7 @@ class Trainer:
         cfg_file = rd / "config.toml"
         if rd.exists() and not rd.is_dir():
             raise RunError(f"run folder {rd} exists and is not a folder")
-        if rd.is_dir() and any(p.name != "select" for p in rd.iterdir()):  # select/: model = "auto" trials
+        if rd.is_dir() and any(p.name != SELECT_DIR for p in rd.iterdir()):  # model = "auto" trials
             if not cfg_file.is_file():
                 raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
             try:
