@@ -304,8 +304,9 @@ class NerfDataset:
         if not (tr.is_file() and te.is_file()):
             return make_split(A, 0, seed=0)
         train, test = _read_index(tr, A), _read_index(te, A)
-        if np.intersect1d(train, test).size:
-            raise DatasetError(f"{tr} and {te} share images (e.g. {int(np.intersect1d(train, test)[0]) + 1})")
+        shared = np.intersect1d(train, test)
+        if shared.size:
+            raise DatasetError(f"{tr} and {te} share images (e.g. {int(shared[0]) + 1})")
         return Split(antenna_train=train, antenna_test=test, human_train=np.zeros(0, np.int64),
                      human_test=np.zeros(0, np.int64), seed=0)
 
