@@ -104,7 +104,12 @@ class _EvalGrad:
 
             class EvalGrad(dr.CustomOp):
                 def eval(self, xs):
-                    return [dr.detach(x) for x in xs]
+                    out = [dr.detach(x) for x in xs]
+                    # One kernel for all outputs: a consumer that gathers from one output
+                    # (EMNetwork's pair expansion) would otherwise evaluate it alone, and
+                    # every such kernel recomputes the whole network (64 kernels per branch).
+                    dr.eval(out)
+                    return out
 
                 def forward(self):
                     self.set_grad_out(self.grad_in("xs"))
@@ -122,7 +127,8 @@ class _EvalGrad:
 
 
 def grad_barrier(values: list) -> list:
-    """Identity on a list of ``Float`` arrays whose backward pass evaluates the gradients.
+    """Identity on a list of ``Float`` arrays that evaluates them (one kernel) and whose
+    backward pass evaluates the gradients.
 
     Dr.Jit 1.5's cooperative-vector backward (LLVM) aborts with "dirty variable" when the
     gradient arriving at a network output was produced by a scatter (a ``gather`` of the
