@@ -56,8 +56,13 @@ class _BoxSum(dr.CustomOp):
         o = k // (lo * inner)
         rest = k - o * (lo * inner)
         base = o * (length * inner) + rest  # (o, i, c) -> ((o*length + i)*inner + c)
-        return tuple(sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN))
-                     for x in (x0, x1, x2, x3, x4))
+        out = tuple(sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN))
+                    for x in (x0, x1, x2, x3, x4))
+        # One kernel for the five sums. Unevaluated, the column pass would gather from
+        # the row pass symbolically (49 gathers per window instead of 2 x 7), and the
+        # backward pass would recompute both.
+        dr.eval(out)
+        return out
 
     def forward(self):
         raise NotImplementedError("SSIM supports reverse-mode differentiation only")
