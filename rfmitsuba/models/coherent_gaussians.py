@@ -536,7 +536,6 @@ class CoherentGaussianField(Field):
         e_world = antenna.element_positions(self.frequency_hz) @ R.T          # [16, 3] world offsets
         kw = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         pose = self.params["pose"]
-        w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, 1)) for i in range(6))
         x_cols, y_cols, q_cols, e_cols = _columns(x), _columns(y), _columns(q), _columns(e_world)
         hr = hi = None
         for group, K in (("img", self.num_images), ("sc", self.num_scatterers)):
@@ -550,6 +549,9 @@ class CoherentGaussianField(Field):
             xb = [dr.gather(B.Float, c, b) for c in x_cols]
             yb = [dr.gather(B.Float, c, b) for c in y_cols]
             qb = [dr.gather(B.Float, c, b) for c in q_cols]
+            # the pose read per lane: its adjoint is then a scatter-add inside the backward kernel,
+            # not a separate reduction (and re-run of this kernel) per component
+            w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, nb * M * K)) for i in range(6))
             r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in e_cols))
             cen = [xb[0] + t0, xb[1] + t1, xb[2] + t2]
             el = [cen[i] + r[i] for i in range(3)]
@@ -581,7 +583,9 @@ class CoherentGaussianField(Field):
             w = dr.exp(-0.5 * d2 / (ext * ext)) / (L * spread0)
             ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
             c, sn = dr.cos(phase), dr.sin(phase)
-            cr, ci = dr.block_sum(w * (ar * c - ai * sn), K), dr.block_sum(w * (ar * sn + ai * c), K)
+            vr, vi = w * (ar * c - ai * sn), w * (ar * sn + ai * c)
+            dr.eval(vr, vi)                                   # one kernel for both parts
+            cr, ci = dr.block_sum(vr, K), dr.block_sum(vi, K)
             hr, hi = (cr, ci) if hr is None else (hr + cr, hi + ci)
         m16 = dr.arange(B.UInt32, nb * M) % M
         cal = self.params["cal"]

@@ -7,10 +7,19 @@ same grid: row ``i`` = elevation ``(i + 1)`` degrees, column ``j`` = azimuth ``j
 normalises every image inside the same operation, as the metric and the training loss
 see it.
 
-The operation is a ``drjit.CustomOp`` with a hand-written adjoint, so the backward pass
-needs no atomic scatter: the forward pass sums over the 16 elements (lanes ``[b, pixel, m]``,
-``block_sum`` of 16) and the backward pass over the pixels (lanes ``[b, m, pixel]``,
-``block_sum`` of H*W), with
+The operation is a ``drjit.CustomOp`` with a hand-written adjoint, so neither pass needs an
+atomic scatter or a materialised [B, pixels, 16] array:
+
+* forward: lanes ``[pixel]``, the views unrolled. Each lane reads its 32 weights directly and
+  each view's 16 channel values as scalars, so the 16-term sum is plain vector arithmetic
+  (no gathers); the views' images are laid end to end.
+* backward: lanes ``[b, chunk]`` (``CHUNKS`` per view); lane ``c`` loops over pixels ``c, c + C,
+  c + 2C, ...`` (neighbouring lanes read neighbouring pixels) and accumulates all 16 complex
+  sums at once; the chunks' partial sums are then added per view. The pixel count is compiled
+  in as a literal, so index division is a multiplication, and the kernels compile once per grid
+  and batch size (up to ``UNROLL``).
+
+The gradient is
 
     dL/dh_m = sum_pixels  g_P * (y / |y|) * conj(w_m),      y = sum_m w_m h_m,
 
@@ -31,18 +40,25 @@ from .array import NUM_ELEMENTS
 _cache: dict = {}
 
 
-def weights(*, frequency_hz: float, height: int = 90, width: int = 360):
-    """Beamformer weights of a ``height x width`` grid as two Dr.Jit ``Float`` [H*W*16]
-    (real, imaginary; layout ``pixel*16 + m``). Cached per (frequency, grid, backend)."""
+def weights(*, frequency_hz: float, height: int = 90, width: int = 360) -> tuple:
+    """Beamformer weights of a ``height x width`` grid as 32 Dr.Jit ``Float`` [H*W] columns:
+    the real parts of elements 0..15, then their imaginary parts. Cached per (frequency, grid,
+    backend)."""
 
     if 90 % height or 360 % width or 360 // width != 90 // height:
         raise ConfigError(f"PAS grid must be 90/d x 360/d, got {height} x {width}")
     key = (float(frequency_hz), height, width, B.variant())
     if key not in _cache:
         w = _pas.beamformer(frequency_hz=frequency_hz, resolution_deg=90.0 / height)  # [H*W, 16]
-        _cache[key] = (B.Float(np.ascontiguousarray(w.real.ravel(), np.float32)),
-                       B.Float(np.ascontiguousarray(w.imag.ravel(), np.float32)))
+        _cache[key] = tuple(B.Float(np.ascontiguousarray(part[:, m], np.float32))
+                            for part in (w.real, w.imag) for m in range(NUM_ELEMENTS))
     return _cache[key]
+
+
+#: pixel chunks per view of the backward pass's reduction (lanes = views * CHUNKS)
+CHUNKS = 4096
+#: views per forward kernel (the forward pass unrolls its views)
+UNROLL = 16
 
 
 def _op_class():
@@ -51,21 +67,25 @@ def _op_class():
     import drjit as dr
 
     class BartlettPAS(dr.CustomOp):
-        def eval(self, h_re, h_im, w_re, w_im, views, pixels, normalize):
-            self.views, self.pixels, self.normalize = views, pixels, normalize
-            self.w_re, self.w_im = w_re, w_im
+        def eval(self, h_re, h_im, w, views, pixels, normalize):
+            self.views, self.pixels, self.normalize, self.w = views, pixels, normalize, w
             M = NUM_ELEMENTS
-            lane = dr.arange(B.UInt32, views * pixels * M)
-            m = lane % M
-            bp = lane // M                      # b * pixels + pixel
-            pix = bp % dr.opaque(B.UInt32, pixels)
-            b = bp // dr.opaque(B.UInt32, pixels)
-            hr = dr.gather(B.Float, h_re, b * M + m)
-            hi = dr.gather(B.Float, h_im, b * M + m)
-            wr = dr.gather(B.Float, w_re, pix * M + m)
-            wi = dr.gather(B.Float, w_im, pix * M + m)
-            yr = dr.block_sum(wr * hr - wi * hi, M)
-            yi = dr.block_sum(wr * hi + wi * hr, M)
+            # lanes [pixel], views unrolled (at most UNROLL per kernel, so kernels stay small and
+            # few): the weights are read directly (no gather) once per pixel and each view's 16
+            # channel values are scalars, so the 16-term sum is plain vector arithmetic; the
+            # views' images are then laid end to end ([b, pixel])
+            yrs, yis = [], []
+            for b0 in range(0, views, UNROLL):
+                for b in range(b0, min(views, b0 + UNROLL)):
+                    yr = yi = 0.0
+                    for m in range(M):
+                        at = B.UInt32(b * M + m)
+                        hr, hi = dr.gather(B.Float, h_re, at), dr.gather(B.Float, h_im, at)
+                        yr, yi = yr + (w[m] * hr - w[M + m] * hi), yi + (w[m] * hi + w[M + m] * hr)
+                    yrs.append(yr)
+                    yis.append(yi)
+                dr.eval(yrs[b0:], yis[b0:])
+            yr, yi = (dr.concat(yrs), dr.concat(yis)) if views > 1 else (yrs[0], yis[0])
             p = dr.sqrt(yr * yr + yi * yi)
             dr.eval(yr, yi, p)
             self.yr, self.yi, self.p = yr, yi, p
@@ -73,9 +93,9 @@ def _op_class():
                 return p
             lo = dr.block_reduce(dr.ReduceOp.Min, p, pixels)
             hi_ = dr.block_reduce(dr.ReduceOp.Max, p, pixels)
-            img = dr.arange(B.UInt32, views * pixels) // dr.opaque(B.UInt32, pixels)
-            lo_b = dr.gather(B.Float, lo, img)
-            hi_b = dr.gather(B.Float, hi_, img)
+            b = dr.arange(B.UInt32, views * pixels) // pixels    # ``pixels`` a literal: no division
+            lo_b = dr.gather(B.Float, lo, b)
+            hi_b = dr.gather(B.Float, hi_, b)
             span_b = dr.maximum(hi_b - lo_b, 1e-30)
             pn = (p - lo_b) / span_b
             dr.eval(pn, lo_b, hi_b, span_b)
@@ -88,7 +108,7 @@ def _op_class():
         def backward(self):
             views, pixels, M = self.views, self.pixels, NUM_ELEMENTS
             g = self.grad_out()
-            img = dr.arange(B.UInt32, views * pixels) // dr.opaque(B.UInt32, pixels)
+            b = dr.arange(B.UInt32, views * pixels) // pixels
             if self.normalize:
                 inv = 1.0 / self.span_b
                 gp = g * inv
@@ -97,26 +117,44 @@ def _op_class():
                 dhi = dr.block_sum(-g * self.pn * inv, pixels)
                 is_lo = self.p == self.lo_b
                 is_hi = (self.p == self.hi_b) & ~is_lo
-                gp = gp + dr.select(is_lo, dr.gather(B.Float, dlo, img), 0.0) \
-                    + dr.select(is_hi, dr.gather(B.Float, dhi, img), 0.0)
+                gp = gp + dr.select(is_lo, dr.gather(B.Float, dlo, b), 0.0) \
+                    + dr.select(is_hi, dr.gather(B.Float, dhi, b), 0.0)
             else:
                 gp = g
             scale = gp / dr.maximum(self.p, 1e-30)
             gyr, gyi = scale * self.yr, scale * self.yi
             dr.eval(gyr, gyi)
-            # lanes [b, m, pixel]: dL/dh_m = sum_pixel gy * conj(w_m)
-            lane = dr.arange(B.UInt32, views * M * pixels)
-            pix = lane % dr.opaque(B.UInt32, pixels)
-            bm = lane // dr.opaque(B.UInt32, pixels)
-            m = bm % M
-            b = bm // M
-            ar = dr.gather(B.Float, gyr, b * pixels + pix)
-            ai = dr.gather(B.Float, gyi, b * pixels + pix)
-            wr = dr.gather(B.Float, self.w_re, pix * M + m)
-            wi = dr.gather(B.Float, self.w_im, pix * M + m)
-            # (ar + j ai) * (wr - j wi)
-            self.set_grad_in("h_re", dr.block_sum(ar * wr + ai * wi, pixels))
-            self.set_grad_in("h_im", dr.block_sum(ai * wr - ar * wi, pixels))
+            # dL/dh_m = sum_pixel gy * conj(w_m): lanes [b, c], lane c sums pixels c, c + C, c + 2C ...
+            # (neighbouring lanes read neighbouring pixels) for all 16 elements in one loop; then
+            # the C partial sums of each view are added
+            run = -(-pixels // CHUNKS)
+            lane = dr.arange(B.UInt32, views * CHUNKS)
+            bc, c = lane // CHUNKS, lane % CHUNKS
+            w = self.w
+
+            def body(j, *acc):
+                pix = j * CHUNKS + c
+                ok = pix < pixels
+                ar = dr.gather(B.Float, gyr, bc * pixels + pix, ok)
+                ai = dr.gather(B.Float, gyi, bc * pixels + pix, ok)
+                out = []
+                for m in range(M):
+                    wr, wi = dr.gather(B.Float, w[m], pix, ok), dr.gather(B.Float, w[M + m], pix, ok)
+                    out += [acc[2 * m] + (ar * wr + ai * wi), acc[2 * m + 1] + (ai * wr - ar * wi)]
+                return (j + 1, *out)
+
+            state = dr.while_loop((B.UInt32(0), *(dr.zeros(B.Float, views * CHUNKS) for _ in range(2 * M))),
+                                  lambda j, *acc: j < run, body)
+            dr.eval(state[1:])                                   # the loop: one kernel
+            # each of the 32 sums over its view's chunks (host reductions), laid end to end as
+            # [component, b], then gathered into the channel layout [b*16 + m]
+            sums = dr.concat([dr.block_sum(a, CHUNKS) for a in state[1:]])
+            out = dr.arange(B.UInt32, views * M)
+            bo, mo = out // M, out % M
+            g_re = dr.gather(B.Float, sums, 2 * mo * views + bo)
+            g_im = dr.gather(B.Float, sums, (2 * mo + 1) * views + bo)
+            self.set_grad_in("h_re", g_re)
+            self.set_grad_in("h_im", g_im)
 
         def name(self):
             return "BartlettPAS"
@@ -147,6 +185,6 @@ def bartlett(h_re, h_im, *, frequency_hz: float, height: int = 90, width: int = 
     if n % NUM_ELEMENTS or dr.width(h_im) != n:
         raise ConfigError(f"channels must be [B*16] real and imaginary parts, got sizes {n} and {dr.width(h_im)}")
     views = n // NUM_ELEMENTS
-    w_re, w_im = weights(frequency_hz=frequency_hz, height=height, width=width)
-    out = dr.custom(_op_class(), h_re, h_im, w_re, w_im, views, height * width, bool(normalize))
+    w = weights(frequency_hz=frequency_hz, height=height, width=width)
+    out = dr.custom(_op_class(), h_re, h_im, w, views, height * width, bool(normalize))
     return B.TensorXf(out, shape=(views, height, width))
