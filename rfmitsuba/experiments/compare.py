@@ -11,7 +11,8 @@ nearest-neighbour, IDW-3 and mean-image floors, and writes
     DIR/seed<S>/<method>/   each job: runs, metrics.json, DONE
     DIR/results.json        every job's metrics
     DIR/report.md           mean +- std over seeds, floors, training and render time
-    DIR/speed_accuracy.png  dynamic SSIM against training wall time, every job
+    DIR/speed_accuracy.png  validation SSIM against cumulative training wall time, sampled during
+                            training, every method (rfmitsuba.experiments.curves)
 
 Jobs with a DONE marker are not run again, so a killed comparison resumes where it stopped.
 """
@@ -25,13 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core import config as C
-from ..core import plots
 from ..core.atomic import write_json, write_text
 from ..core.errors import ConfigError, RunError
 from ..core.progress import bar
 from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
+from .curves import speed_accuracy
 from .methods import METHODS, MethodConfig, get_method
 from .methods import run_job
 from .sizes import TrainSize, method_config
@@ -120,8 +121,7 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
         if (method, seed) not in ran:
             results.append(compare_job(method, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
     write_json(out / "results.json", results, allow_nan=True)
-    _speed_accuracy(out / "speed_accuracy.png", results)
-    return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg))
+    return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg, out=out))
 
 
 def _ms(values, digits: int = 3) -> str:
@@ -134,9 +134,10 @@ def _ms(values, digits: int = 3) -> str:
     return f"{m:.{digits}f} ± {sd:.{digits}f}" if sum(np.isfinite(v)) > 1 else f"{m:.{digits}f}"
 
 
-def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
+def report(results: list[dict], *, dataset: Path, cfg: CompareConfig, out: Path | None = None) -> str:
     """Markdown: per method, dynamic and static SSIM (mean +- std over seeds of the per-seed mean
-    and median), the floors, whether the method beats nearest neighbour, training and render time."""
+    and median), the floors, whether the method beats nearest neighbour, training and render time;
+    with ``out``, also speed against accuracy (draws ``out/speed_accuracy.png``)."""
     lines = [f"# Method comparison on `{dataset}`", "",
              f"Seeds {sorted({r['seed'] for r in results})} (of jobs run in this folder; a method's row averages the "
              f"seeds it has); metric protocol (docs/conventions.md) (skimage SSIM, min-max normalised 90 x 360 PAS); mean ± std "
@@ -161,8 +162,11 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig) -> str:
                 f" | {_ms((r['eval']['render_ms_per_pas'] for r in rs), 1)} | {rs[0]['eval']['num_gaussians']} |")
         lines.append("")
     lines += _affected_lines(results, cfg)
-    lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed). "
-              "`speed_accuracy.png`: dynamic mean SSIM against training time, every job.", ""]
+    lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed).", ""]
+    if out is not None:
+        lines += ["## Speed against accuracy", ""]
+        lines += speed_accuracy(Path(out) / "speed_accuracy.png",
+                                {Path(dataset).name: [(r["method"], r["seed"], r) for r in results]})
     return "\n".join(lines)
 
 
@@ -194,16 +198,3 @@ def _affected_lines(results: list[dict], cfg: CompareConfig) -> list[str]:
                          f"{_ms(a['empty_room']['mean'] for a in rs)} | {len(rs)} |")
     return lines + [""]
 
-
-def _speed_accuracy(path: Path, results: list[dict]) -> None:
-
-    fig, ax = plots.subplots(figsize=(5, 3.5))
-    for m in sorted({r["method"] for r in results}):
-        rs = [r for r in results if r["method"] == m and r["eval"].get("dynamic")]
-        ax.scatter([r["train"]["train_time_s"] for r in rs], [r["eval"]["dynamic"]["model"]["mean"] for r in rs],
-                   label=METHODS[m].label)
-    nn = [r["eval"]["dynamic"]["nearest_neighbour"]["mean"] for r in results if r["eval"].get("dynamic")]
-    if nn:
-        ax.axhline(float(np.mean(nn)), color="grey", ls="--", lw=1, label="nearest neighbour")
-    plots.label(ax, xlabel="training wall time (s)", ylabel="dynamic mean SSIM", legend_fontsize=7)
-    plots.save(fig, path)

@@ -3,7 +3,7 @@ mean +- std over seeds beside the published figures), claims checked, speed agai
 and where each method breaks.
 
 Input: ``results`` = {"<dataset>/<job>": metrics of :func:`rfmitsuba.experiments.reproduce.reproduce_job`}.
-Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png``.
+Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png`` (:mod:`rfmitsuba.experiments.curves`).
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import platform
 import time
 from pathlib import Path
 
-from ..core import plots
 from ..core.atomic import write_text
+from .curves import speed_accuracy
 from .methods import METHODS
 from .paper_tables import TABLES
 from .results import (
@@ -26,7 +26,6 @@ from .results import (
     fmt,
     mean,
     mean_std_n,
-    value,
 )
 from .sizes import method_config
 
@@ -78,9 +77,9 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
         L += TABLES[key].section(cfg, results, claims)
 
     # ---------------------------------------------------------------- speed
-    chart = plot_speed(out / "speed_accuracy.png", results)
-    L += ["## Speed against accuracy", "", f"![test SSIM against training time]({chart.name})", "",
-          "Every job: dynamic test mean SSIM against training wall time (Ours includes its Stage 1).", "",
+    L += ["## Speed against accuracy", "", "Every dataset's clean jobs (all training positions, no added noise):", ""]
+    L += speed_accuracy(out / "speed_accuracy.png", speed_groups(results))
+    L += ["Every job: training wall time (Ours includes its Stage 1), render time and dynamic test mean SSIM.", "",
           "| method | jobs | training wall time (s) | render time per PAS (ms, 90x360) | sources / Gaussians | "
           "dynamic mean |",
           "|---|---|---|---|---|---|"]
@@ -128,16 +127,13 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
     return write_text(out / "report.md", "\n".join(L))
 
 
-def plot_speed(path: Path, results: dict) -> Path:
-    """Scatter of dynamic test mean SSIM against training wall time, one colour per method."""
-    fig, ax = plots.subplots(figsize=(6, 4))
-    for i, m in enumerate(METHODS):
-        rs = [r for r in results.values() if r["job"]["method"] == m]
-        x = [value(r, "train.train_time_s") for r in rs]
-        y = [value(r, DYN) for r in rs]
-        pts = [(a, b) for a, b in zip(x, y) if a is not None and b is not None]
-        if pts:
-            ax.scatter(*zip(*pts), s=18, label=LABEL[m], color=f"C{i}", alpha=0.8)
-    plots.label(ax, xlabel="training wall time (s)", ylabel="dynamic test mean SSIM", legend_fontsize=7)
-    plots.save(fig, path, dpi=110)
-    return Path(path)
+
+def speed_groups(results: dict) -> dict[str, list[tuple[str, int, dict]]]:
+    """The jobs of the speed-accuracy curves: per dataset, those on clean data with every training
+    position, as (method, seed, metrics)."""
+    groups: dict = {}
+    for r in results.values():
+        j = r["job"]
+        if j["snr_db"] == "none" and not j["positions"]:
+            groups.setdefault(j["dataset"], []).append((j["method"], j["seed"], r))
+    return groups

@@ -26,7 +26,8 @@ def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
     rep = compare(quick_dataset.path, out, cfg=tiny_compare_cfg(), progress=False)
     text = rep.read_text()
     assert "| Baseline |" in text and "| Ours (two-stage) |" in text and "Dynamic evaluation" in text
-    assert (out / "speed_accuracy.png").is_file()
+    assert (out / "speed_accuracy.png").is_file() and "![validation SSIM against cumulative training time]" in text
+    assert "time to within 0.005 (s)" in text and "| ds | Ours (two-stage) | 1 |" in text  # the dataset folder: ds
     done = {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")}
     assert len(done) == 2
     # the same command again trains nothing; a second seed adds its jobs and keeps the first

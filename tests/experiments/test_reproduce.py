@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -18,6 +19,8 @@ def test_report_has_every_table(tiny_reproduction):
     assert " ± " in text and ("**holds**" in text or "**does not hold**" in text)
     png = out / "speed_accuracy.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "time to within 0.005 (s)" in text
+    assert re.search(r"\| \w+ \| Ours \(two-stage\) \| 3 \| 0\.\d+ ± ", text)  # a curve for every seed
     res = json.loads((out / "results.json").read_text())
     assert {r["job"]["seed"] for r in res.values()} == set(cfg.seeds)
     r = next(iter(res.values()))
