@@ -141,9 +141,10 @@ def _draw(ax, title: str, curves: list[JobCurve]) -> None:
                     else f"{meth.label}: Stage 1")
             if len(cs) > 1:
                 ax.fill_between(g["t"], g["min"], g["max"], color=col, alpha=0.12, lw=0)
-        if len(cs[0].stage_ends) > 1:
-            ax.axvline(float(np.mean([c.stage_ends[0] for c in cs])), color=col, ls=":", lw=1,
-                       label=f"{meth.label}: Stage 1 ends, Stage 2 starts")
+        if len(cs[0].stage_ends) > 1:  # each seed's own boundary: training times differ between seeds
+            for j, c in enumerate(cs):
+                ax.axvline(c.stage_ends[0], color=col, ls=":", lw=1, alpha=0.7,
+                           label=None if j else f"{meth.label}: Stage 1 ends, Stage 2 starts (per seed)")
         test = _finite_mean(c.test for c in cs)
         if test is not None:
             ax.plot([float(np.mean([c.t[-1] for c in cs]))], [test], marker="*", ms=10, color=col, mec="k", mew=0.5,
@@ -185,9 +186,10 @@ def speed_accuracy(path: Path, groups: dict[str, list[tuple[str, int, dict]]]) -
          "trainer's **validation SSIM on held-out views of the training split** (metric protocol, at the training "
          "resolution), not the test set: empty-room views for Baseline and Stage 1, human-present views for "
          "Stage 2 and the methods trained on human-present data. Thin lines: seeds; thick line: their mean on a "
-         "common time grid, stage by stage (a seed that finished holds its final value); band: min-max over "
-         "seeds. The time axis is **cumulative** training time: a two-stage method's curve is its Stage 1 (the "
-         "Baseline of the same seed) and then its Stage 2 (dotted line: where Stage 2 starts). Stars: the final "
+         "common time grid, stage by stage, from when every seed has a sample (a seed that finished holds its "
+         "final value); band: min-max over seeds. The time axis is **cumulative** training time: a two-stage "
+         "method's curve is its Stage 1 (the Baseline of the same seed) and then its Stage 2 (dotted lines: where "
+         "each seed's Stage 2 starts). Stars: the final "
          "dynamic test mean SSIM; grey lines: the nearest-neighbour and mean-image floors of the dynamic test set.", "",
          f"Time to within {TOL} of the final validation SSIM: the first validation from which every later one "
          f"is at least final - {TOL} (per seed; for a two-stage method within its last stage, on the cumulative "

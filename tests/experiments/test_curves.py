@@ -59,7 +59,7 @@ def test_two_stage_curve_is_on_cumulative_time(tmp_path):
     np.testing.assert_allclose(c.t, [5, 10, 12, 14])
     np.testing.assert_allclose(c.ssim, [0.8, 0.9, 0.7, 0.75])
     assert c.stage_ends == [10.0, 14.5] and c.nn == 0.7 and c.mean_image == 0.5
-    t, s = c.last_stage()
+    t, _ = c.last_stage()
     np.testing.assert_allclose(t, [12, 14])
     assert job_curve("ours", 0, _result([s1, str(tmp_path / "gone")])) is None
 
