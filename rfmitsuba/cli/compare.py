@@ -1,6 +1,8 @@
 """``rfmitsuba compare DATASET --out DIR``: train methods over seeds on one dataset, tabulate."""
 from __future__ import annotations
 
+from ..core import cluster
+
 
 def register(sub) -> None:
     p = sub.add_parser("compare", help="train and evaluate methods over seeds on one dataset (resumable)")
@@ -14,6 +16,7 @@ def register(sub) -> None:
                         "--set 'train.overrides=[\"stage1.optim.lr_amp=0.02\"]'")
     p.add_argument("--reevaluate", action="store_true",
                    help="evaluate finished jobs again (after the evaluation changed); training is kept")
+    cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
 
@@ -28,7 +31,7 @@ def run(args) -> int:
     if args.seeds:
         sets.append(f"seeds=[{args.seeds}]")
     cfg = C.override(cfg, sets) if sets else cfg
-    path = compare(args.dataset, args.out, cfg=cfg, reevaluate=args.reevaluate)
+    path = compare(args.dataset, args.out, cfg=cfg, reevaluate=args.reevaluate, cluster=cluster.from_cli(args))
     print(path.read_text())
     print(f"report: {path}")
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 import json
 import time
 
+from ..core import cluster
+
 
 def register(sub) -> None:
     p = sub.add_parser("generate", help="simulate a PAS dataset of a scene (moving RX or moving TX); resumable",
@@ -31,6 +33,7 @@ def register(sub) -> None:
                    help="threads of the ray tracer; 1 (default) is bit-reproducible, 0 = all cores")
     p.add_argument("--frequency", type=float, default=2.4e9, help="carrier in Hz (default 2.4e9)")
     p.add_argument("--repair", action="store_true", help="re-simulate chunks that fail the sha256 check")
+    cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
 
@@ -63,7 +66,7 @@ def run(args) -> int:
     if args.human_positions is not None:
         cfg.human_positions = args.human_positions
     t = time.perf_counter()
-    ds = gen.generate(args.out, cfg, repair=args.repair)
+    ds = gen.generate(args.out, cfg, repair=args.repair, cluster=cluster.from_cli(args))
     wall = time.perf_counter() - t
     runs = json.loads((ds.path / "timing.json").read_text())
     last = runs[-1]

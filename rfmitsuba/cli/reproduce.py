@@ -1,6 +1,8 @@
 """``rfmitsuba reproduce [--quick] --out DIR``: the paper's tables on our data, resumable."""
 from __future__ import annotations
 
+from ..core import cluster
+
 
 def register(sub) -> None:
     p = sub.add_parser("reproduce", help="generate data, train every method, write the paper's tables (resumable)")
@@ -15,6 +17,7 @@ def register(sub) -> None:
     p.add_argument("--reevaluate", action="store_true",
                    help="evaluate finished jobs again (after the evaluation changed); training is kept")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
 
@@ -37,6 +40,7 @@ def run(args) -> int:
     from ..experiments.reproduce import reproduce
 
     cfg = build_config(args)
-    path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet)
+    path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet,
+                     cluster=cluster.from_cli(args))
     print(f"report: {path}")
     return 0

@@ -27,8 +27,8 @@ import numpy as np
 
 from ..core import config as C
 from ..core.atomic import write_json, write_text
+from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import ConfigError, RunError
-from ..core.progress import bar
 from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
@@ -88,18 +88,22 @@ def compare_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodCo
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
-            progress: bool = True, reevaluate: bool = False) -> Path:
+            progress: bool = True, reevaluate: bool = False, cluster: ClusterConfig | None = None) -> Path:
     """Run (or resume) a comparison; returns the path of ``report.md``.
 
     ``reevaluate``: evaluate every finished job of the folder again (after the evaluation
     protocol changed; training is not repeated, ``metrics.json`` is rewritten atomically).
+    ``cluster``: where the (method, seed) jobs run (:mod:`rfmitsuba.core.cluster`; default
+    here, one after another; on Dask, Ours waits for the Baseline of its seed).
 
     Raises:
         RunError: ``out`` holds another configuration or dataset; DatasetError: a dataset
-        without human-present states (the methods need them).
+        without human-present states (the methods need them); JobsFailed (a RunError): on a
+        cluster, jobs failed (each named; the others are done and kept).
     """
 
     cfg = cfg or CompareConfig()
+    cluster = cluster or ClusterConfig()
     dataset, out = Path(dataset), Path(out)
     _check_folder(out, cfg, dataset)
     out.mkdir(parents=True, exist_ok=True)
@@ -108,20 +112,29 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 
     mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
-    results = []
-    with bar(len(cfg.seeds) * len(order), desc="compare", unit="job", quiet=not progress) as pb:
-        for seed in cfg.seeds:
-            for m in order:
-                results.append(compare_job(m, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
-                pb.update(1)
+    jobs = [(m, seed) for seed in cfg.seeds for m in order]
     # jobs of earlier seeds / methods of the same comparison stay in the results
-    ran = {(x["method"], x["seed"]) for x in results}
+    earlier = []
     for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
         method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
-        if (method, seed) not in ran:
-            results.append(compare_job(method, seed, dataset, out, mcfg, quiet=quiet, reevaluate=reevaluate))
+        if (method, seed) not in jobs:
+            earlier.append((method, seed))
+    # workers elsewhere resolve relative paths against their own folder
+    ds_arg, out_arg = (dataset, out) if cluster.serial else (dataset.resolve(), out.resolve())
+    tasks: list[Task] = []
+    for m, seed in jobs + earlier:
+        names = {t.name for t in tasks}
+        after = tuple(n for n in [_job_name("baseline", seed)] if get_method(m).two_stage and n in names)
+        tasks.append(Task(_job_name(m, seed), compare_job, (m, seed, ds_arg, out_arg, mcfg),
+                          {"quiet": quiet, "reevaluate": reevaluate}, after=after))
+    results = list(run_tasks(tasks, cluster=cluster, desc="compare", unit="job", quiet=not progress).values())
     write_json(out / "results.json", results, allow_nan=True)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg, out=out))
+
+
+def _job_name(method: str, seed: int) -> str:
+    """The name of a (method, seed) job: its folder under the comparison, ``seed<S>/<method>``."""
+    return f"seed{seed}/{method}"
 
 
 def _ms(values, digits: int = 3) -> str:

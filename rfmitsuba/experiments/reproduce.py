@@ -26,8 +26,8 @@ from pathlib import Path
 
 from ..core import config as C
 from ..core.atomic import numpy_default, write_json
+from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import PlacementError, RfmError, RunError
-from ..core.progress import bar
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
@@ -154,7 +154,8 @@ class Stopped(RunError):
 
 
 def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None = None,
-              stop_after: int | None = None, reevaluate: bool = False, quiet: bool = False) -> Path:
+              stop_after: int | None = None, reevaluate: bool = False, quiet: bool = False,
+              cluster: ClusterConfig | None = None) -> Path:
     """Generate what is missing, run every job not yet done, write the report.
 
     Args:
@@ -164,38 +165,47 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
         stop_after: raise :class:`Stopped` after this many newly finished jobs (tests).
         reevaluate: evaluate finished jobs again (after the evaluation changed; no retraining).
         quiet: no progress bars.
+        cluster: where datasets (one task each) and jobs run (:mod:`rfmitsuba.core.cluster`;
+            default here, one after another; on Dask, Ours waits for its Baseline job).
 
     Returns:
         path of ``report.md``.
 
     Raises:
-        RunError: ``out`` holds another configuration (the differing key is named).
+        RunError: ``out`` holds another configuration (the differing key is named);
+        JobsFailed (a RunError): on a cluster, datasets or jobs failed (each named; the
+        others are done and kept).
     """
 
     out = Path(out)
+    cluster = cluster or ClusterConfig()
     _check_experiment(out, cfg)
     out.mkdir(parents=True, exist_ok=True)
     if not (out / "experiment.toml").is_file():
         C.save(cfg, out / "experiment.toml")
     data_dir = Path(data_dir) if data_dir else out / "data"
+    # workers elsewhere resolve relative paths against their own folder
+    out_arg, data_arg = (out, data_dir) if cluster.serial else (out.resolve(), data_dir.resolve())
     t_start = time.perf_counter()
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys(j.dataset for j in jobs))
-    with bar(total=len(specs), desc="datasets", unit="dataset", quiet=quiet) as pb:
-        for spec in specs:
-            ensure_dataset(spec, cfg, data_dir, quiet=True)
-            pb.update(1)
+    run_tasks([Task(s.key, ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs], cluster=cluster,
+              desc="datasets", unit="dataset", quiet=quiet)
+    names = [f"{j.dataset.key}/{j.key}" for j in jobs]
+    tasks = [Task(n, reproduce_job, (j, out_arg, cfg, data_arg), {"quiet": True, "reevaluate": reevaluate},
+                  after=(f"{j.dataset.key}/{j.stage1_job().key}",) if j.method == "ours" else ())
+             for n, j in zip(names, jobs)]
+    new = {n for n, j in zip(names, jobs) if not (j.folder(out) / "DONE").is_file()}
     done_new = 0
-    results = {}
-    with bar(total=len(jobs), desc="jobs", unit="job", quiet=quiet) as pb:
-        for j in jobs:
-            was_done = (j.folder(out) / "DONE").is_file()
-            results[f"{j.dataset.key}/{j.key}"] = reproduce_job(j, out, cfg, data_dir, quiet=True, reevaluate=reevaluate)
-            pb.update(1)
-            if not was_done:
-                done_new += 1
-                if stop_after is not None and done_new >= stop_after:
-                    raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
+
+    def count(name: str, _metrics: dict) -> None:
+        nonlocal done_new
+        if name in new:
+            done_new += 1
+            if stop_after is not None and done_new >= stop_after:
+                raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
+
+    results = run_tasks(tasks, cluster=cluster, desc="jobs", unit="job", quiet=quiet, on_result=count)
     wall = time.perf_counter() - t_start
     _write_json(out / "results.json", results)
 

@@ -9,6 +9,7 @@ is the ``--quick`` size.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..core import config as _config
 from ..core import progress
+from ..core.cluster import ClusterConfig, Task, session
 from ..core.errors import ConfigError, DatasetError, PlacementError
 from ..data.split import make_split
 from ..data.store import (
@@ -120,7 +122,7 @@ def default_solver(geometry, *, quick: bool = False):
 
 
 def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quiet: bool = False,
-             stop_after: int | None = None) -> Dataset:
+             stop_after: int | None = None, cluster: ClusterConfig | None = None) -> Dataset:
     """Simulate a dataset into folder ``out``, resuming from the first missing chunk.
 
     Args:
@@ -129,12 +131,17 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         repair: re-simulate chunks that fail the full (sha256) check instead of raising.
         quiet: no progress bar.
         stop_after: simulate at most this many states, then return (for tests of resuming).
+        cluster: where the states are simulated (:mod:`rfmitsuba.core.cluster`; default here,
+            one after another). On Dask the missing states are split into runs of consecutive
+            states, about two per worker, each simulated by :func:`simulate_states` in a worker
+            with its own ray tracer; every state's chunk is bit-identical to a serial run's.
     Returns:
         The dataset, opened (only if complete; else the partially written one unchecked).
     Raises:
         DatasetError: ``out`` holds another configuration (the differing key is named) or a
             damaged chunk (named) and ``repair`` is off.
-        PlacementError: bad positions; SceneError: unknown or broken scene.
+        PlacementError: bad positions; SceneError: unknown or broken scene; JobsFailed (a
+            RunError): on a cluster, runs of states failed (named; the written chunks are kept).
     """
     import time
 
@@ -199,16 +206,69 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
             todo.append(s)
     if stop_after is not None:
         todo = todo[:stop_after]
-    timing = {"states": len(todo), "solver_s": 0.0, "pas_s": 0.0, "write_s": 0.0}
-    if todo:
-        sim = Simulator(xml, fixed_pos=fixed, frequency_hz=cfg.frequency_hz, solver=solver)
-        if solver.diffuse_reflection:
-            sim.set_scattering(cfg.scattering_coefficient)
+    job = StatesJob(root=root, xml=xml, task=cfg.task, frequency_hz=cfg.frequency_hz, material=cfg.material,
+                    scattering_coefficient=cfg.scattering_coefficient, solver=solver, fixed_pos=fixed,
+                    antenna_pos=ant32, walk_positions=walk_pos, walk_headings=walk_head)
+    cluster = cluster or ClusterConfig()
+    if cluster.serial or not todo:
+        timing = simulate_states(job, todo, quiet=quiet)
+    else:
+        timing = _simulate_on_cluster(job, todo, cluster=cluster, quiet=quiet)
+    timing["total_s"] = time.perf_counter() - t_start
+    # on a cluster the states ran side by side: the share is of the workers' busy time
+    busy = timing["busy_s"] if "workers" in timing else timing["total_s"]
+    timing["outside_solver_share"] = 1 - timing["solver_s"] / busy if busy else 0.0
+    _append_timing(root, timing)
+    missing = [s for s in range(S) if not (root / "chunks" / chunk_name(s)).exists()]
+    return Dataset(root, check=not missing)
+
+
+@dataclass(frozen=True)
+class StatesJob:
+    """Everything a process needs to simulate states of one dataset into its folder (plain data).
+
+    Positions are metres: ``fixed_pos`` float64 [3] (the fixed device), ``antenna_pos``
+    float32 [A, 3] (as stored), ``walk_positions`` float64 [H, 3] (feet of the person at states
+    1..H), ``walk_headings`` float64 [H] (radians about +z).
+    """
+
+    root: Path
+    xml: Path
+    task: str
+    frequency_hz: float
+    material: str
+    scattering_coefficient: float
+    solver: SolverConfig
+    fixed_pos: np.ndarray
+    antenna_pos: np.ndarray
+    walk_positions: np.ndarray
+    walk_headings: np.ndarray
+
+
+def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) -> dict:
+    """Ray-trace ``states`` (0 = empty room, s = walk position s) of ``job`` and write their chunks.
+
+    A state's chunk does not depend on the states simulated before it in the same process
+    (:mod:`rfmitsuba.sim.simulate`), so any split of the states over processes gives the same files.
+
+    Returns:
+        {"states": number simulated, "solver_s", "pas_s", "write_s": seconds in the ray
+        tracer, the Bartlett PAS and writing, "busy_s": wall seconds of this call}.
+    """
+    import time
+
+    t_start = time.perf_counter()
+    timing = {"states": len(states), "solver_s": 0.0, "pas_s": 0.0, "write_s": 0.0}
+    if states:
+        walk_pos, walk_head = job.walk_positions, job.walk_headings
+        sim = Simulator(job.xml, fixed_pos=job.fixed_pos, frequency_hz=job.frequency_hz, solver=job.solver)
+        if job.solver.diffuse_reflection:
+            sim.set_scattering(job.scattering_coefficient)
         # positions as float32, the precision they are stored with
-        sim.set_positions(ant32.astype(np.float64))
+        sim.set_positions(job.antenna_pos.astype(np.float64))
         faces = None
-        with progress.bar(len(todo), desc=f"{xml.stem} {cfg.task}", unit="state", quiet=quiet) as pb:
-            for s in todo:
+        with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
+            for s in states:
                 if s == 0:
                     sim.set_human(None)
                 else:
@@ -216,26 +276,37 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
                     if faces is None:
                         faces = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).faces)
                         first = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).vertices)
-                        sim.set_human(first, faces, material=human.radio_material(cfg.material,
-                                                                                  name=f"rfm-human-{cfg.material}"))
+                        sim.set_human(first, faces, material=human.radio_material(job.material,
+                                                                                  name=f"rfm-human-{job.material}"))
                     sim.set_human(np.asarray(mesh.vertices))
                 t0 = sim.timing.solver_s
                 paths = sim.solve()
                 timing["solver_s"] += sim.timing.solver_s - t0
                 t1 = time.perf_counter()
 
-                h = paths.channels(cfg.task, frequency_hz=cfg.frequency_hz)
-                img = _pas.bartlett(h, frequency_hz=cfg.frequency_hz)
+                h = paths.channels(job.task, frequency_hz=job.frequency_hz)
+                img = _pas.bartlett(h, frequency_hz=job.frequency_hz)
                 t2 = time.perf_counter()
-                write_chunk(root, s, pas=img, channel=h)
+                write_chunk(job.root, s, pas=img, channel=h)
                 timing["write_s"] += time.perf_counter() - t2
                 timing["pas_s"] += t2 - t1
                 pb.update(1)
-    timing["total_s"] = time.perf_counter() - t_start
-    timing["outside_solver_share"] = 1 - timing["solver_s"] / timing["total_s"] if timing["total_s"] else 0.0
-    _append_timing(root, timing)
-    missing = [s for s in range(S) if not (root / "chunks" / chunk_name(s)).exists()]
-    return Dataset(root, check=not missing)
+    timing["busy_s"] = time.perf_counter() - t_start
+    return timing
+
+
+def _simulate_on_cluster(job: StatesJob, todo: list[int], *, cluster: ClusterConfig, quiet: bool) -> dict:
+    """:func:`simulate_states` of ``todo`` on Dask: runs of consecutive states, about two per
+    worker (each run pays for one scene load); timings summed, ``workers`` recorded."""
+    job = dataclasses.replace(job, root=Path(job.root).resolve(), xml=Path(job.xml).resolve())
+    with session(cluster) as s:
+        n = s.num_workers
+        parts = [p.tolist() for p in np.array_split(np.asarray(todo), min(len(todo), 2 * n))]
+        tasks = [Task(f"states {p[0]}-{p[-1]}", simulate_states, (job, p)) for p in parts]
+        res = s.run(tasks, desc=f"{job.xml.stem} {job.task}", unit="run", quiet=quiet)
+    timing = {k: sum(r[k] for r in res.values()) for k in ("states", "solver_s", "pas_s", "write_s", "busy_s")}
+    timing["workers"] = n
+    return timing
 
 
 def _replace(cfg, **kw):

@@ -63,3 +63,36 @@ def test_compare_config_errors():
         tiny_compare_cfg(methods="['nope']")
     with pytest.raises(ConfigError, match="repeat"):
         tiny_compare_cfg(seeds="[0, 0]")
+
+
+#: keys of a job's metrics that are wall times (differ between any two runs) or run folders
+_TIMES = {"train_time_s", "stage1_train_time_s", "wall_s", "render_ms_per_pas", "runs"}
+
+
+def _no_times(x):
+    if isinstance(x, dict):
+        return {k: _no_times(v) for k, v in x.items() if k not in _TIMES}
+    if isinstance(x, list):
+        return [_no_times(v) for v in x]
+    return x
+
+
+def test_compare_on_local_cluster_matches_serial(quick_dataset, one_thread, tmp_path):
+    """The tiny comparison of tests/experiments/test_compare.py, serially (Dr.Jit on one
+    thread, as in each worker) and on a LocalCluster of 2 single-thread workers: the same
+    metrics to the last bit, every job done once, and a second run resumes (trains nothing)."""
+    from rfmitsuba.core.cluster import ClusterConfig
+    from rfmitsuba.experiments.compare import compare
+
+    cfg = tiny_compare_cfg(seeds="[0, 1]")
+    compare(quick_dataset.path, tmp_path / "serial", cfg=cfg, progress=False)
+    compare(quick_dataset.path, tmp_path / "dask", cfg=cfg, progress=False, cluster=ClusterConfig(workers=2))
+    ser = json.loads((tmp_path / "serial" / "results.json").read_text())
+    par = json.loads((tmp_path / "dask" / "results.json").read_text())
+    assert [(r["method"], r["seed"]) for r in par] == [("baseline", 0), ("ours", 0), ("baseline", 1), ("ours", 1)]
+    assert _no_times(par) == _no_times(ser)
+    assert par[0]["eval"]["dynamic"]["model"]["mean"] != par[2]["eval"]["dynamic"]["model"]["mean"]  # seeds differ
+    done = {p: p.stat().st_mtime_ns for p in (tmp_path / "dask").glob("seed*/*/DONE")}
+    assert len(done) == 4
+    compare(quick_dataset.path, tmp_path / "dask", cfg=cfg, progress=False)
+    assert all(p.stat().st_mtime_ns == t for p, t in done.items())
