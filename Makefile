@@ -20,7 +20,7 @@ test: setup
 
 bench: setup
 	$(PY) -m pip install -q -e ".[torch]"
-	$(VENV)/bin/rfmitsuba bench splat
+	$(VENV)/bin/rfmitsuba bench
 
 clean-venv:
 	rm -rf $(VENV)

@@ -13,9 +13,10 @@ atomic scatter or a materialised [B, pixels, 16] array:
 * forward: lanes ``[pixel]``, the views unrolled. Each lane reads its 32 weights directly and
   each view's 16 channel values as scalars, so the 16-term sum is plain vector arithmetic
   (no gathers); the views' images are laid end to end.
-* backward: lanes ``[b, chunk]`` (``CHUNKS`` per view); lane ``c`` loops over pixels ``c, c + C,
-  c + 2C, ...`` (neighbouring lanes read neighbouring pixels) and accumulates all 16 complex
-  sums at once; the chunks' partial sums are then added per view. The pixel count is compiled
+* backward: lanes ``[chunk]`` (``CHUNKS`` of them); lane ``c`` loops over pixels ``c, c + C,
+  c + 2C, ...`` (neighbouring lanes read neighbouring pixels), reads each pixel's 32 weights once
+  and accumulates the 16 complex sums of every view (up to ``UNROLL`` views per kernel); the
+  chunks' partial sums are then added. The pixel count is compiled
   in as a literal, so index division is a multiplication, and the kernels compile once per grid
   and batch size (up to ``UNROLL``).
 
@@ -57,7 +58,7 @@ def weights(*, frequency_hz: float, height: int = 90, width: int = 360) -> tuple
 
 #: pixel chunks per view of the backward pass's reduction (lanes = views * CHUNKS)
 CHUNKS = 4096
-#: views per forward kernel (the forward pass unrolls its views)
+#: views per kernel (both passes unroll their views)
 UNROLL = 16
 
 
@@ -124,35 +125,37 @@ def _op_class():
             scale = gp / dr.maximum(self.p, 1e-30)
             gyr, gyi = scale * self.yr, scale * self.yi
             dr.eval(gyr, gyi)
-            # dL/dh_m = sum_pixel gy * conj(w_m): lanes [b, c], lane c sums pixels c, c + C, c + 2C ...
-            # (neighbouring lanes read neighbouring pixels) for all 16 elements in one loop; then
-            # the C partial sums of each view are added
+            # dL/dh_m = sum_pixel gy * conj(w_m): lanes [c] (CHUNKS of them); lane c loops over
+            # pixels c, c + C, c + 2C, ... (neighbouring lanes read neighbouring pixels), reads the
+            # 32 weights once per pixel and accumulates the 16 complex sums of up to UNROLL views
             run = -(-pixels // CHUNKS)
-            lane = dr.arange(B.UInt32, views * CHUNKS)
-            bc, c = lane // CHUNKS, lane % CHUNKS
-            w = self.w
+            c = dr.arange(B.UInt32, CHUNKS)
+            w, parts = self.w, []
+            for b0 in range(0, views, UNROLL):
+                group = range(b0, min(views, b0 + UNROLL))
 
-            def body(j, *acc):
-                pix = j * CHUNKS + c
-                ok = pix < pixels
-                ar = dr.gather(B.Float, gyr, bc * pixels + pix, ok)
-                ai = dr.gather(B.Float, gyi, bc * pixels + pix, ok)
-                out = []
-                for m in range(M):
-                    wr, wi = dr.gather(B.Float, w[m], pix, ok), dr.gather(B.Float, w[M + m], pix, ok)
-                    out += [acc[2 * m] + (ar * wr + ai * wi), acc[2 * m + 1] + (ai * wr - ar * wi)]
-                return (j + 1, *out)
+                def body(j, *acc, group=group):
+                    pix = j * CHUNKS + c
+                    ok = pix < pixels
+                    wr = [dr.gather(B.Float, w[m], pix, ok) for m in range(M)]
+                    wi = [dr.gather(B.Float, w[M + m], pix, ok) for m in range(M)]
+                    out = []
+                    for t, b in enumerate(group):
+                        ar = dr.gather(B.Float, gyr, b * pixels + pix, ok)
+                        ai = dr.gather(B.Float, gyi, b * pixels + pix, ok)
+                        for m in range(M):
+                            k = 2 * (t * M + m)
+                            out += [acc[k] + (ar * wr[m] + ai * wi[m]), acc[k + 1] + (ai * wr[m] - ar * wi[m])]
+                    return (j + 1, *out)
 
-            state = dr.while_loop((B.UInt32(0), *(dr.zeros(B.Float, views * CHUNKS) for _ in range(2 * M))),
-                                  lambda j, *acc: j < run, body)
-            dr.eval(state[1:])                                   # the loop: one kernel
-            # each of the 32 sums over its view's chunks (host reductions), laid end to end as
-            # [component, b], then gathered into the channel layout [b*16 + m]
-            sums = dr.concat([dr.block_sum(a, CHUNKS) for a in state[1:]])
+                state = dr.while_loop((B.UInt32(0), *(dr.zeros(B.Float, CHUNKS) for _ in range(2 * M * len(group)))),
+                                      lambda j, *acc: j < run, body)
+                dr.eval(state[1:])                               # the loop: one kernel per group
+                parts += state[1:]
+            # the partial sums laid end to end ([b, m, re/im, c]), summed over the chunks
+            sums = dr.block_sum(dr.concat(parts), CHUNKS)         # [b*16 + m] * 2 + (0: re, 1: im)
             out = dr.arange(B.UInt32, views * M)
-            bo, mo = out // M, out % M
-            g_re = dr.gather(B.Float, sums, 2 * mo * views + bo)
-            g_im = dr.gather(B.Float, sums, (2 * mo + 1) * views + bo)
+            g_re, g_im = dr.gather(B.Float, sums, 2 * out), dr.gather(B.Float, sums, 2 * out + 1)
             self.set_grad_in("h_re", g_re)
             self.set_grad_in("h_im", g_im)
 

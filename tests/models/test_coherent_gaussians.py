@@ -214,3 +214,46 @@ def test_compose_images_builds_a_rooms_double_reflections():
     assert len(imgs) == len(A2)
     assert (9.0, 2.0, 0.5) in imgs and (-7.0, 2.0, 0.5) in imgs and (-1.0, 2.0, -0.5) in imgs
     assert len(compose_images(A, b, max_order=1)[0]) == 4
+
+
+def test_training_step_kernels_compile_once(variant):
+    """Render + loss + backward + Adam step of the field: after two warm-up steps (Adam's first step
+    starts from zero moments, a different kernel), further steps with other views and other
+    parameter values (same batch size) launch only kernels already compiled
+    (``dr.kernel_history``: every JIT kernel a cache hit), so nothing recompiles per step."""
+    import drjit as dr
+    from drjit.opt import Adam
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.base import Views, render
+    from rfmitsuba.train.loss import loss
+
+    f = _field(wavefront="spherical")
+    opt = Adam(lr=1e-3)
+    for k, v in f.trainable().items():
+        opt[k] = v
+    rng = np.random.default_rng(7)
+
+    def step():
+        f.assign({k: opt[k] for k in opt.keys()})
+        y = np.array([1.5, 1.0, 1.0]) + rng.random((4, 3))
+        views = Views(antenna_pos=y, view_pos=np.tile([3.5, 2.5, 2.0], (4, 1)), transmitter=y, rx_to_world=None,
+                      frequency_hz=F, task="tx")
+        gt = B.TensorXf(rng.random((4, 45, 180)).astype(np.float32))
+        dr.backward(loss(render([f], views, height=45, width=180), gt))
+        opt.step()
+        dr.eval(opt[k] for k in opt.keys())
+        dr.sync_thread()
+
+    step()
+    step()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        step()
+        step()
+        jit = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert len(jit) > 5
+    assert all(k["cache_hit"] for k in jit), [k.get("operation_count") for k in jit if not k["cache_hit"]]

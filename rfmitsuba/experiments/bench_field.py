@@ -1,0 +1,318 @@
+"""Benchmark of the coherent Gaussian field (the default field for unknown rooms and measured
+data) and of the Bartlett read-out, against references of the same math, in one run.
+
+Measured (times are medians over ``repeats`` calls after warm-up, with the process CPU time
+beside them: CPU time counts every thread of this process and is not inflated by other load on
+shared cores; every timing ends with ``dr.sync_thread()``):
+
+- ``field``: render of B = 8 normalised 90 x 360 PAS (forward) and forward + backward of
+  ``sum(c * PAS)`` to every parameter, Dr.Jit against the PyTorch-CPU twin
+  (:mod:`rfmitsuba.models.coherent_gaussians_torch`, autograd), with the parity of their PAS
+  and gradients;
+- ``render``: Dr.Jit render time per PAS without gradients, batches of 8 and 40;
+- ``bartlett``: the Bartlett op alone (16 channels -> normalised PAS), forward and forward +
+  backward, Dr.Jit against NumPy (BLAS complex matrix products for both passes);
+- ``stage1``: steps per second of a real Stage-1 training (:class:`~rfmitsuba.train.trainer.Trainer`,
+  batch 8, full resolution) on a dataset: the given one, or a NeRF2-like folder
+  (:func:`rfmitsuba.sim.nerf2like.make_nerf2like`) made once in the cache folder.
+
+The benchmark field: the direct path plus ``images`` reflections across the six walls of a
+6 x 5 x 3 m room and ``scatterers`` scattering points, 8 moving transmitters, plane wavefront
+and amplitude read-out (the simulated-data configuration).
+"""
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core import backend as B
+from ..models.base import Views, render
+from ..models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField, compose_images
+from ..rf import bartlett as bartlett_op
+from ..rf.bartlett_ref import beamformer
+
+ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 5.0, 3.0]])
+FREQUENCY_HZ = 2.4e9
+
+
+def _load() -> float:
+    return os.getloadavg()[0]
+
+
+def timed(fn, repeats: int, *, warmup: int = 2) -> dict:
+    """{"ms": median wall time, "cpu_ms": median process CPU time, "min_ms"} of ``repeats`` calls
+    of ``fn`` after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        wall.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return {"ms": statistics.median(wall), "cpu_ms": statistics.median(cpu), "min_ms": min(wall)}
+
+
+def make_field(*, scatterers: int = 96, seed: int = 0, readout: str = "amplitude",
+               wavefront: str = "plane") -> CoherentGaussianField:
+    """The benchmark field: direct path, the six walls' single and double reflections (31 images)
+    and ``scatterers`` points in the room, gains and windows perturbed from their initial values."""
+    walls_A = np.repeat(np.eye(3)[None], 6, 0)
+    walls_b = np.zeros((6, 3))
+    for i, (axis, side) in enumerate((a, s) for a in range(3) for s in range(2)):
+        walls_A[i, axis, axis] = -1.0
+        walls_b[i, axis] = 2.0 * ROOM[side, axis]
+    A, b, order = compose_images(walls_A, walls_b, max_order=2)
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(ROOM[0] + 0.3, ROOM[1] - 0.3, (scatterers, 3))
+    f = CoherentGaussianField(A, order, pts, cfg=CoherentGaussianConfig(init_extent=2.0), readout=readout,
+                              wavefront=wavefront, vis_center=ROOM.mean(0), frequency_hz=FREQUENCY_HZ, seed=seed)
+    params = {k: np.asarray(v.numpy(), np.float64) for k, v in f.params.items()}
+    params["img_offset"] = b.ravel()
+    for k in ("img_amp", "sc_amp", "cal", "vis_center"):
+        params[k] = params[k] + 0.05 * rng.normal(size=params[k].shape)
+    f.load_state_dict({k: v.astype(np.float32) for k, v in params.items()})
+    return f
+
+
+def make_views(n: int = 8, *, seed: int = 1) -> Views:
+    """``n`` moving transmitters in the room, the array fixed near one wall."""
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(ROOM[0] + 0.5, ROOM[1] - 0.5, (n, 3))
+    x = np.tile([5.2, 2.5, 1.5], (n, 1))
+    return Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=FREQUENCY_HZ, task="tx")
+
+
+# ------------------------------------------------------------------------------ field
+def measure_field(*, views: int = 8, scatterers: int = 96, repeats: int = 7) -> dict:
+    """Dr.Jit render and forward + backward of the benchmark field (ms), and the same for the
+    PyTorch twin when PyTorch is installed (else its entries are None)."""
+    import drjit as dr
+
+    B.ensure()
+    f, v = make_field(scatterers=scatterers), make_views(views)
+    c_np = np.random.default_rng(3).normal(size=(views, 90, 360)).astype(np.float32)
+    c = B.Float(c_np.ravel())
+    params = f.trainable()
+
+    def forward():
+        with dr.suspend_grad():
+            img = render([f], v)
+            dr.eval(img)
+        dr.sync_thread()
+        return img
+
+    def forward_backward():
+        for p in params.values():
+            dr.enable_grad(p)
+            dr.clear_grad(p)
+        f.assign(params)
+        img = render([f], v)
+        dr.backward(dr.sum(img.array * c))
+        dr.eval([dr.grad(p) for p in params.values()])
+        dr.sync_thread()
+
+    out = {"views": views, "sources": f.num_primitives, "parameters": f.num_parameters,
+           "drjit_forward": timed(forward, repeats), "drjit_forward_backward": timed(forward_backward, repeats),
+           "render_per_pas_ms": {}}
+    for n in (8, 40):
+        vn = make_views(n, seed=5)
+
+        def rend(vn=vn):
+            with dr.suspend_grad():
+                dr.eval(render([f], vn))
+            dr.sync_thread()
+
+        out["render_per_pas_ms"][n] = timed(rend, repeats)["ms"] / n
+    out["torch_forward"] = out["torch_forward_backward"] = out["parity"] = None
+    try:
+        import torch
+    except ImportError:
+        return out
+    from ..models import coherent_gaussians_torch as twin
+
+    tp = twin.parameters_from(f)
+    ct = torch.from_numpy(c_np)
+
+    def t_forward():
+        with torch.no_grad():
+            return twin.render(tp, f, v)
+
+    def t_forward_backward():
+        for p in tp.values():
+            p.grad = None
+        (twin.render(tp, f, v) * ct).sum().backward()
+
+    out["torch_forward"] = timed(t_forward, repeats)
+    out["torch_forward_backward"] = timed(t_forward_backward, repeats)
+    out["torch_threads"] = torch.get_num_threads()
+    forward_backward()
+    t_forward_backward()
+    grad_err = max(float(np.abs(np.asarray(dr.grad(p), np.float64) - tp[k].grad.numpy()).max()
+                         / max(np.abs(tp[k].grad.numpy()).max(), 1e-30)) for k, p in params.items())
+    out["parity"] = {"pas_max_abs": float(np.abs(forward().numpy() - t_forward().numpy()).max()),
+                     "grad_max_rel": grad_err}
+    return out
+
+
+# ------------------------------------------------------------------------------ Bartlett
+def numpy_bartlett(h: np.ndarray, W: np.ndarray) -> tuple:
+    """NumPy Bartlett read-out: channels h complex [B, 16], weights W complex [P, 16]
+    (:func:`~rfmitsuba.rf.bartlett_ref.beamformer`) -> (y complex [B, P] beam outputs, raw PAS
+    [B, P], normalised PAS [B, P])."""
+    y = h @ W.T
+    p = np.abs(y)
+    lo, hi = p.min(1, keepdims=True), p.max(1, keepdims=True)
+    return y, p, (p - lo) / (hi - lo)
+
+
+def numpy_bartlett_gradient(h: np.ndarray, W: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Gradient of ``sum(c * normalised PAS)`` with respect to the channels, as
+    ``dL/d(re h) + j dL/d(im h)``: complex [B, 16]. c: float [B, P]. The same adjoint as
+    :mod:`rfmitsuba.rf.bartlett` (through each image's minimum and maximum pixel too)."""
+    y, p, pn = numpy_bartlett(h, W)
+    span = (p.max(1) - p.min(1))[:, None]
+    gp = c / span
+    rows = np.arange(len(h))
+    gp[rows, p.argmin(1)] += (c * (pn - 1.0)).sum(1) / span[:, 0]
+    gp[rows, p.argmax(1)] -= (c * pn).sum(1) / span[:, 0]
+    return ((gp / np.maximum(p, 1e-30)) * y) @ np.conj(W)
+
+
+def measure_bartlett(*, views: int = 8, repeats: int = 7) -> dict:
+    """The Bartlett op (channels [views, 16] -> normalised 90 x 360 PAS), forward and forward +
+    backward of ``sum(c * PAS)``: Dr.Jit against NumPy (:func:`numpy_bartlett`,
+    :func:`numpy_bartlett_gradient`; complex64 BLAS products) (ms), with their parity."""
+    import drjit as dr
+
+    B.ensure()
+    rng = np.random.default_rng(0)
+    h = (rng.normal(size=(views, 16)) + 1j * rng.normal(size=(views, 16))).astype(np.complex64)
+    c = rng.normal(size=(views, 90 * 360)).astype(np.float32)
+    hr0, hi0 = B.Float(np.ascontiguousarray(h.real.ravel())), B.Float(np.ascontiguousarray(h.imag.ravel()))
+    cd = B.Float(c.ravel())
+    W = np.ascontiguousarray(beamformer(frequency_hz=FREQUENCY_HZ).astype(np.complex64))     # [P, 16]
+
+    def d_forward():
+        img = bartlett_op.bartlett(hr0, hi0, frequency_hz=FREQUENCY_HZ)
+        dr.eval(img)
+        dr.sync_thread()
+        return img
+
+    def d_forward_backward():
+        hr, hi = B.Float(hr0), B.Float(hi0)
+        dr.enable_grad(hr, hi)
+        img = bartlett_op.bartlett(hr, hi, frequency_hz=FREQUENCY_HZ)
+        dr.backward(dr.sum(img.array * cd))
+        dr.eval(dr.grad(hr), dr.grad(hi))
+        dr.sync_thread()
+        return np.asarray(dr.grad(hr)) + 1j * np.asarray(dr.grad(hi))
+
+    g_ref = numpy_bartlett_gradient(h.astype(np.complex128), W.astype(np.complex128), c.astype(np.float64))
+    parity = {"pas_max_abs": float(np.abs(d_forward().numpy().reshape(views, -1) - numpy_bartlett(h, W)[2]).max()),
+              "grad_max_rel": float(np.abs(d_forward_backward().reshape(views, 16) - g_ref).max()
+                                    / np.abs(g_ref).max())}
+    return {"views": views, "drjit_forward": timed(d_forward, repeats),
+            "drjit_forward_backward": timed(d_forward_backward, repeats),
+            "numpy_forward": timed(lambda: numpy_bartlett(h, W), repeats),
+            "numpy_forward_backward": timed(lambda: numpy_bartlett_gradient(h, W, c), repeats), "parity": parity}
+
+
+# ------------------------------------------------------------------------------ Stage 1
+def default_dataset() -> Path:
+    """A 200-tag NeRF2-like folder in the cache folder (made once, about 20 s)."""
+    from ..sim.nerf2like import make_nerf2like
+
+    root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rfmitsuba" / "bench"
+    root.mkdir(parents=True, exist_ok=True)
+    return make_nerf2like(root / "nerf2like_200", num_tags=200)
+
+
+def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_gaussians", steps: int = 60,
+                   config: str | Path | None = None) -> dict:
+    """Steps per second of a Stage-1 training (batch 8, full resolution, no validation in the timed
+    span): the trainer's own training clock between its log rows at step 10 and at ``steps``,
+    so initialisation and the first steps' compilation are not counted."""
+    from ..core.config import load
+    from ..train.config import TrainConfig
+    from ..train.trainer import train
+
+    ds = Path(dataset) if dataset is not None else default_dataset()
+    cfg = load(TrainConfig, config) if config else TrainConfig(model=model)
+    cfg.iterations, cfg.log_every, cfg.val_every, cfg.checkpoint_every = steps, 10, 10**9, 10**9
+    cfg.time_limit_s = 0.0
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        summary = train(ds, Path(tmp) / "run", cfg=cfg, quiet=True)
+        total = time.perf_counter() - t0
+        rows = [json.loads(line) for line in (Path(tmp) / "run" / "log.jsonl").read_text().splitlines()]
+    rows = [r for r in rows if "time_s" in r]
+    first = next(r for r in rows if r["step"] >= 10)
+    last = rows[-1]
+    rate = (last["step"] - first["step"]) / max(last["time_s"] - first["time_s"], 1e-9)
+    return {"dataset": str(ds), "model": summary.get("model", cfg.model), "sources": summary.get("num_gaussians"),
+            "steps": steps, "steps_per_s": rate, "step_ms": 1e3 / rate, "wall_s": total}
+
+
+# ------------------------------------------------------------------------------ report
+def run(*, quick: bool = False, dataset: str | Path | None = None, stage1_model: str = "coherent_gaussians",
+        stage1_config: str | Path | None = None, stage1: bool = True) -> dict:
+    """Every measurement of this module, with the machine load before and after."""
+    import drjit as dr
+
+    repeats = 3 if quick else 7
+    out = {"load_before": _load(), "threads": None}
+    out["field"] = measure_field(repeats=repeats, scatterers=16 if quick else 96)
+    out["bartlett"] = measure_bartlett(repeats=repeats)
+    if stage1:
+        out["stage1"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=30 if quick else 110)
+    out["threads"] = dr.thread_count()
+    out["load_after"] = _load()
+    out["cpu_count"] = os.cpu_count()
+    return out
+
+
+def _ratio(ref: dict | None, ours: dict, key: str = "ms") -> str:
+    return "-" if ref is None else f"{ref[key] / max(ours[key], 1e-9):.1f}x"
+
+
+def _t(d: dict | None) -> str:
+    return "-" if d is None else f"{d['ms']:.2f} ({d['cpu_ms']:.2f} CPU)"
+
+
+def format_report(r: dict) -> str:
+    """Markdown table of :func:`run`'s result: times in ms (process CPU ms in brackets) and the
+    reference / Dr.Jit ratios (wall time and CPU time)."""
+    f, b = r["field"], r["bartlett"]
+    lines = [f"Coherent Gaussian field benchmark: {r['cpu_count']} cores, {r['threads']} Dr.Jit threads, "
+             f"1-minute load {r['load_before']:.2f} before, {r['load_after']:.2f} after.", "",
+             "| measurement | Dr.Jit ms | reference ms | reference | ratio (wall) | ratio (CPU) |",
+             "|---|---|---|---|---|---|"]
+    rows = [(f"field render, {f['views']} views ({f['sources']} sources)", f["drjit_forward"], f["torch_forward"],
+             "PyTorch"),
+            (f"field forward + backward, {f['views']} views", f["drjit_forward_backward"],
+             f["torch_forward_backward"], "PyTorch"),
+            (f"Bartlett forward, {b['views']} views", b["drjit_forward"], b["numpy_forward"], "NumPy"),
+            (f"Bartlett forward + backward, {b['views']} views", b["drjit_forward_backward"],
+             b["numpy_forward_backward"], "NumPy")]
+    for name, ours, ref, ref_name in rows:
+        lines.append(f"| {name} | {_t(ours)} | {_t(ref)} | {ref_name} | {_ratio(ref, ours)} | "
+                     f"{_ratio(ref, ours, 'cpu_ms')} |")
+    lines += ["", "| figure | value |", "|---|---|"]
+    for n, ms in f["render_per_pas_ms"].items():
+        lines.append(f"| render per PAS, batch {n}, no gradients | {ms:.3f} ms |")
+    for name, par in (("field, PyTorch twin (float32)", f.get("parity")), ("Bartlett, NumPy", b.get("parity"))):
+        if par:
+            lines.append(f"| parity: {name} | PAS max abs {par['pas_max_abs']:.1e}, gradient max rel "
+                         f"{par['grad_max_rel']:.1e} |")
+    s = r.get("stage1")
+    if s:
+        lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch 8, 90x360 | "
+                     f"{s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on `{s['dataset']}` |")
+    return "\n".join(lines)
