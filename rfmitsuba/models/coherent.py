@@ -107,9 +107,11 @@ def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) ->
     import drjit as dr
 
     view = np.asarray(view, np.float32)
-    cols = _columns(np.repeat(view, n * repeat, axis=0)) if view.shape[1] else []
-    lane = dr.arange(B.UInt32, len(view) * n * repeat)
-    i = (lane // dr.opaque(B.UInt32, repeat)) % dr.opaque(B.UInt32, n)
+    per_pair = n * repeat
+    lane = dr.arange(B.UInt32, len(view) * per_pair)
+    b = lane // per_pair                  # literal divisors: multiplications, not vector divisions
+    i = (lane // repeat) % n
+    cols = [dr.gather(B.Float, c, b) for c in _columns(view)] if view.shape[1] else []
     return cols + [dr.gather(B.Float, embed, i * e + c) for c in range(e)]
 
 
@@ -157,18 +159,19 @@ def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tupl
     k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
     e = antenna.element_positions(frequency_hz)
     lane = dr.arange(B.UInt32, nb * M * t)
-    t_op = dr.opaque(B.UInt32, t)
-    ti = lane % t_op
-    bm = lane // t_op
+    ti = lane % t                         # t a literal: the divisions compile to multiplications
+    bm = lane // t
     m = bm % M
     b = bm // M
-    src = b * t_op + ti
+    src = b * t + ti
     ex, ey, ez = (dr.gather(B.Float, c, m) for c in _columns(e))
     ph = k * (ex * dr.gather(B.Float, ur[0], src) + ey * dr.gather(B.Float, ur[1], src)
               + ez * dr.gather(B.Float, ur[2], src))
     c, s = dr.cos(ph), dr.sin(ph)
     a, bb = dr.gather(B.Float, wr, src), dr.gather(B.Float, wi, src)
-    return dr.block_sum(a * c - bb * s, t), dr.block_sum(a * s + bb * c, t)
+    vr, vi = a * c - bb * s, a * s + bb * c
+    dr.eval(vr, vi)                       # both parts in one kernel
+    return dr.block_sum(vr, t), dr.block_sum(vi, t)
 
 
 class CoherentFamily(Field):
@@ -300,6 +303,8 @@ class CoherentField(CoherentFamily):
         self.params = {}
         self.load_state_dict(params)
         self.frozen = False
+        #: the image maps as 12 device columns (row r of A_i, then b_i[r], for r = 0, 1, 2), uploaded once
+        self._maps_cols = _columns(np.concatenate([maps.A, maps.b[:, :, None]], axis=2).reshape(-1, 12))
 
     @classmethod
     def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator | None = None,
@@ -388,23 +393,28 @@ class CoherentField(CoherentFamily):
             raise ConfigError("positions must be finite (a NaN or inf position was given)")
         nb, S = len(x), self.num_sources
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
-        d = self.maps.apply(y) - x[:, None, :]                       # [B, S, 3]
-        L = np.maximum(np.linalg.norm(d, axis=-1), 1e-3)
-        u = (d / L[..., None]).reshape(-1, 3)
-        if rx_to_world is not None:  # arrival directions in the array frame: R^T u
-            u = u @ np.asarray(rx_to_world, np.float64).reshape(3, 3)
-        prop = (np.exp(-1j * k * L) / L).ravel()                      # [B*S]
-        view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
-        ucols = _columns(u)
-        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + ucols)
+        # geometry per (view, image) lane b*S + i in Dr.Jit: image point s = A_i y + b_i, path
+        # d = s - x, length L [m], arrival direction u (array frame), propagation exp(-jkL)/L
         lane = dr.arange(B.UInt32, nb * S)
-        i = lane % dr.opaque(B.UInt32, S)
+        i = lane % S                                        # S a literal: no vector division
+        b = lane // S
+        xb = [dr.gather(B.Float, c, b) for c in _columns(x)]
+        yb = [dr.gather(B.Float, c, b) for c in _columns(y)]
+        A = [dr.gather(B.Float, c, i) for c in self._maps_cols]
+        d = [A[4 * r] * yb[0] + A[4 * r + 1] * yb[1] + A[4 * r + 2] * yb[2] + A[4 * r + 3] - xb[r] for r in range(3)]
+        L = dr.maximum(dr.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-3)
+        u = [d[r] / L for r in range(3)]
+        if rx_to_world is not None:  # arrival directions in the array frame: R^T u
+            R = np.asarray(rx_to_world, np.float64).reshape(3, 3)
+            u = [sum(float(R[r, j]) * u[r] for r in range(3)) for j in range(3)]
+        pr, pi = dr.cos(k * L) / L, -dr.sin(k * L) / L
+        view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
+        o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + u)
         ar = dr.gather(B.Float, self.params["amp"], 2 * i)
         ai = dr.gather(B.Float, self.params["amp"], 2 * i + 1)
         sc = self.cfg.modulation
         gr, gi = _cmul(ar, ai, 1.0 + sc * o[0], sc * o[1])
-        pr, pi = _columns(np.stack([prop.real, prop.imag], 1))
-        return gr, gi, pr, pi, ucols
+        return gr, gi, pr, pi, u
 
     def render(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, *, normalize: bool = True,
                height: int = 90, width: int = 360):
