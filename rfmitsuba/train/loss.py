@@ -41,7 +41,7 @@ def _flat(x, name):
 
 
 class _BoxSum(dr.CustomOp):
-    """Sums over 7 consecutive elements along one axis of several arrays at once.
+    """Sums over 7 consecutive elements along one axis of several arrays at once (a list ``xs``).
 
     Each input is a flat Float holding [outer, length, inner] (row-major); the
     output holds [outer, length - 6, inner]. The adjoint is again a box sum
@@ -49,16 +49,15 @@ class _BoxSum(dr.CustomOp):
     no atomic scatter-additions.
     """
 
-    def eval(self, x0, x1, x2, x3, x4, outer, length, inner):
-        self.dims = (outer, length, inner)
+    def eval(self, xs, outer, length, inner):
+        self.dims, self.count = (outer, length, inner), len(xs)
         lo = length - WIN + 1
         k = dr.arange(B.UInt32, outer * lo * inner)
         o = k // (lo * inner)
         rest = k - o * (lo * inner)
         base = o * (length * inner) + rest  # (o, i, c) -> ((o*length + i)*inner + c)
-        out = tuple(sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN))
-                    for x in (x0, x1, x2, x3, x4))
-        # One kernel for the five sums. Unevaluated, the column pass would gather from
+        out = [sum(dr.gather(B.Float, x, base + d * inner) for d in range(WIN)) for x in xs]
+        # One kernel for all the sums. Unevaluated, the column pass would gather from
         # the row pass symbolically (49 gathers per window instead of 2 x 7), and the
         # backward pass would recompute both.
         dr.eval(out)
@@ -76,17 +75,16 @@ class _BoxSum(dr.CustomOp):
         i = B.Int32(rest // inner)
         c = rest - B.UInt32(i) * inner
         grads = self.grad_out()
-        dr.eval(grads)  # one kernel for all five incoming gradients
-        totals = [B.Float(0.0) for _ in range(5)]
+        dr.eval(grads)  # one kernel for all the incoming gradients
+        totals = [B.Float(0.0) for _ in range(self.count)]
         for d in range(WIN):
             j = i - d
             ok = (j >= 0) & (j < lo)
             idx = (o * lo + B.UInt32(dr.maximum(j, 0))) * inner + c
             for t, g in enumerate(grads):
                 totals[t] += dr.gather(B.Float, g, idx, ok)
-        dr.eval(totals)  # one kernel for all five
-        for name, total in zip(("x0", "x1", "x2", "x3", "x4"), totals):
-            self.set_grad_in(name, total)
+        dr.eval(totals)  # one kernel for all of them
+        self.set_grad_in("xs", totals)
 
     def name(self):
         return "ssim.BoxSum"
@@ -94,8 +92,8 @@ class _BoxSum(dr.CustomOp):
 
 def _box(values, views, height, width):
     """Sums over every valid 7x7 window: Float [B*H*W] -> Float [B*(H-6)*(W-6)]."""
-    h = dr.custom(_BoxSum, *values, views * height, width, 1)  # along rows
-    return dr.custom(_BoxSum, *h, views, height, width - WIN + 1)  # along columns
+    h = dr.custom(_BoxSum, list(values), views * height, width, 1)  # along rows
+    return dr.custom(_BoxSum, h, views, height, width - WIN + 1)  # along columns
 
 
 def ssim(pred, gt):
@@ -118,7 +116,12 @@ def ssim(pred, gt):
     # A constant shift leaves SSIM's variances unchanged and keeps float32 sums
     # of squares small (less cancellation in E[x^2] - E[x]^2).
     xs, ys = x - 0.5, y - 0.5
-    sx, sy, sxx, syy, sxy = _box([xs, ys, xs * xs, ys * ys, xs * ys], views, height, width)
+    if dr.grad_enabled(y):
+        sx, sy, sxx, syy, sxy = _box([xs, ys, xs * xs, ys * ys, xs * ys], views, height, width)
+    else:  # the usual case, a fixed target: its sums need no adjoint (3 of 5 arrays go backward)
+        sx, sxx, sxy = _box([xs, xs * xs, xs * ys], views, height, width)
+        with dr.suspend_grad():
+            sy, syy = _box([ys, ys * ys], views, height, width)
     n = float(WIN * WIN)
     mx, my = sx / n, sy / n
     norm = n / (n - 1.0)

@@ -70,6 +70,27 @@ def test_gradient_matches_finite_differences_of_skimage(variant):
     assert np.abs(grad - fd).max() < 1e-3 * np.abs(fd).max()
 
 
+def test_gradient_with_respect_to_both_images(variant):
+    """With gradients on both images (all five window sums go backward), each image's gradient is
+    the one of the fixed-target path (three sums backward) with the arguments swapped, as SSIM is
+    symmetric."""
+    rng = np.random.default_rng(3)
+    a, b = np.float32(rng.random((2, 12, 13))), np.float32(rng.random((2, 12, 13)))
+
+    def grads(first, second, both):
+        x, y = B.TensorXf(first), B.TensorXf(second)
+        dr.enable_grad(x)
+        if both:
+            dr.enable_grad(y)
+        dr.backward(dr.sum(S.ssim(x, y)))
+        return dr.grad(x).numpy(), (dr.grad(y).numpy() if both else None)
+
+    gx, gy = grads(a, b, True)
+    assert np.abs(gx - grads(a, b, False)[0]).max() < 1e-6
+    assert np.abs(gy - grads(b, a, False)[0]).max() < 1e-6
+    assert np.abs(gy).max() > 1e-3
+
+
 def test_loss_is_weighted_l1_and_ssim(variant):
     rng = np.random.default_rng(3)
     pred = rng.random((2, 12, 20)).astype(np.float32)
