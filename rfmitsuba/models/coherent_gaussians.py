@@ -520,74 +520,127 @@ class CoherentGaussianField(Field):
         return f
 
     # ---- evaluation ------------------------------------------------------------------------
-    def channels(self, views: Views) -> tuple:
+    def channels(self, views: Views, *, weight=None) -> tuple:
         """Calibrated channels at the 16 elements for ``views``: (re, im) ``Float`` [B*16],
-        differentiable in every parameter. Raises ConfigError on non-finite positions."""
-        import drjit as dr
+        differentiable in every parameter. Raises ConfigError on non-finite positions.
 
+        ``weight``: None, or ``(group, lanes, s) -> Float`` per lane (``group`` "img" or "sc",
+        ``lanes`` of :meth:`_lanes`, ``s`` the source point [3 ``Float``]) that multiplies each
+        source's term (e.g. the person's blockage, :mod:`rfmitsuba.models.coherent_gaussians_person`)."""
+        prep = self._prepare(views)
+        hr, hi = self._paths(prep, weight=weight)
+        return self._calibrate(prep, hr, hi)
+
+    # ---- the pieces of :meth:`channels`, shared with the Stage-2 person field ----------------
+    def _prepare(self, views: Views) -> dict:
+        """Host-side checks and device columns of ``views``: {"nb", "x", "y", "q" (float64 [B, 3]),
+        "cols" (name -> 3 ``Float`` columns of x, y, q and the world element offsets e), "kw" (k [rad/m])}."""
         x = np.asarray(views.view_pos, np.float64).reshape(-1, 3)
         y = np.asarray(views.transmitter, np.float64).reshape(-1, 3)
         q = np.asarray(views.antenna_pos, np.float64).reshape(-1, 3)
         if not (x.shape == y.shape == q.shape) or not (np.isfinite(x).all() and np.isfinite(y).all()
                                                        and np.isfinite(q).all()):
             raise ConfigError(f"views need finite positions of one shape [B, 3], got {x.shape}, {y.shape}, {q.shape}")
-        nb, M = len(x), antenna.NUM_ELEMENTS
         R = np.eye(3) if views.rx_to_world is None else np.asarray(views.rx_to_world, np.float64).reshape(3, 3)
         e_world = antenna.element_positions(self.frequency_hz) @ R.T          # [16, 3] world offsets
         kw = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
+        return {"nb": len(x), "x": x, "y": y, "q": q, "kw": kw,
+                "cols": {"x": _columns(x), "y": _columns(y), "q": _columns(q), "e": _columns(e_world)}}
+
+    def _lanes(self, prep: dict, K: int) -> dict:
+        """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,
+        view ``b``, element ``m`` (``UInt32``); the view's array centre ``x``, transmitter ``y`` and
+        moving device ``q``; the posed element offset ``r``, array centre ``cen`` and element
+        position ``el`` (each 3 ``Float``)."""
+        import drjit as dr
+
+        nb, M = prep["nb"], antenna.NUM_ELEMENTS
+        cols = prep["cols"]
+        lane = dr.arange(B.UInt32, nb * M * K)
+        k = lane % dr.opaque(B.UInt32, K)
+        bm = lane // dr.opaque(B.UInt32, K)
+        m = bm % M
+        b = bm // M
+        xb = [dr.gather(B.Float, c, b) for c in cols["x"]]
+        yb = [dr.gather(B.Float, c, b) for c in cols["y"]]
+        qb = [dr.gather(B.Float, c, b) for c in cols["q"]]
+        # the pose read per lane: its adjoint is then a scatter-add inside the backward kernel,
+        # not a separate reduction (and re-run of this kernel) per component
         pose = self.params["pose"]
-        x_cols, y_cols, q_cols, e_cols = _columns(x), _columns(y), _columns(q), _columns(e_world)
+        w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, nb * M * K)) for i in range(6))
+        r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in cols["e"]))
+        cen = [xb[0] + t0, xb[1] + t1, xb[2] + t2]
+        el = [cen[i] + r[i] for i in range(3)]
+        return {"K": K, "k": k, "b": b, "m": m, "x": xb, "y": yb, "q": qb, "r": r, "cen": cen, "el": el}
+
+    def _sources(self, ln: dict, group: str) -> tuple:
+        """The background's sources of ``group`` ("img" or "sc") on lanes ``ln``: (source point s
+        [3 Float] m, first-leg length ``lead`` [m] (0 for an image), spreading factor besides the
+        last leg ``spread0``, gain (re, im), visibility window ``w(q)``)."""
+        import drjit as dr
+
+        k, yb, qb = ln["k"], ln["y"], ln["q"]
+        gi_ = k if group == "img" else k + self.num_images                 # index of visibility params
+        if group == "img":
+            Ak = [dr.gather(B.Float, c, k) for c in self._A_cols]
+            off = self.params["img_offset"]
+            s = [Ak[3 * i] * yb[0] + Ak[3 * i + 1] * yb[1] + Ak[3 * i + 2] * yb[2]
+                 + dr.gather(B.Float, off, 3 * k + i) for i in range(3)]
+            amp = self.params["img_amp"]
+            lead = 0.0
+            spread0 = 1.0
+        else:
+            pos = self.params["sc_pos"]
+            s = [dr.gather(B.Float, pos, 3 * k + i) for i in range(3)]
+            amp = self.params["sc_amp"]
+            lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
+            spread0 = lead
+        vc = self.params["vis_center"]
+        d2 = sum((qb[i] - dr.gather(B.Float, vc, 3 * gi_ + i)) ** 2 for i in range(3))
+        ext = dr.exp(dr.gather(B.Float, self.params["vis_log_extent"], gi_))
+        win = dr.exp(-0.5 * d2 / (ext * ext))
+        return s, lead, spread0, dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1), win
+
+    def _propagate(self, prep: dict, ln: dict, s, lead, spread0, ar, ai, win) -> tuple:
+        """Sum over the lanes' sources of ``(ar + j ai) * win * exp(-j k (L + lead)) / (L spread0)``,
+        ``L`` the last leg from ``s`` to the element (``wavefront``): uncalibrated (re, im) ``Float`` [B*16]."""
+        import drjit as dr
+
+        kw, r, cen, el = prep["kw"], ln["r"], ln["cen"], ln["el"]
+        if self.wavefront == "spherical":
+            L = dr.sqrt(sum((s[i] - el[i]) ** 2 for i in range(3)) + 1e-12)
+            phase = -kw * (L + lead)
+        else:
+            L = dr.sqrt(sum((s[i] - cen[i]) ** 2 for i in range(3)) + 1e-12)
+            u = [(s[i] - cen[i]) / L for i in range(3)]
+            phase = kw * (r[0] * u[0] + r[1] * u[1] + r[2] * u[2]) - kw * (L + lead)
+        w = win / (L * spread0)
+        c, sn = dr.cos(phase), dr.sin(phase)
+        vr, vi = w * (ar * c - ai * sn), w * (ar * sn + ai * c)
+        dr.eval(vr, vi)                                   # one kernel for both parts
+        return dr.block_sum(vr, ln["K"]), dr.block_sum(vi, ln["K"])
+
+    def _paths(self, prep: dict, *, weight=None) -> tuple:
+        """Uncalibrated channels of every source (images, then scatterers), each term times
+        ``weight(group, lanes, s)`` when given: (re, im) ``Float`` [B*16]."""
         hr = hi = None
         for group, K in (("img", self.num_images), ("sc", self.num_scatterers)):
             if K == 0:
                 continue
-            lane = dr.arange(B.UInt32, nb * M * K)
-            k = lane % dr.opaque(B.UInt32, K)
-            bm = lane // dr.opaque(B.UInt32, K)
-            m = bm % M
-            b = bm // M
-            xb = [dr.gather(B.Float, c, b) for c in x_cols]
-            yb = [dr.gather(B.Float, c, b) for c in y_cols]
-            qb = [dr.gather(B.Float, c, b) for c in q_cols]
-            # the pose read per lane: its adjoint is then a scatter-add inside the backward kernel,
-            # not a separate reduction (and re-run of this kernel) per component
-            w0, w1, w2, t0, t1, t2 = (dr.gather(B.Float, pose, dr.full(B.UInt32, i, nb * M * K)) for i in range(6))
-            r = _rodrigues(w0, w1, w2, *(dr.gather(B.Float, c, m) for c in e_cols))
-            cen = [xb[0] + t0, xb[1] + t1, xb[2] + t2]
-            el = [cen[i] + r[i] for i in range(3)]
-            gi_ = k if group == "img" else k + self.num_images                 # index of visibility params
-            if group == "img":
-                Ak = [dr.gather(B.Float, c, k) for c in self._A_cols]
-                off = self.params["img_offset"]
-                s = [Ak[3 * i] * yb[0] + Ak[3 * i + 1] * yb[1] + Ak[3 * i + 2] * yb[2]
-                     + dr.gather(B.Float, off, 3 * k + i) for i in range(3)]
-                amp = self.params["img_amp"]
-                lead = 0.0
-                spread0 = 1.0
-            else:
-                pos = self.params["sc_pos"]
-                s = [dr.gather(B.Float, pos, 3 * k + i) for i in range(3)]
-                amp = self.params["sc_amp"]
-                lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
-                spread0 = lead
-            if self.wavefront == "spherical":
-                L = dr.sqrt(sum((s[i] - el[i]) ** 2 for i in range(3)) + 1e-12)
-                phase = -kw * (L + lead)
-            else:
-                L = dr.sqrt(sum((s[i] - cen[i]) ** 2 for i in range(3)) + 1e-12)
-                u = [(s[i] - cen[i]) / L for i in range(3)]
-                phase = kw * (r[0] * u[0] + r[1] * u[1] + r[2] * u[2]) - kw * (L + lead)
-            vc = self.params["vis_center"]
-            d2 = sum((qb[i] - dr.gather(B.Float, vc, 3 * gi_ + i)) ** 2 for i in range(3))
-            ext = dr.exp(dr.gather(B.Float, self.params["vis_log_extent"], gi_))
-            w = dr.exp(-0.5 * d2 / (ext * ext)) / (L * spread0)
-            ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
-            c, sn = dr.cos(phase), dr.sin(phase)
-            vr, vi = w * (ar * c - ai * sn), w * (ar * sn + ai * c)
-            dr.eval(vr, vi)                                   # one kernel for both parts
-            cr, ci = dr.block_sum(vr, K), dr.block_sum(vi, K)
+            ln = self._lanes(prep, K)
+            s, lead, spread0, ar, ai, win = self._sources(ln, group)
+            if weight is not None:
+                win = win * weight(group, ln, s)
+            cr, ci = self._propagate(prep, ln, s, lead, spread0, ar, ai, win)
             hr, hi = (cr, ci) if hr is None else (hr + cr, hi + ci)
-        m16 = dr.arange(B.UInt32, nb * M) % M
+        return hr, hi
+
+    def _calibrate(self, prep: dict, hr, hi) -> tuple:
+        """The per-element calibration ``cal_m`` applied to channels (re, im) ``Float`` [B*16]."""
+        import drjit as dr
+
+        M = antenna.NUM_ELEMENTS
+        m16 = dr.arange(B.UInt32, prep["nb"] * M) % M
         cal = self.params["cal"]
         calr, cali = dr.gather(B.Float, cal, 2 * m16), dr.gather(B.Float, cal, 2 * m16 + 1)
         return hr * calr - hi * cali, hr * cali + hi * calr
