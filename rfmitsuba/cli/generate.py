@@ -32,6 +32,10 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=1,
                    help="threads of the ray tracer; 1 (default) is bit-reproducible, 0 = all cores")
     p.add_argument("--frequency", type=float, default=2.4e9, help="carrier in Hz (default 2.4e9)")
+    p.add_argument("--array", choices=["synthetic", "exact"], default="synthetic",
+                   help="synthetic (default): one trace per array position, element phases by the plane-wave "
+                        "rule; exact: each of the 16 elements traced as its own antenna (no plane-wave "
+                        "approximation; 16x the receivers, for a subset of positions, at most 200)")
     p.add_argument("--repair", action="store_true", help="re-simulate chunks that fail the sha256 check")
     cluster.add_cli_options(p)
     p.set_defaults(func=run)
@@ -61,6 +65,7 @@ def run(args) -> int:
     cfg.seed = args.seed
     cfg.frequency_hz = args.frequency
     cfg.solver = solver
+    cfg.array = args.array
     if args.positions is not None:
         cfg.positions = args.positions
     if args.human_positions is not None:
@@ -71,7 +76,8 @@ def run(args) -> int:
     runs = json.loads((ds.path / "timing.json").read_text())
     last = runs[-1]
     n_pas = last["states"] * ds.num_antennas
-    print(f"{ds.path}: {ds.num_antennas} positions x {ds.num_states} states ({ds.task} task); "
+    print(f"{ds.path}: {ds.num_antennas} positions x {ds.num_states} states ({ds.task} task, "
+          f"{cfg.array} array); "
           f"simulated {last['states']} state(s) in {wall:.1f} s"
           + (f", {n_pas / wall:.1f} PAS/s, {100 * last['outside_solver_share']:.1f}% outside the ray tracer"
              if last["states"] else " (nothing to do)"))

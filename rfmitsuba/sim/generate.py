@@ -37,7 +37,7 @@ from ..data.store import (
 from ..rf import bartlett_ref as _pas
 from . import person as human
 from .geometry import RoomGeometry
-from .simulate import Simulator, SolverConfig, versions
+from .simulate import ARRAYS, Simulator, SolverConfig, versions
 
 
 @dataclass
@@ -64,8 +64,14 @@ class GenerateConfig:
     walk_duration_s: float = 60.0
     #: material scattering coefficient set after loading when diffuse reflection is on
     scattering_coefficient: float = 0.3
+    #: "synthetic" (one trace per array position, plane-wave element phases) or "exact" (each of
+    #: the 16 elements traced as its own antenna; for at most EXACT_MAX_POSITIONS positions)
+    array: str = "synthetic"
     solver: "Any" = None  # simulate.SolverConfig; None -> defaults for the room size
 
+
+#: most antenna positions ``array="exact"`` accepts: it traces 16 antennas per position
+EXACT_MAX_POSITIONS = 200
 
 QUICK = {"positions": 36, "human_positions": 4, "samples_per_src": 20_000}
 
@@ -152,6 +158,12 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         raise ConfigError(f"need positions >= 1 and human_positions >= 0, got {cfg.positions}, {cfg.human_positions}")
     if cfg.material not in human.PERTURBER_MATERIALS:
         raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(human.PERTURBER_MATERIALS)}")
+    if cfg.array not in ARRAYS:
+        raise ConfigError(f"array must be one of {', '.join(ARRAYS)}, got {cfg.array!r}")
+    if cfg.array == "exact" and cfg.positions > EXACT_MAX_POSITIONS:
+        raise ConfigError(f"array 'exact' traces each of the 16 elements as its own antenna (16x the receivers "
+                          f"of a synthetic-array solve); it is meant for a subset of positions: got "
+                          f"{cfg.positions}, at most {EXACT_MAX_POSITIONS}")
     t_start = time.perf_counter()
     xml = resolve_scene(cfg.scene)
     geom = RoomGeometry.from_xml(xml)
@@ -172,9 +184,12 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
     geom.check_points(ant, what="antenna")
     ant32 = ant.astype(np.float32)
     plugin, params = human.PERTURBER_MATERIALS[cfg.material]
+    record = {k: v for k, v in _config.to_dict(_replace(cfg, solver=None)).items() if k != "solver"}
+    if cfg.array == "synthetic":  # the default, and what every dataset made before the option holds
+        del record["array"]
     extra = {
         "scene": _scene_record(xml),
-        "generate": {k: v for k, v in _config.to_dict(_replace(cfg, solver=None)).items() if k != "solver"},
+        "generate": record,
         "solver": _config.to_dict(solver),
         "seeds": {"antenna_positions": [cfg.seed, 1], "walk": cfg.seed, "split": cfg.seed, "solver": solver.seed},
         "human": {"headings_rad": walk_head.tolist(), "height_m": human.HEIGHT, "width_m": human.WIDTH,
@@ -184,7 +199,11 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         "moving_device": "4x4 array" if cfg.task == "rx" else "isotropic TX",
         "reciprocity": "one solve: TX at fixed_pos, isotropic RX at each antenna position; "
                        + ("arrival directions at the antenna positions" if cfg.task == "rx" else
-                          "departure directions at fixed_pos") + " give the array channel",
+                          "departure directions at fixed_pos") + " give the array channel"
+                       if cfg.array == "synthetic" else
+                       ("one isotropic RX per array element at each antenna position" if cfg.task == "rx" else
+                        "the TX moved through the 16 array elements at fixed_pos, one solve each")
+                       + "; each element's channel is the sum of its own paths (generate.array = 'exact')",
         "versions": versions(),
     }
     meta = base_meta(task=cfg.task, frequency_hz=cfg.frequency_hz, num_antennas=cfg.positions,
@@ -208,7 +227,7 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         todo = todo[:stop_after]
     job = StatesJob(root=root, xml=xml, task=cfg.task, frequency_hz=cfg.frequency_hz, material=cfg.material,
                     scattering_coefficient=cfg.scattering_coefficient, solver=solver, fixed_pos=fixed,
-                    antenna_pos=ant32, walk_positions=walk_pos, walk_headings=walk_head)
+                    antenna_pos=ant32, walk_positions=walk_pos, walk_headings=walk_head, array=cfg.array)
     cluster = cluster or ClusterConfig()
     if cluster.serial or not todo:
         timing = simulate_states(job, todo, quiet=quiet)
@@ -243,6 +262,8 @@ class StatesJob:
     antenna_pos: np.ndarray
     walk_positions: np.ndarray
     walk_headings: np.ndarray
+    #: how the element channels are traced (:data:`rfmitsuba.sim.simulate.ARRAYS`)
+    array: str = "synthetic"
 
 
 def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) -> dict:
@@ -280,11 +301,9 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
                                                                                   name=f"rfm-human-{job.material}"))
                     sim.set_human(np.asarray(mesh.vertices))
                 t0 = sim.timing.solver_s
-                paths = sim.solve()
+                h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0
                 t1 = time.perf_counter()
-
-                h = paths.channels(job.task, frequency_hz=job.frequency_hz)
                 img = _pas.bartlett(h, frequency_hz=job.frequency_hz)
                 t2 = time.perf_counter()
                 write_chunk(job.root, s, pas=img, channel=h)

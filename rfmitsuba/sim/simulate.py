@@ -12,7 +12,12 @@ path's coefficient ``a``, delay ``tau`` and end directions:
   direction at the corner device.
 
 This is Sionna's own synthetic-array rule (``synthetic_array=True``) applied
-to whichever end carries the array. Paths are put in a canonical order
+to whichever end carries the array (``array="synthetic"``, the default). With
+``array="exact"`` (:meth:`Simulator.channels`) each of the 16 elements is traced as its own
+isotropic antenna instead, so every element's channel comes from its own paths
+(no plane-wave approximation): task rx places one receiver per element at each
+antenna position (16 per position, one batched solve); task tx moves the fixed
+device through its 16 element positions (16 solves). Paths are put in a canonical order
 (delay, then coefficient) before summing in float64, so the channel does not
 depend on the order in which the ray tracer's threads emit paths.
 
@@ -36,6 +41,11 @@ from ..rf import array as antenna
 
 #: Name of the perturber object inside the Sionna scene.
 HUMAN_ID = "rfm-human"
+#: Name of the fixed device inside the Sionna scene.
+FIXED_ID = "rfm-fixed"
+#: How the 16 element channels are obtained: Sionna's plane-wave rule about the array centre
+#: (one trace per array position), or one trace per element.
+ARRAYS = ("synthetic", "exact")
 
 
 @dataclass
@@ -157,7 +167,7 @@ class Simulator:
         iso = dict(num_rows=1, num_cols=1, pattern="iso", polarization="V")
         self.scene.tx_array = PlanarArray(**iso)
         self.scene.rx_array = PlanarArray(**iso)
-        self.scene.add(Transmitter("rfm-fixed", position=mi.Point3f(*[float(x) for x in self.fixed_pos])))
+        self.scene.add(Transmitter(FIXED_ID, position=mi.Point3f(*[float(x) for x in self.fixed_pos])))
         self._solver = PathSolver()
         self._receivers: list[str] = []
         self._human_faces: np.ndarray | None = None
@@ -308,9 +318,48 @@ class Simulator:
                 x = self.positions[idx[name]]
                 self.scene.add(Receiver(name, position=mi.Point3f(float(x[0]), float(x[1]), float(x[2]))))
 
-    def channels(self, task: str) -> np.ndarray:
-        """Solve and return the array channel for ``task``: complex64 [N, 16]."""
-        return self.solve().channels(task, frequency_hz=self.frequency_hz)
+    def channels(self, task: str, *, array: str = "synthetic") -> np.ndarray:
+        """Solve and return the array channel for ``task``: complex64 [N, 16].
+
+        Args:
+            task: "rx" (the array at each antenna position) or "tx" (the array at the fixed device).
+            array: "synthetic" (one trace per array position, element phases by the plane-wave
+                rule) or "exact" (each element traced as its own isotropic antenna: 16 receivers
+                per antenna position for task rx, 16 solves with the fixed device at each element
+                for task tx). The element offsets are :func:`rfmitsuba.rf.array.element_positions`
+                (the array frame is the world frame).
+        """
+        if task not in ("rx", "tx"):
+            raise ConfigError(f"task must be 'rx' or 'tx', got {task!r}")
+        if array not in ARRAYS:
+            raise ConfigError(f"array must be one of {', '.join(ARRAYS)}, got {array!r}")
+        if array == "synthetic":
+            return self.solve().channels(task, frequency_hz=self.frequency_hz)
+        if not self._receivers:
+            raise ConfigError("no antenna positions: call set_positions first")
+        r = antenna.element_positions(self.frequency_hz)
+        centres = self.positions
+        M = len(r)
+        if task == "rx":
+            self.set_positions((centres[:, None, :] + r[None, :, :]).reshape(-1, 3))
+            try:
+                h = self.solve().a.sum(axis=1).reshape(len(centres), M)
+            finally:
+                self.set_positions(centres)
+        else:
+            h = np.empty((len(centres), M), np.complex128)
+            try:
+                for m in range(M):
+                    self._place_fixed(self.fixed_pos + r[m])
+                    h[:, m] = self.solve().a.sum(axis=1)
+            finally:
+                self._place_fixed(self.fixed_pos)
+        return h.astype(np.complex64)
+
+    def _place_fixed(self, p: np.ndarray) -> None:
+        import mitsuba as mi
+
+        self.scene.get(FIXED_ID).position = mi.Point3f(*[float(x) for x in p])
 
 
 def _pad(x: np.ndarray, P: int) -> np.ndarray:

@@ -55,3 +55,13 @@ def test_show_writes_pngs(quick_dataset, tmp_path, capsys):
 def test_show_missing_dataset(tmp_path, capsys):
     assert cli.main(["show", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert "meta.json" in capsys.readouterr().err
+
+
+def test_generate_array_option(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["generate", "bedroom", "--array", "bogus", "--out", str(tmp_path / "x")])
+    assert "invalid choice: 'bogus'" in capsys.readouterr().err
+    assert cli.main(["generate", "bedroom", "--array", "exact", "--positions", "900", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "exact" in err and "got 900, at most 200" in err
+    assert not (tmp_path / "x").exists()

@@ -202,3 +202,45 @@ def test_bad_inputs(variant, box_room, tmp_path):
         from rfmitsuba.sim.simulate import PathSet
         PathSet(np.zeros((1, 1)), np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), np.zeros(1)).channels("up",
                                                                                                   frequency_hz=F)
+
+
+def _corr(a, b):
+    return np.abs(np.sum(np.conj(a) * b, axis=1)) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+
+
+def test_exact_array_is_the_spherical_wave_and_differs_from_synthetic_near(variant, empty_scene):
+    """Tracing each element (array="exact") gives every element its own free-space path: the
+    spherical wave, which the synthetic array's plane wave matches far away but not at 0.3 m."""
+    from rfmitsuba.core.ssim import ssim_images
+
+    fixed = np.array([0.0, 0.0, 2.0])
+    far = np.array([[15.0, 10.0, 1.0], [-12.0, 9.0, 0.5]])
+    near = np.array([[0.3, 0.1, 1.9], [0.2, -0.25, 1.8]])
+    pos = np.concatenate([far, near])
+    r = antenna.element_positions(F)
+    k = 2 * np.pi / antenna.wavelength(F)
+    for task in ("rx", "tx"):
+        s = sim(empty_scene, fixed, pos, samples_per_src=1000)
+        hs, he = s.channels(task), s.channels(task, array="exact")
+        # exact: |h_m| = lambda / (4 pi d_m), phase -k d_m (one common constant), d_m from element m
+        ends = pos[:, None, :] + r if task == "rx" else pos[:, None, :] - r  # rx: element at pos + r_m
+        d = np.linalg.norm(ends - fixed, axis=-1)
+        ref = np.exp(-1j * k * d) / (2 * k * d)
+        assert np.allclose(np.abs(he), np.abs(ref), rtol=1e-3), task
+        assert np.all(_corr(he, ref) > 0.99999), (task, _corr(he, ref))
+        c = _corr(hs, he)
+        img = lambda h: pas.normalize(pas.bartlett(h, frequency_hz=F))  # noqa: E731
+        sim_ = ssim_images(img(hs), img(he))
+        assert np.all(c[:2] > 0.999) and np.all(sim_[:2] > 0.99), (task, c, sim_)
+        assert np.all(c[2:] < 0.97) and np.all(sim_[2:] < 0.9), (task, c, sim_)
+        # the receivers are the antenna positions again afterwards
+        assert np.array_equal(s.positions, pos) and len(s._receivers) == len(pos)
+        assert np.allclose(s.channels(task), hs)
+
+
+def test_exact_array_bad_options(variant, box_room):
+    s = sim(box_room, [0.4, 0.4, 2.0], [[2.0, 1.5, 1.0]], samples_per_src=1000)
+    with pytest.raises(ConfigError, match="array must be one of synthetic, exact"):
+        s.channels("rx", array="bogus")
+    with pytest.raises(ConfigError, match="task"):
+        s.channels("up", array="exact")
