@@ -1,22 +1,55 @@
-"""``rfmitsuba experiment motivation|parsimony DATASET --out DIR``: multi-run Stage-1 tables."""
+"""``rfmitsuba experiment motivation|parsimony DATASET --out DIR``: multi-run Stage-1 tables;
+``rfmitsuba experiment truth --scene S --positions N --out DIR``: the ground truth's own error bar."""
 from __future__ import annotations
 
 
 def register(sub) -> None:
-    p = sub.add_parser("experiment", help="motivation table (SSIM vs positions) or parsimony curve (SSIM vs Gaussians)")
-    p.add_argument("kind", choices=["motivation", "parsimony"])
-    p.add_argument("dataset", help="dataset folder")
-    p.add_argument("--out", required=True, help="folder for the runs and the table")
+    p = sub.add_parser("experiment", help="motivation table (SSIM vs positions), parsimony curve (SSIM vs "
+                                          "Gaussians) or truth uncertainty (synthetic array vs exact tracing)")
+    p.add_argument("kind", choices=["motivation", "parsimony", "truth"])
+    p.add_argument("dataset", nargs="?", default=None, help="dataset folder (motivation, parsimony)")
+    p.add_argument("--out", required=True, help="folder for the runs (or datasets) and the table")
     p.add_argument("--config", default=None, help="TrainConfig TOML for every run")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     p.add_argument("--counts", default=None, help="comma-separated positions (motivation), caps (parsimony, splat) "
                                                    "or scatterers (parsimony, model=coherent_gaussians)")
     p.add_argument("--quick", action="store_true", help="quick training config and small counts")
+    t = p.add_argument_group("truth", "generate the same positions with the synthetic and the exact array "
+                                      "(rfmitsuba.experiments.truth) and compare channels and PAS")
+    t.add_argument("--scene", default="bedroom", help="truth: built-in scene or XML file (default bedroom)")
+    t.add_argument("--task", choices=["rx", "tx"], default="rx", help="truth: moving RX or moving TX (default rx)")
+    t.add_argument("--positions", type=int, default=48, help="truth: antenna positions (default 48, at most 200)")
+    t.add_argument("--human-positions", type=int, default=0,
+                   help="truth: person positions along the walk (default 0: empty room)")
+    t.add_argument("--seed", type=int, default=0, help="truth: seed of positions and walk (default 0)")
+    t.add_argument("--samples", type=int, default=None, help="truth: ray samples per source (default: the room's)")
+    t.add_argument("--no-repeat", action="store_true",
+                   help="truth: skip tracing the exact truth again with the next solver seed (the noise floor)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from pathlib import Path
+
+    from ..core.errors import ConfigError
+
+    if args.kind == "truth":
+        from ..experiments import truth as T
+
+        if args.dataset is not None:
+            raise ConfigError("experiment truth generates its own datasets: give --scene, not a dataset folder")
+        if args.positions < 1 or args.human_positions < 0:
+            raise ConfigError(f"need --positions >= 1 and --human-positions >= 0, got {args.positions}, "
+                              f"{args.human_positions}")
+        cfg = T.TruthConfig(scene=args.scene, task=args.task, positions=args.positions,
+                            human_positions=args.human_positions, seed=args.seed, samples=args.samples,
+                            repeat=not args.no_repeat)
+        T.truth_uncertainty(args.out, cfg, quiet=args.quiet)
+        print((Path(args.out) / "table.md").read_text().split("\nPer PAS")[0])
+        return 0
+    if args.dataset is None:
+        raise ConfigError(f"experiment {args.kind} needs a dataset folder")
     from ..experiments import tables as E
     from .train import build_config
 
@@ -30,7 +63,6 @@ def run(args) -> int:
             counts = counts or ((0, 8, 32) if args.quick else (0, 8, 16, 32, 64, 96))
         counts = counts or ((300, 600, 1200, 2400) if args.quick else (500, 1000, 2000, 4000, 8000))
         E.parsimony_curve(args.dataset, args.out, caps=counts, cfg=cfg, quiet=args.quiet)
-    from pathlib import Path
 
     print((Path(args.out) / "table.md").read_text())
     return 0
