@@ -33,7 +33,7 @@ from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
 from .curves import speed_accuracy
-from .methods import METHODS, MethodConfig, get_method
+from .methods import METHODS, MethodConfig, check_method, get_method
 from .methods import run_job
 from .sizes import TrainSize, method_config
 
@@ -52,7 +52,7 @@ class CompareConfig:
 
     def __post_init__(self) -> None:
         for m in self.methods:
-            get_method(m)
+            check_method(m, self.train.model)
         if not self.methods or not self.seeds:
             raise ConfigError("CompareConfig: methods and seeds must not be empty")
         if len(set(self.seeds)) != len(self.seeds) or len(set(self.methods)) != len(self.methods):

@@ -46,6 +46,7 @@ from ..data.samples import SampleData, num_human_features
 from ..data.store import open_dataset
 from ..eval.dynamic_static import evaluate
 from ..models.base import FieldSet, field_class, load_field
+from ..models.coherent_gaussians_person import CoherentGaussianPersonConfig
 from ..models.coherent_person import CoherentPersonConfig
 from ..models.splat_person import SplatPersonConfig
 from ..train.config import OptimConfig, TrainConfig
@@ -92,14 +93,17 @@ class MethodConfig:
     stage1: the background training configuration (its ``iterations`` is n1; its ``model``,
     "splat" or "coherent", is the model family of every method); stage2_iterations: n2;
     human: the Stage-2 human Gaussians (model "splat"); coherent_human: the Stage-2 human
-    scatterers (model "coherent"); stage2_optim: Stage-2 learning rates. ``human.human_octaves``
-    are the encoding octaves of the human position for the end-to-end model.
+    scatterers (model "coherent"); coherent_gaussians_human: the Stage-2 person field of the coherent
+    Gaussian family (body scatterers + blockage, model "coherent_gaussians"); stage2_optim:
+    Stage-2 learning rates. ``human.human_octaves`` are the encoding octaves of the human position
+    for the end-to-end model.
     """
 
     stage1: TrainConfig = dc_field(default_factory=TrainConfig)
     stage2_iterations: int = 1000
     human: SplatPersonConfig = dc_field(default_factory=SplatPersonConfig)
     coherent_human: CoherentPersonConfig = dc_field(default_factory=CoherentPersonConfig)
+    coherent_gaussians_human: CoherentGaussianPersonConfig = dc_field(default_factory=CoherentGaussianPersonConfig)
     stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
         lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
         lr_net=1e-2, lr_net_final=1e-3))
@@ -135,14 +139,29 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
                                    noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
 
 
+def check_method(name: str, model: str) -> None:
+    """ConfigError when method ``name`` cannot train Stage-1 field kind ``model``: End-to-End (and
+    any single field with the person's position as input) needs a network that takes it, and the
+    coherent Gaussian field has none (its person is Ours' Stage-2 field)."""
+    m = get_method(name)
+    if m.human_input and not m.two_stage and model == "coherent_gaussians":
+        raise ConfigError(f"method {name!r} trains one field with the person's position as a network input; the "
+                          "coherent Gaussian field (model 'coherent_gaussians') has no network to take it. Its "
+                          "person is Ours' Stage-2 field (coherent_gaussians_person): leave this method out, or "
+                          "use model 'coherent' or 'splat'")
+
+
 def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
     """Stage 2's person field on background ``bg``: (registered kind, its configuration).
 
-    On a splat background ("splat_person", ``mcfg.human``); on a coherent one
+    On a splat background ("splat_person", ``mcfg.human``); on a coherent Gaussian one
+    ("coherent_gaussians_person", ``mcfg.coherent_gaussians_human``); on a coherent one
     ("coherent_perturb" or "coherent_person", by ``mcfg.coherent_human.kind`` "perturb" or
     "scatter", with ``mcfg.coherent_human``)."""
     if bg.family == "splat":
         return "splat_person", mcfg.human
+    if bg.family == "coherent_gaussians":
+        return "coherent_gaussians_person", mcfg.coherent_gaussians_human
     kind = "coherent_perturb" if mcfg.coherent_human.kind == "perturb" else "coherent_person"
     return kind, mcfg.coherent_human
 
@@ -166,6 +185,7 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         steps, "val_ssim": final validation SSIM of the last stage, "runs": [run folders]}.
     """
     m = get_method(name)
+    check_method(name, mcfg.stage1.model)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if not m.two_stage:

@@ -42,12 +42,16 @@ class TrainSize:
 
     model: the Stage-1 field kind, "coherent" (image sources read out by Bartlett,
     :mod:`rfmitsuba.models.coherent`; trains at full resolution whatever ``downsample`` says; needs
-    a scene, so Sionna data only) or "splat" (Gaussian splatting, WRF-GS+ style).
+    a scene, so Sionna data only), "coherent_gaussians" (the coherent Gaussian field,
+    :mod:`rfmitsuba.models.coherent_gaussians`, known or unknown room; full resolution too; its
+    Stage 2 is :mod:`rfmitsuba.models.coherent_gaussians_person`; no End-to-End variant) or "splat"
+    (Gaussian splatting, WRF-GS+ style).
     stage1_iterations / stage2_iterations: n1 / n2 optimizer steps; batch_views: PAS per step;
     downsample: training image reduction (splat); num_gaussians / max_gaussians: splat Gaussians
     at the start / at most (density control ``density``); human_gaussians: Stage-2 person Gaussians
     (splat); val_every: validation and checkpoint cadence [steps]; room_order / furniture_order:
-    image-source orders of the coherent model.
+    image-source orders of the coherent model (model "coherent"; "coherent_gaussians" keeps its own,
+    set them with ``overrides``: ``"stage1.coherent_gaussians.room_order=3"``).
     overrides: ``KEY=VALUE`` settings of the resulting
     :class:`~rfmitsuba.experiments.methods.MethodConfig` applied last (e.g.
     ``"stage1.optim.lr_amp=0.02"``, ``"coherent_human.num_points=8"``): every finer setting
@@ -69,8 +73,8 @@ class TrainSize:
     overrides: list[str] = dc_field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if self.model not in ("splat", "coherent"):
-            raise ConfigError(f"TrainSize.model must be 'splat' or 'coherent', got {self.model!r}")
+        if self.model not in ("splat", "coherent", "coherent_gaussians"):
+            raise ConfigError(f"TrainSize.model must be 'splat', 'coherent' or 'coherent_gaussians', got {self.model!r}")
         for k in ("stage1_iterations", "stage2_iterations", "batch_views", "num_gaussians", "human_gaussians",
                   "val_every"):
             if getattr(self, k) < 1:
@@ -174,8 +178,8 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     Args:
         train: the sizes.
         scene_known: the datasets name their room (Sionna data); without one the splat field
-            starts uniform in the bounds instead of on the room's surfaces. The coherent model
-            needs the room.
+            starts uniform in the bounds instead of on the room's surfaces and the coherent
+            Gaussian field from the data scan. The coherent model needs the room.
     Returns:
         the MethodConfig, with ``train.overrides`` applied last.
     """
@@ -186,7 +190,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     if t.model == "coherent" and not scene_known:
         raise ConfigError("train.model = 'coherent' needs datasets with a scene; use train.model = 'splat'")
     s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,
-                     downsample=1 if t.model == "coherent" else t.downsample,
+                     downsample=1 if t.model in ("coherent", "coherent_gaussians") else t.downsample,
                      val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 10),
                      field=FieldConfig(init="mesh" if scene_known else "random", num_gaussians=t.num_gaussians),
                      coherent=CoherentConfig(room_order=t.room_order, furniture_order=t.furniture_order),

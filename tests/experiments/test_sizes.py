@@ -31,3 +31,20 @@ def test_method_config_maps_sizes_and_applies_overrides_last():
         method_config(TrainSize(), scene_known=False)
     with pytest.raises(ConfigError, match="unknown size"):
         size_config("huge")
+
+
+def test_coherent_gaussians_size_known_and_unknown_room():
+    """train.model = "coherent_gaussians": full resolution, known room or not; End-to-End refused
+    by name (the field has no network for the person's position), Ours and Baseline accepted."""
+    from rfmitsuba.experiments.compare import CompareConfig
+
+    for known in (True, False):
+        m = method_config(TrainSize(model="coherent_gaussians", overrides=["coherent_gaussians_human.num_points=4"]),
+                          scene_known=known)
+        assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == 1
+        assert m.coherent_gaussians_human.num_points == 4
+    with pytest.raises(ConfigError, match="'end_to_end'.*no network"):
+        CompareConfig(train=TrainSize(model="coherent_gaussians"))
+    assert CompareConfig(methods=["baseline", "ours"], train=TrainSize(model="coherent_gaussians")).methods
+    with pytest.raises(ConfigError, match="coherent_gaussians"):
+        TrainSize(model="gaussians")
