@@ -54,19 +54,18 @@ def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: 
     return np.asarray(idx, dtype=np.int64)
 
 
-def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndarray, *, k: int = 3,
-                train_human: np.ndarray | None = None, query_human: np.ndarray | None = None) -> np.ndarray:
-    """Inverse-distance-weighted mean of the ``k`` nearest training PAS, min-max normalised.
+def neighbour_weights(train_pos: np.ndarray, query_pos: np.ndarray, *, k: int,
+                      train_human: np.ndarray | None = None, query_human: np.ndarray | None = None) -> tuple:
+    """The ``k`` nearest training samples of every query and their inverse-distance weights.
 
     Args:
-        train_pas: float [M, H, W] normalised training PAS; train_pos: float [M, 3] metres;
-        query_pos: float [K, 3] metres; train_human / query_human: optional [M, 3] / [K, 3] metres
-        (6-D distance as :func:`nearest_index`).
-        k: neighbours (at most M). Weights are 1 / distance; a query on a training position
-        takes that PAS.
+        train_pos: float [M, 3] metres; query_pos: float [K, 3] metres; train_human /
+        query_human: optional [M, 3] / [K, 3] metres (6-D distance as :func:`nearest_index`).
+        k: neighbours (at most M). Weights are 1 / distance, normalised; a query on a training
+        position takes that sample alone.
 
     Returns:
-        float32 [K, H, W] in [0, 1].
+        (idx int64 [K, k], w float64 [K, k] summing to 1 per row).
     """
     from scipy.spatial import cKDTree
 
@@ -74,14 +73,29 @@ def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndar
     a = _joint(train_pos, train_human if both else None)
     q = _joint(query_pos, query_human if both else None)
     if len(a) == 0:
-        raise ValueError("idw_predict: no training samples")
+        raise ValueError("neighbour_weights: no training samples")
     k = min(int(k), len(a))
     dist, idx = cKDTree(a).query(q, k=k)
     dist, idx = dist.reshape(len(q), k), idx.reshape(len(q), k)
     w = 1.0 / np.maximum(dist, 1e-9)
     exact = dist[:, :1] <= 1e-9
     w = np.where(exact, (dist <= 1e-9).astype(np.float64), w)
-    w /= w.sum(1, keepdims=True)
+    return np.asarray(idx, np.int64), w / w.sum(1, keepdims=True)
+
+
+def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndarray, *, k: int = 3,
+                train_human: np.ndarray | None = None, query_human: np.ndarray | None = None) -> np.ndarray:
+    """Inverse-distance-weighted mean of the ``k`` nearest training PAS (:func:`neighbour_weights`),
+    min-max normalised.
+
+    Args:
+        train_pas: float [M, H, W] normalised training PAS; train_pos: float [M, 3] metres;
+        query_pos: float [K, 3] metres; train_human / query_human: as :func:`neighbour_weights`.
+
+    Returns:
+        float32 [K, H, W] in [0, 1].
+    """
+    idx, w = neighbour_weights(train_pos, query_pos, k=k, train_human=train_human, query_human=query_human)
     tp = np.asarray(train_pas, np.float32)
     out = np.einsum("kn,knhw->khw", w.astype(np.float32), tp[idx])
     return minmax(out).astype(np.float32)

@@ -53,7 +53,8 @@ class TrainConfig:
     iterations: optimizer steps; batch_views: PAS per step; downsample: train on
     (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
     resolution); seed: all randomness; val_fraction / val_max: training positions held out
-    for validation (never test positions); val_every / checkpoint_every / log_every: steps;
+    for validation (never test positions; seeded at random, or with ``split = "block"`` the
+    training block's outer slab of largest x, so validation measures extrapolation too); val_every / checkpoint_every / log_every: steps;
     time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
     schedules then also advance with the share of this time used);
     max_train_positions: use only this many training positions (0 = all; motivation table);

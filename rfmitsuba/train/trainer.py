@@ -185,7 +185,12 @@ class Trainer:
             train = np.sort(rng.choice(train, cfg.max_train_positions, replace=False))
         n_val = int(round(cfg.val_fraction * len(train)))
         n_val = min(n_val, cfg.val_max, len(train) - 1)
-        val = np.sort(rng.choice(train, n_val, replace=False)) if n_val > 0 else np.zeros(0, np.int64)
+        if n_val <= 0:
+            val = np.zeros(0, np.int64)
+        elif cfg.split == "block":  # validation mirrors the split: the training block's own outer slab
+            val = np.sort(train[np.argsort(self.data.antenna_pos[train, 0], kind="stable")[-n_val:]])
+        else:
+            val = np.sort(rng.choice(train, n_val, replace=False))
         fit = np.setdiff1d(train, val)
         return {"train": train, "fit": fit, "val": val, "test": test}
 

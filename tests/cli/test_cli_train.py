@@ -20,5 +20,15 @@ def test_train_cli_defaults_to_auto_and_takes_a_model(tmp_path, capsys):
     assert not (tmp_path / "splat" / "select").exists()
     text = (tmp_path / "splat" / "config.toml").read_text()
     assert 'model = "splat"' in text and 'split = "block"' in text
+    # with a block split, validation is the training block's own outer slab (it measures extrapolation)
+    split = json.loads((tmp_path / "splat" / "split.json").read_text())
+    from rfmitsuba.data.views import TrainData
+
+    x = TrainData.open(ds).antenna_pos[:, 0]
+    assert len(split["val"]) >= 1
+    assert x[split["val"]].min() >= x[split["fit"]].max() and x[split["val"]].max() < x[split["test"]].min()
+    assert main(["eval", str(tmp_path / "splat")]) == 0
+    metrics = json.loads((tmp_path / "splat" / "eval" / "metrics.json").read_text())
+    assert metrics["anchored"]["use"] in ("field", "anchored") and 0 < metrics["anchored"]["test"]["mean"] <= 1
     assert main(["train", str(ds), "--out", str(tmp_path / "bad"), "--model", "nerf"] + TINY) == 2
     assert "unknown field kind 'nerf'" in capsys.readouterr().err
