@@ -114,7 +114,8 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
                     cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
     """Test SSIM against the number of Gaussians, one run per entry of ``caps``: for the splat
     field a cap on density control (initial Gaussians = min(cap, cfg.field.num_gaussians)); for
-    the coherent Gaussian field (``cfg.model == "coherent_gaussians"``) the number of scatterers.
+    the coherent Gaussian field (``cfg.model == "coherent_gaussians"``) the number of scatterers
+    (``scatterers`` and ``room_scatterers``, whichever the room uses).
     The table marks the knee (:func:`knee`)."""
     cfg = cfg or TrainConfig()
     data = TrainData.open(dataset, state=cfg.state)
@@ -124,7 +125,7 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
     rows, k = [], None
     for cap in caps:
         if coherent:
-            rc = C.override(cfg, [f"coherent_gaussians.scatterers={cap}"])
+            rc = C.override(cfg, [f"coherent_gaussians.scatterers={cap}", f"coherent_gaussians.room_scatterers={cap}"])
         else:
             rc = C.override(cfg, [f"density.max_gaussians={cap}",
                                   f"field.num_gaussians={min(cap, cfg.field.num_gaussians)}"])
