@@ -182,7 +182,7 @@ def _cg_mcfg(stage1, stage2):
 
     s1 = C.override(TrainConfig(), ["model='coherent_gaussians'", f"iterations={stage1}", "batch_views=8",
                                     f"val_every={stage1}", f"checkpoint_every={stage1}",
-                                    "coherent_gaussians.scatterers=24"])
+                                    "coherent_gaussians.room_scatterers=24"])
     return MethodConfig(stage1=s1, stage2_iterations=stage2)
 
 
