@@ -245,6 +245,53 @@ class Field:
         raise NotImplementedError
 
 
+class FlatParameterField(Field):
+    """A field whose parameters are plain Dr.Jit ``Float`` arrays in ``self.params`` (name -> array,
+    sizes from ``_sizes()``), with one optimizer group per name in the class's ``LR_GROUPS``:
+    assignment, freezing and loading shared by such fields."""
+
+    #: parameter name -> optimizer group (the trainer's learning-rate schedule)
+    LR_GROUPS: ClassVar[dict] = {}
+
+    @classmethod
+    def lr_group(cls, name: str) -> str:
+        """The optimizer group (learning-rate schedule) of parameter ``name``."""
+        return cls.LR_GROUPS[name]
+
+    @property
+    def num_parameters(self) -> int:
+        return sum(self._sizes().values())
+
+    @property
+    def network_parameters(self) -> int:
+        return 0
+
+    def parameters(self) -> dict:
+        return dict(self.params)
+
+    def trainable(self) -> dict:
+        """Every non-empty parameter (none when frozen)."""
+        if self.frozen:
+            return {}
+        return {k: v for k, v in self.params.items() if self._sizes()[k] > 0}
+
+    def assign(self, values: dict) -> None:
+        for k, v in values.items():
+            if k not in self.params:
+                raise ConfigError(f"{type(self).__name__} has no parameter {k!r}")
+            self.params[k] = v
+
+    def freeze(self) -> None:
+        import drjit as dr
+
+        self.frozen = True
+        for k in list(self.params):
+            self.params[k] = dr.detach(self.params[k])
+
+    def load_state_dict(self, state: dict) -> None:
+        self.params.update(flat_parameters(state, self._sizes(), owner=type(self).__name__))
+
+
 def render(fields: list[Field], views: Views, *, height: int = 90, width: int = 360, normalize: bool = True):
     """PAS of ``fields`` rendered together for ``views``: ``TensorXf`` [B, height, width],
     differentiable in every trainable parameter.

@@ -72,7 +72,7 @@ from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
 from ..rf.images import scene_image_maps
-from .base import Field, Views, flat_parameters, register
+from .base import FlatParameterField, Views, register
 from .coherent import _columns, _write_points_ply
 
 FORMAT = "rfmitsuba-coherent-gaussians/1"
@@ -337,7 +337,7 @@ def _rodrigues(w0, w1, w2, v0, v1, v2):
 
 
 @register
-class CoherentGaussianField(Field):
+class CoherentGaussianField(FlatParameterField):
     """The coherent Gaussian field (see the module docstring).
 
     Args:
@@ -351,6 +351,7 @@ class CoherentGaussianField(Field):
         params: stored parameters (name -> float32 array) instead of the initial ones.
     """
 
+    LR_GROUPS = LR_GROUPS
     kind = "coherent_gaussians"
     family = "coherent_gaussians"
     format = FORMAT
@@ -456,45 +457,11 @@ class CoherentGaussianField(Field):
         """The Gaussians: image sources plus scatterers."""
         return self.num_images + self.num_scatterers
 
-    @property
-    def num_parameters(self) -> int:
-        return sum(self._sizes().values())
-
-    @property
-    def network_parameters(self) -> int:
-        return 0
-
-    def parameters(self) -> dict:
-        return dict(self.params)
-
     def trainable(self) -> dict:
-        if self.frozen:
-            return {}
-        out = {k: v for k, v in self.params.items() if self._sizes()[k] > 0}  # no scatterers: no empty arrays
+        out = super().trainable()  # no scatterers: no empty arrays
         drop = ([] if self.cfg.calibrate else ["cal"]) + ([] if self.cfg.learn_pose else ["pose"]) \
             + ([] if self.cfg.visibility else ["vis_center", "vis_log_extent"])
         return {k: v for k, v in out.items() if k not in drop}
-
-    @staticmethod
-    def lr_group(name: str) -> str:
-        """The optimizer group (learning-rate schedule) of parameter ``name``."""
-        return LR_GROUPS[name]
-
-    def assign(self, values: dict) -> None:
-        for k, v in values.items():
-            if k not in self.params:
-                raise ConfigError(f"CoherentGaussianField has no parameter {k!r}")
-            self.params[k] = v
-
-    def freeze(self) -> None:
-        import drjit as dr
-
-        self.frozen = True
-        for k in list(self.params):
-            self.params[k] = dr.detach(self.params[k])
-
-    def load_state_dict(self, state: dict) -> None:
-        self.params.update(flat_parameters(state, self._sizes(), owner=type(self).__name__))
 
     def state_dict(self) -> dict:
         out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.params.items()}

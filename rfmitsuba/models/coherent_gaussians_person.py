@@ -54,7 +54,7 @@ from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
 from ..data.samples import num_human_features
-from .base import Field, Views, flat_parameters, register
+from .base import FlatParameterField, Views, register
 from .coherent import _columns, _write_points_ply
 from .coherent_gaussians import CoherentGaussianField
 
@@ -132,7 +132,7 @@ def axis_distance2(p0, p1, hx, hy, z0, z1):
 
 
 @register
-class CoherentGaussianPersonField(Field):
+class CoherentGaussianPersonField(FlatParameterField):
     """The person on a frozen coherent Gaussian background (see the module docstring).
 
     Args:
@@ -146,6 +146,7 @@ class CoherentGaussianPersonField(Field):
     ``num_human_features(human_octaves)``) followed by the feet position in metres.
     """
 
+    LR_GROUPS = LR_GROUPS
     kind = "coherent_gaussians_person"
     family = "coherent_gaussians"
     format = FORMAT
@@ -213,44 +214,7 @@ class CoherentGaussianPersonField(Field):
         """The scatterers attached to the body."""
         return self.cfg.num_points
 
-    @property
-    def num_parameters(self) -> int:
-        return sum(self._sizes().values())
-
-    @property
-    def network_parameters(self) -> int:
-        return 0
-
-    def parameters(self) -> dict:
-        return dict(self.params)
-
-    def trainable(self) -> dict:
-        if self.frozen:
-            return {}
-        return {k: v for k, v in self.params.items() if self._sizes()[k] > 0}
-
-    @staticmethod
-    def lr_group(name: str) -> str:
-        """The optimizer group (learning-rate schedule) of parameter ``name``."""
-        return LR_GROUPS[name]
-
-    def assign(self, values: dict) -> None:
-        for k, v in values.items():
-            if k not in self.params:
-                raise ConfigError(f"CoherentGaussianPersonField has no parameter {k!r}")
-            self.params[k] = v
-
-    def freeze(self) -> None:
-        import drjit as dr
-
-        self.frozen = True
-        for k in list(self.params):
-            self.params[k] = dr.detach(self.params[k])
-
     # ---- state -------------------------------------------------------------------------------
-    def load_state_dict(self, state: dict) -> None:
-        self.params.update(flat_parameters(state, self._sizes(), owner=type(self).__name__))
-
     def state_dict(self) -> dict:
         out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.params.items()}
         out.update({f"bg.{k}": v for k, v in self.bg.state_dict().items()})
