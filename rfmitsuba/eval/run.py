@@ -58,8 +58,9 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     if len(val_idx) and len(fit_idx):
         field_train = minmax(renderer.render(data, train_idx, batch=batch))
         at = {int(i): n for n, i in enumerate(train_idx)}
-        f_fit, f_val = field_train[[at[int(i)] for i in fit_idx]], field_train[[at[int(i)] for i in val_idx]]
-        choice = choose(f_val, f_fit, data.pas(fit_idx), pos[fit_idx], pos[val_idx], data.pas(val_idx))
+        rows_fit, rows_val = [at[int(i)] for i in fit_idx], [at[int(i)] for i in val_idx]
+        choice = choose(field_train[rows_val], field_train[rows_fit], gt_train[rows_fit], pos[fit_idx],
+                        pos[val_idx], gt_train[rows_val])
         anchored_ssim = model_ssim if choice["use"] == "field" else ssim_images(
             anchored(minmax(pred), field_train, gt_train, pos[train_idx], pos[test_idx], k=choice["k"],
                      alpha=choice["alpha"]), gt_test)

@@ -82,7 +82,7 @@ def _reset_peak() -> None:
         pass
 
 
-def _times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None) -> list[float]:
+def times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None) -> list[float]:
     """Wall times (ms) of ``repeats`` calls; with ``cpu``, also appends the process
     CPU time (all threads, ms) of each call -- a figure that other load on the
     cores does not inflate."""
@@ -100,16 +100,16 @@ def _times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None) -> 
 
 
 def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
-    return statistics.median(_times_ms(fn, repeats, warmup=warmup))
+    return statistics.median(times_ms(fn, repeats, warmup=warmup))
 
 
 def _figures(forward, forward_backward, iteration, repeats: int) -> dict:
     """Median and best (minimum) times, ms. Backward = (forward + backward) - forward.
     The best-of figures are the ones least disturbed by other load on shared cores."""
-    f = _times_ms(forward, repeats)
-    fb = _times_ms(forward_backward, repeats)
+    f = times_ms(forward, repeats)
+    fb = times_ms(forward_backward, repeats)
     cpu: list[float] = []
-    it = _times_ms(iteration, repeats, cpu=cpu)
+    it = times_ms(iteration, repeats, cpu=cpu)
     med = statistics.median
     return {"forward_ms": med(f), "backward_ms": max(med(fb) - med(f), 0.0), "iteration_ms": med(it),
             "forward_min_ms": min(f), "backward_min_ms": max(min(fb) - min(f), 0.0),

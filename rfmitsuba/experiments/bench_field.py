@@ -36,6 +36,7 @@ from ..models.base import Views, render
 from ..models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField, compose_images
 from ..rf import bartlett as bartlett_op
 from ..rf.bartlett_ref import beamformer
+from .bench import times_ms
 
 ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 5.0, 3.0]])
 FREQUENCY_HZ = 2.4e9
@@ -47,15 +48,9 @@ def _load() -> float:
 
 def timed(fn, repeats: int, *, warmup: int = 2) -> dict:
     """{"ms": median wall time, "cpu_ms": median process CPU time, "min_ms"} of ``repeats`` calls
-    of ``fn`` after ``warmup`` calls."""
-    for _ in range(warmup):
-        fn()
-    wall, cpu = [], []
-    for _ in range(repeats):
-        c0, t0 = time.process_time(), time.perf_counter()
-        fn()
-        wall.append((time.perf_counter() - t0) * 1e3)
-        cpu.append((time.process_time() - c0) * 1e3)
+    of ``fn`` after ``warmup`` calls (:func:`rfmitsuba.experiments.bench.times_ms`)."""
+    cpu: list[float] = []
+    wall = times_ms(fn, repeats, warmup=warmup, cpu=cpu)
     return {"ms": statistics.median(wall), "cpu_ms": statistics.median(cpu), "min_ms": min(wall)}
 
 

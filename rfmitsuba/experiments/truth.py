@@ -31,6 +31,7 @@ from ..core.atomic import numpy_default, write_json, write_text
 from ..core.errors import ConfigError, DatasetError
 from ..core.ssim import ssim_images
 from ..data.store import resolve_scene
+from ..eval.metrics import stats
 from ..rf import bartlett_ref as pas
 
 #: the statistics reported for each measure
@@ -77,10 +78,10 @@ def compare_channels(h_syn: np.ndarray, h_exact: np.ndarray, *, frequency_hz: fl
 
 
 def summarise(x: np.ndarray) -> dict[str, float]:
-    """Mean, median, 10th percentile, min and max of a 1-D array."""
-    x = np.asarray(x, np.float64)
-    return {"mean": float(x.mean()), "median": float(np.median(x)), "p10": float(np.percentile(x, 10)),
-            "min": float(x.min()), "max": float(x.max())}
+    """Mean, median, 10th percentile, min (:func:`rfmitsuba.eval.metrics.stats`) and max of a 1-D array."""
+    out = {k: v for k, v in stats(x).items() if k in STATS}
+    out["max"] = float(np.max(x))
+    return out
 
 
 def truth_uncertainty(out: str | Path, cfg: TruthConfig | None = None, *, quiet: bool = False) -> dict:

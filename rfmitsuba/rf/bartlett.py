@@ -56,7 +56,7 @@ def weights(*, frequency_hz: float, height: int = 90, width: int = 360) -> tuple
     return _cache[key]
 
 
-#: pixel chunks per view of the backward pass's reduction (lanes = views * CHUNKS)
+#: lanes of the backward pass's reduction over pixels (each sums every CHUNKS-th pixel)
 CHUNKS = 4096
 #: views per kernel (both passes unroll their views)
 UNROLL = 16
