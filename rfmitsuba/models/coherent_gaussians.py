@@ -32,7 +32,12 @@ measured spectra, its **phase-only** variant, which uses ``h_m / |h_m|``.
 Initialisation (:meth:`CoherentGaussianField.for_training`):
 
 * **known room** (the dataset names a scene): the image maps of the room's planes
-  (:func:`rfmitsuba.rf.images.scene_image_maps`);
+  (:func:`rfmitsuba.rf.images.scene_image_maps`: the room's box, and the planes of its furniture's,
+  doors' and windows' faces), each plane sequence its own image. Whether each image's path
+  exists for a view, and whether something stands across it, is decided by Mitsuba ray casts
+  in the room's meshes (:class:`rfmitsuba.sim.visibility.SpecularVisibility`, the same JIT):
+  a path that does not exist contributes nothing, a blocked one contributes with its own
+  complex gain ``img_through`` (what passes through the obstacle), a clear one with ``img_amp``;
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
@@ -46,6 +51,7 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 =================  ============  ==========  ==========
 ``img_offset``     S*3           m           means
 ``img_amp``        S*2 (re, im)  1           amp
+``img_through``    S*2           1           amp  (known room with ray-cast visibility only)
 ``sc_pos``         P*3           m           means
 ``sc_amp``         P*2           1           amp
 ``vis_center``     (S+P)*3       m           means
@@ -78,8 +84,8 @@ from .coherent import _columns, _write_points_ply
 FORMAT = "rfmitsuba-coherent-gaussians/1"
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
-LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "sc_pos": "means", "sc_amp": "amp", "vis_center": "means",
-             "vis_log_extent": "log_scales", "cal": "amp", "pose": "rotations"}
+LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "sc_pos": "means", "sc_amp": "amp",
+             "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "rotations"}
 
 
 @dataclass
@@ -114,6 +120,12 @@ class CoherentGaussianConfig:
     init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
     init_reflection: initial gain of an image of order n is ``init_reflection ** n``.
     scatterer_gain: initial contribution of a scatterer relative to the direct path.
+    ray_visibility: known room only: decide each image path's existence and blockage per view by
+        ray casts in the room's meshes (the module docstring); False: every image is seen
+        everywhere, up to its learned window.
+    furniture_planes: known room: furniture planes from the meshes' faces ("faces") or from each
+        piece's bounding box ("box"), :func:`rfmitsuba.rf.images.scene_image_maps`.
+    init_through: initial gain of a blocked path relative to its clear gain.
     """
 
     init: Literal["auto", "room", "data"] = "auto"
@@ -136,6 +148,9 @@ class CoherentGaussianConfig:
     init_extent: float = 5.0
     init_reflection: float = 0.5
     scatterer_gain: float = 0.2
+    ray_visibility: bool = True
+    furniture_planes: Literal["faces", "box"] = "faces"
+    init_through: float = 0.0
 
     def __post_init__(self) -> None:
         if self.init not in ("auto", "room", "data"):
@@ -154,8 +169,12 @@ class CoherentGaussianConfig:
                 and self.room_scan_radius_deg > 0):
             raise ConfigError("CoherentGaussianConfig: scan_step > 0, scan_margin >= 0, init_extent > 0 and scan radii "
                               "> 0 required")
-        if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0):
-            raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1] and scatterer_gain > 0 required")
+        if self.furniture_planes not in ("faces", "box"):
+            raise ConfigError(f"CoherentGaussianConfig.furniture_planes must be 'faces' or 'box', got "
+                              f"{self.furniture_planes!r}")
+        if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0 and 0 <= self.init_through <= 1):
+            raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1], scatterer_gain > 0 and init_through "
+                              "in [0, 1] required")
 
 
 # ------------------------------------------------------------------------------ initialisation
@@ -349,6 +368,9 @@ class CoherentGaussianField(FlatParameterField):
         vis_center: float [3] initial visibility centre (the moving positions' centre) [m].
         frequency_hz: carrier [Hz]; seed, name: as the other fields.
         params: stored parameters (name -> float32 array) instead of the initial ones.
+        planes: float [S, O, 4] each image's reflection planes (:attr:`rfmitsuba.rf.images.ImageMaps.planes`)
+            and scene_xml: the room; with both (and ``cfg.ray_visibility``), the images' visibility is ray-cast
+            (:class:`~rfmitsuba.sim.visibility.SpecularVisibility`) and ``img_through`` is learned.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -359,7 +381,7 @@ class CoherentGaussianField(FlatParameterField):
     def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
                  readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,
                  name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0,
-                 init: str | None = None):
+                 init: str | None = None, planes: np.ndarray | None = None, scene_xml: str | Path | None = None):
         B.ensure()
         self.A = np.asarray(A, np.float64).reshape(-1, 3, 3)
         self.order = np.asarray(order, np.int64).reshape(-1)
@@ -382,6 +404,21 @@ class CoherentGaussianField(FlatParameterField):
         sc = np.asarray(scatterers, np.float64).reshape(-1, 3)
         S, P = len(self.A), len(sc)
         self.num_images, self.num_scatterers = S, P
+        self.planes = self.scene_xml = self._vis = None
+        if planes is not None and scene_xml is not None and cfg.ray_visibility:
+            from ..sim.visibility import SpecularVisibility
+
+            self.planes = np.asarray(planes, np.float64)
+            if self.planes.ndim != 3 or self.planes.shape[0] != S or self.planes.shape[2] != 4 \
+                    or self.order.max() > self.planes.shape[1]:
+                raise ConfigError(f"CoherentGaussianField: planes must be [S={S}, O >= max order, 4], "
+                                  f"got {self.planes.shape}")
+            self.scene_xml = str(scene_xml)
+            if not Path(self.scene_xml).is_file():
+                raise RunError(f"CoherentGaussianField: the room's XML {self.scene_xml} (ray-cast visibility) is missing")
+            self._vis = SpecularVisibility.from_xml(self.scene_xml)
+            #: (x, y) rows already cast -> (exists, clear) bool [S]
+            self._vis_cache: dict = {}
         if params is None:
             a = cfg.init_reflection ** self.order.astype(np.float64)
             params = {"img_offset": np.zeros(S * 3), "img_amp": np.stack([a, np.zeros(S)], 1).ravel(),
@@ -390,6 +427,8 @@ class CoherentGaussianField(FlatParameterField):
                       "vis_center": np.tile(np.asarray(vis_center, np.float64).reshape(3), S + P),
                       "vis_log_extent": np.full(S + P, np.log(cfg.init_extent)),
                       "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
+            if self._vis is not None:
+                params["img_through"] = cfg.init_through * params["img_amp"]
         self.params: dict = {}
         self.load_state_dict(params)
 
@@ -423,7 +462,8 @@ class CoherentGaussianField(FlatParameterField):
             from ..sim.geometry import RoomGeometry
 
             maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
-                                    furniture_order=c.furniture_order, min_face_area=c.min_face_area)
+                                    furniture_order=c.furniture_order, min_face_area=c.min_face_area,
+                                    distinct_paths=c.ray_visibility, furniture_planes=c.furniture_planes)
             A, order = maps.A, maps.order
             b0 = maps.b
         found = scan(pas, x, y, images=0 if init == "room" else c.images,
@@ -441,16 +481,21 @@ class CoherentGaussianField(FlatParameterField):
             scale = float(np.median(l1 * l2 / np.maximum(np.linalg.norm(y - x, axis=-1), 1e-3)[:, None]))
         else:
             scale = 1.0
+        ray = init == "room" and c.ray_visibility
         f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
-                frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init)
+                frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
+                planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None)
         f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
         return f
 
     # ---- parameters ------------------------------------------------------------------------
     def _sizes(self) -> dict:
         S, P = self.num_images, self.num_scatterers
-        return {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
-                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
+        out = {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
+               "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
+        if self._vis is not None:
+            out["img_through"] = S * 2
+        return out
 
     @property
     def num_primitives(self) -> int:
@@ -467,7 +512,10 @@ class CoherentGaussianField(FlatParameterField):
         out = {k: np.array(v.numpy(), np.float32, copy=True) for k, v in self.params.items()}
         out["geometry.A"] = self.A.copy()
         out["geometry.order"] = self.order.copy()
+        if self.planes is not None:
+            out["geometry.planes"] = self.planes.copy()
         out["meta"] = np.asarray(json.dumps({
+            "scene_xml": self.scene_xml,
             "format": FORMAT, "config": to_dict(self.cfg), "readout": self.readout, "wavefront": self.wavefront,
             "frequency_hz": self.frequency_hz, "seed": self.seed, "name": self.name, "frozen": self.frozen,
             "scatterer_scale": self.scatterer_scale, "init": self.init}))
@@ -484,7 +532,8 @@ class CoherentGaussianField(FlatParameterField):
                     cfg=from_dict(CoherentGaussianConfig, meta["config"]), readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
                     seed=meta["seed"], name=meta.get("name", "bg"), params=state,
-                    scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"))
+                    scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"),
+                    planes=state.get("geometry.planes"), scene_xml=meta.get("scene_xml"))
         except KeyError as e:
             raise RunError(f"CoherentGaussianField state lacks {e}") from None
         if meta.get("frozen"):
@@ -516,8 +565,33 @@ class CoherentGaussianField(FlatParameterField):
         R = np.eye(3) if views.rx_to_world is None else np.asarray(views.rx_to_world, np.float64).reshape(3, 3)
         e_world = antenna.element_positions(self.frequency_hz) @ R.T          # [16, 3] world offsets
         kw = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
-        return {"nb": len(x), "x": x, "y": y, "q": q, "kw": kw,
-                "cols": {"x": _columns(x), "y": _columns(y), "q": _columns(q), "e": _columns(e_world)}}
+        out = {"nb": len(x), "x": x, "y": y, "q": q, "kw": kw,
+               "cols": {"x": _columns(x), "y": _columns(y), "q": _columns(q), "e": _columns(e_world)}}
+        if self._vis is not None:
+            exists, clear = self.visibility(x, y)
+            out["vis"] = (B.Float(exists.astype(np.float32).ravel()), B.Float(clear.astype(np.float32).ravel()))
+        return out
+
+    def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ray-cast (exists, clear) bool [B, S] of every image path for array centres ``x`` and
+        transmitters ``y`` (float [B, 3] m); all True without a known room. Views already cast
+        are remembered (training revisits the same positions)."""
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        if self._vis is None:
+            full = np.ones((len(x), self.num_images), bool)
+            return full, full
+        keys = [np.concatenate([a, b]).tobytes() for a, b in zip(x, y)]
+        todo = sorted({i for i, k in enumerate(keys) if k not in self._vis_cache}, key=lambda i: keys[i])
+        seen = {}
+        for i in todo:
+            seen.setdefault(keys[i], i)
+        if seen:
+            idx = np.array(list(seen.values()))
+            ex, cl = self._vis(x[idx], y[idx], self.planes, self.order)
+            for j, k in enumerate(seen):
+                self._vis_cache[k] = (ex[j], cl[j])
+        return (np.stack([self._vis_cache[k][0] for k in keys]), np.stack([self._vis_cache[k][1] for k in keys]))
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,
@@ -545,7 +619,7 @@ class CoherentGaussianField(FlatParameterField):
         el = [cen[i] + r[i] for i in range(3)]
         return {"K": K, "k": k, "b": b, "m": m, "x": xb, "y": yb, "q": qb, "r": r, "cen": cen, "el": el}
 
-    def _sources(self, ln: dict, group: str) -> tuple:
+    def _sources(self, prep: dict, ln: dict, group: str) -> tuple:
         """The background's sources of ``group`` ("img" or "sc") on lanes ``ln``: (source point s
         [3 Float] m, first-leg length ``lead`` [m] (0 for an image), spreading factor besides the
         last leg ``spread0``, gain (re, im), visibility window ``w(q)``)."""
@@ -561,17 +635,25 @@ class CoherentGaussianField(FlatParameterField):
             amp = self.params["img_amp"]
             lead = 0.0
             spread0 = 1.0
+            ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
+            if "vis" in prep:   # ray-cast: absent paths drop out, blocked ones take the through gain
+                lane = ln["b"] * self.num_images + k
+                ex, cl = (dr.gather(B.Float, v, lane) for v in prep["vis"])
+                th = self.params["img_through"]
+                tr, ti = dr.gather(B.Float, th, 2 * k), dr.gather(B.Float, th, 2 * k + 1)
+                ar, ai = cl * ar + (ex - cl) * tr, cl * ai + (ex - cl) * ti
         else:
             pos = self.params["sc_pos"]
             s = [dr.gather(B.Float, pos, 3 * k + i) for i in range(3)]
             amp = self.params["sc_amp"]
             lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
             spread0 = lead
+            ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
         vc = self.params["vis_center"]
         d2 = sum((qb[i] - dr.gather(B.Float, vc, 3 * gi_ + i)) ** 2 for i in range(3))
         ext = dr.exp(dr.gather(B.Float, self.params["vis_log_extent"], gi_))
         win = dr.exp(-0.5 * d2 / (ext * ext))
-        return s, lead, spread0, dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1), win
+        return s, lead, spread0, ar, ai, win
 
     def _propagate(self, prep: dict, ln: dict, s, lead, spread0, ar, ai, win) -> tuple:
         """Sum over the lanes' sources of ``(ar + j ai) * win * exp(-j k (L + lead)) / (L spread0)``,
@@ -600,7 +682,7 @@ class CoherentGaussianField(FlatParameterField):
             if K == 0:
                 continue
             ln = self._lanes(prep, K)
-            s, lead, spread0, ar, ai, win = self._sources(ln, group)
+            s, lead, spread0, ar, ai, win = self._sources(prep, ln, group)
             if weight is not None:
                 win = win * weight(group, ln, s)
             cr, ci = self._propagate(prep, ln, s, lead, spread0, ar, ai, win)

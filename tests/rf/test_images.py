@@ -94,3 +94,36 @@ def test_every_sionna_path_in_a_box_comes_from_an_image(box_room, variant):
         first = np.flatnonzero(m.order <= 1)
         found = np.degrees(np.arccos(np.clip(cos[:, first].max(axis=0), -1, 1)))
         assert found.max() < 0.2, f"a first-order image has no Sionna path at position {j}"
+
+
+def test_distinct_paths_keep_both_orders_of_perpendicular_planes():
+    """With ``distinct_paths`` every plane sequence is its own image (30 ordered pairs at order 2),
+    and each image lists its planes in the order the path meets them."""
+    m = images.image_maps(images.box_planes(LO, HI), room_order=2, furniture_order=0, distinct_paths=True)
+    assert np.bincount(m.order).tolist() == [1, 6, 30]
+    assert m.planes.shape == (37, 2, 4) and np.isnan(m.planes[0]).all() and np.isnan(m.planes[1, 1]).all()
+    i = m.label.index("x=0.00|z=2.60")
+    np.testing.assert_allclose(m.planes[i], [[1, 0, 0, 0.0], [0, 0, 1, 2.6]])
+    # the composed map is the second plane's mirror after the first's
+    (A1, b1), (A2, b2) = (images.Plane(tuple(p[:3]), p[3], "").matrix() for p in m.planes[i])
+    np.testing.assert_allclose(m.A[i], A2 @ A1)
+    np.testing.assert_allclose(m.b[i], A2 @ b1 + b2)
+    back = images.ImageMaps.from_arrays(m.to_arrays())
+    np.testing.assert_array_equal(back.planes, m.planes)
+
+
+def test_face_planes_of_a_box_and_a_bed():
+    """A box gives its six faces; a bed-like mesh (a frame box and a lower mattress box) also
+    gives the mattress top, and planes smaller than ``min_area`` are left out."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(2.0, 1.0, 0.5), transform=trimesh.transformations.translation_matrix((1, 0.5, 0.25)))
+    got = {p.name: p for p in images.face_planes(box.vertices, box.faces, min_area=0.1)}
+    assert set(got) == {"x=0.00", "x=2.00", "y=0.00", "y=1.00", "z=0.00", "z=0.50"}
+    assert got["z=0.50"].normal == (0.0, 0.0, 1.0) and got["z=0.00"].normal == (0.0, 0.0, -1.0)
+    mat = trimesh.creation.box(extents=(1.8, 0.8, 0.1), transform=trimesh.transformations.translation_matrix((1, 0.5, 0.35)))
+    both = trimesh.util.concatenate([box, mat])
+    names = [p.name for p in images.face_planes(both.vertices, both.faces, min_area=0.6)]
+    assert "z=0.40" in names and "y=0.00" in names and "x=0.00" not in names   # x faces: 0.5 m^2
+    with pytest.raises(ConfigError, match="furniture_planes"):
+        images.scene_image_maps(None, furniture_planes="hull")

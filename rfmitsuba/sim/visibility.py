@@ -1,0 +1,208 @@
+"""Which specular paths of a known room exist, by Mitsuba ray casts in the project's Dr.Jit JIT.
+
+An image source (:mod:`rfmitsuba.rf.images`) stands for the specular path that reflects off the
+planes ``P_1 ... P_n`` between a transmitter ``y`` and a receiver ``x``. Whether that path exists
+for a pair of positions is a question of the room's finite geometry, which the image map alone
+does not answer. :class:`SpecularVisibility` answers it the way a ray tracer does:
+
+1. **Reflection points** (:func:`reflection_points`, NumPy): the images ``y_j`` of ``y`` after
+   the first ``j`` reflections; then backwards from the receiver, the point ``p_n`` where the
+   segment ``y_n -> x`` crosses plane ``P_n``, ``p_{n-1}`` where ``y_{n-1} -> p_n`` crosses
+   ``P_{n-1}``, and so on. A segment that does not cross its plane (both ends on one side)
+   means no specular path: the image is not *valid*.
+2. **Ray casts** (Mitsuba ``Scene.ray_intersect_preliminary`` on the room's meshes, one batched
+   call): along every leg ``y -> p_1 -> ... -> p_n -> x`` the first hit must not come before
+   the leg's end (else the leg is *blocked*: something stands across it), and a short probe ray
+   towards each reflection point must hit a surface there (else the plane has no face at that
+   point: a wall ends, a door is open, a furniture face is smaller than its plane). A surface
+   within ``flush`` of the plane (measured along its normal) counts as the plane's face: a bed
+   standing 1 cm from a wall reflects as the wall does, and the image maps leave out faces
+   flush with a room plane for that reason (:func:`rfmitsuba.rf.images.scene_image_maps`).
+
+The result per (view, image) is ``exists`` (valid, and every reflection point lies on a real
+face) and ``clear`` (exists, and no leg is blocked). A path that exists but is blocked may still
+carry power through what blocks it (Sionna's refraction through thin objects); the coherent
+Gaussian field gives such paths a gain of their own.
+
+Positions are metres; the receiver is the array centre (Sionna's synthetic array traces from
+there too). All rays in one call; the scene is built once from the room's meshes
+(:func:`rfmitsuba.data.scene_xml.read_shapes`), without materials.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.errors import ConfigError
+
+
+def reflection_points(x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The reflection points of every image's specular path (the image method, backwards).
+
+    Args:
+        x: float [B, 3] receivers [m]; y: float [B, 3] transmitters [m].
+        planes: float [S, O, 4] each image's planes (unit normal, offset [m]) in the order the
+            path meets them from the transmitter; rows past ``order`` are ignored (may be NaN).
+        order: int [S] reflections per image (0: the direct path).
+    Returns:
+        (points float64 [B, S, O, 3] m, NaN past each image's order; valid bool [B, S]: every
+        segment crossed its plane, so the specular path is geometrically possible).
+    """
+    x = np.asarray(x, np.float64).reshape(-1, 3)
+    y = np.asarray(y, np.float64).reshape(-1, 3)
+    planes = np.asarray(planes, np.float64)
+    order = np.asarray(order, np.int64).reshape(-1)
+    if x.shape != y.shape or planes.ndim != 3 or planes.shape[2] != 4 or planes.shape[0] != len(order):
+        raise ConfigError(f"reflection_points: x {x.shape} and y {y.shape} must be [B, 3], planes [S, O, 4] and "
+                          f"order [S]; got planes {planes.shape}, order {order.shape}")
+    if len(order) and (order.min() < 0 or order.max() > planes.shape[1]):
+        raise ConfigError(f"reflection_points: orders must lie in 0..{planes.shape[1]}, got {order.min()}..{order.max()}")
+    nb, S, O = len(x), planes.shape[0], planes.shape[1]
+    pl = np.nan_to_num(planes)
+    img = np.empty((nb, S, O + 1, 3))
+    img[:, :, 0] = y[:, None, :]
+    for j in range(O):                                   # y_j: the image after the first j reflections
+        n, d = pl[:, j, :3], pl[:, j, 3]
+        prev = img[:, :, j]
+        sd = np.einsum("bsk,sk->bs", prev, n) - d
+        img[:, :, j + 1] = np.where((j < order)[None, :, None], prev - 2.0 * sd[..., None] * n, prev)
+    pts = np.full((nb, S, O, 3), np.nan)
+    valid = np.ones((nb, S), bool)
+    t = np.repeat(x[:, None, :], S, 1)
+    for j in reversed(range(O)):
+        act = (j < order)[None, :]
+        n, d = pl[:, j, :3], pl[:, j, 3]
+        yj = img[:, :, j + 1]
+        sa = np.einsum("bsk,sk->bs", yj, n) - d
+        sb = np.einsum("bsk,sk->bs", t, n) - d
+        cross = sa * sb < 0.0
+        lam = np.where(cross, sa / np.where(cross, sa - sb, 1.0), 0.0)
+        p = yj + lam[..., None] * (t - yj)
+        pts[:, :, j] = np.where(act[..., None], p, np.nan)
+        valid &= np.where(act, cross, True)
+        t = np.where(act[..., None], p, t)
+    return pts, valid
+
+
+class SpecularVisibility:
+    """Ray-cast existence and blockage of image-source paths in one room (module docstring).
+
+    Args:
+        meshes: the room's triangle meshes in world coordinates [m] (``trimesh.Trimesh``, or
+            anything with ``vertices`` [V, 3] and ``faces`` [F, 3]).
+        tol: distance tolerance of the hit tests [m]: a leg counts as blocked when its first
+            hit comes more than ``tol`` before its end (and, for a leg that ends on a plane, more
+            than ``flush`` from that plane).
+        flush: a surface this close to a reflection plane, along its normal, is that plane's face [m].
+        probe: length of the probe ray that ends at each reflection point [m]; the probe must hit
+            a surface before it passes the plane by ``tol``.
+        rounds: how many surfaces within ``flush`` of the plane a leg starts on are looked past
+            (a panel on a wall has a front and a back).
+    """
+
+    def __init__(self, meshes, *, tol: float = 0.02, flush: float = 0.05, probe: float = 0.05, rounds: int = 3):
+        if not meshes:
+            raise ConfigError("SpecularVisibility needs at least one mesh")
+        if not (tol > 0 and flush > 0 and probe > tol):
+            raise ConfigError(f"SpecularVisibility: tol > 0, flush > 0 and probe > tol required, got tol {tol}, "
+                              f"flush {flush}, probe {probe}")
+        B.ensure()
+        import mitsuba as mi
+
+        self.tol, self.flush, self.probe, self.rounds = float(tol), float(flush), float(probe), int(rounds)
+        desc = {"type": "scene"}
+        for i, m in enumerate(meshes):
+            v = np.asarray(m.vertices, np.float32).reshape(-1, 3)
+            f = np.asarray(m.faces, np.uint32).reshape(-1, 3)
+            if not len(f) or not np.isfinite(v).all():
+                raise ConfigError(f"SpecularVisibility: mesh {i} has no faces or non-finite vertices")
+            mesh = mi.Mesh(f"shape{i}", vertex_count=len(v), face_count=len(f), has_vertex_normals=False,
+                           has_vertex_texcoords=False)
+            p = mi.traverse(mesh)
+            p["vertex_positions"] = mi.Float(v.ravel())
+            p["faces"] = mi.UInt32(f.ravel())
+            p.update()
+            desc[f"shape{i}"] = mesh
+        self.scene = mi.load_dict(desc)
+
+    @classmethod
+    def from_xml(cls, xml_path: str | Path, **kw) -> "SpecularVisibility":
+        """The room of a Mitsuba scene XML (every shape; SceneError names a bad file)."""
+        from ..data.scene_xml import read_shapes
+
+        return cls([s.mesh for s in read_shapes(xml_path)], **kw)
+
+    def first_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """Distance to the first surface along each ray: float [R, 3] origins [m] and unit
+        directions -> float64 [R] metres (inf where the ray leaves the scene)."""
+        import mitsuba as mi
+
+        if len(origin) == 0:
+            return np.zeros(0)
+        o = np.ascontiguousarray(np.asarray(origin, np.float32).T)
+        d = np.ascontiguousarray(np.asarray(direction, np.float32).T)
+        pi = self.scene.ray_intersect_preliminary(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d)))
+        t = np.asarray(pi.t.numpy(), np.float64)
+        return np.where(np.isfinite(t), t, np.inf)
+
+    def __call__(self, x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """(exists, clear), both bool [B, S], for receivers ``x`` and transmitters ``y`` (float
+        [B, 3] m) and the images' ``planes`` [S, O, 4] / ``order`` [S] (:func:`reflection_points`)."""
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise ConfigError("SpecularVisibility: positions must be finite")
+        order = np.asarray(order, np.int64).reshape(-1)
+        refl, valid = reflection_points(x, y, planes, order)
+        nb, S, O = refl.shape[:3]
+        pts = np.empty((nb, S, O + 2, 3))
+        pts[:, :, 0] = y[:, None, :]
+        pts[:, :, 1:O + 1] = refl
+        pts[:, np.arange(S), order + 1] = x[:, None, :]
+        leg = np.arange(O + 1)
+        active = (leg[None, :] <= order[:, None])[None] & valid[..., None]          # [B, S, O+1]
+        ends_on_face = (leg[None, :] < order[:, None])[None] & active
+        a, b = pts[:, :, :-1], pts[:, :, 1:]
+        seg = np.where(active[..., None], b - a, 1.0)
+        L = np.linalg.norm(seg, axis=-1)
+        u = seg / np.maximum(L, 1e-12)[..., None]
+        eps = 1e-3
+        # legs: from just past the start towards the end; probes: the last ``probe`` metres before a face
+        hp = np.minimum(self.probe, 0.5 * L)
+        t = self.first_hits(np.concatenate([(a + eps * u)[active], (b - hp[..., None] * u)[ends_on_face]]),
+                            np.concatenate([u[active], u[ends_on_face]]))
+        n_leg = int(active.sum())
+        t_leg = np.full(active.shape, np.inf)
+        t_leg[active] = eps + t[:n_leg]
+        t_probe = np.full(active.shape, np.nan)
+        t_probe[ends_on_face] = t[n_leg:]
+        # A hit within ``flush`` of the plane a leg starts on is that plane's own face (a panel
+        # on the wall it left): look past it, up to ``rounds`` times. A hit within ``flush`` of
+        # the plane it ends on is the face it reflects off.
+        pl = np.nan_to_num(np.asarray(planes, np.float64))
+        zero = np.zeros((S, 1, 4))
+        end_pl = np.concatenate([pl, zero], 1)[:, :O + 1]
+        start_pl = np.concatenate([zero, pl], 1)[:, :O + 1]
+        starts_on_face = (leg >= 1)[None, None, :] & active
+
+        def off(side):
+            hit = a + np.where(np.isfinite(t_leg), t_leg, 0.0)[..., None] * u
+            return np.abs(np.einsum("bsok,sok->bso", hit, side[..., :3]) - side[None, ..., 3])
+
+        for _ in range(self.rounds):
+            again = starts_on_face & np.isfinite(t_leg) & (t_leg < L - self.tol) & (off(start_pl) <= self.flush) \
+                & ~(ends_on_face & (off(end_pl) <= self.flush))
+            if not again.any():
+                break
+            t2 = self.first_hits((a + (t_leg + eps)[..., None] * u)[again], u[again])
+            t_leg[again] = t_leg[again] + eps + t2
+        near_end = ends_on_face & (off(end_pl) <= self.flush)
+        blocked = active & (t_leg < L - self.tol) & ~near_end
+        on_face = ~ends_on_face | (t_probe <= hp + self.tol)
+        exists = valid & on_face.all(-1)
+        clear = exists & ~blocked.any(-1)
+        return exists, clear
