@@ -37,7 +37,9 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   exists for a view, and whether something stands across it, is decided by Mitsuba ray casts
   in the room's meshes (:class:`rfmitsuba.sim.visibility.SpecularVisibility`, the same JIT):
   a path that does not exist contributes nothing, a blocked one contributes with its own
-  complex gain ``img_through`` (what passes through the obstacle), a clear one with ``img_amp``;
+  complex gain ``img_through`` (what passes through the obstacle), a clear one with ``img_amp +
+  img_slope * (c - 1/2)``, where ``c`` is the mean ``|cos|`` of the path's angles of incidence
+  (a reflection coefficient changes with the angle: Fresnel);
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
@@ -52,6 +54,7 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``img_offset``     S*3           m           means
 ``img_amp``        S*2 (re, im)  1           amp
 ``img_through``    S*2           1           amp  (known room with ray-cast visibility only)
+``img_slope``      S*2           1           amp  (known room with ray-cast visibility only)
 ``sc_pos``         P*3           m           means
 ``sc_amp``         P*2           1           amp
 ``vis_center``     (S+P)*3       m           means
@@ -84,7 +87,8 @@ from .coherent import _columns, _write_points_ply
 FORMAT = "rfmitsuba-coherent-gaussians/1"
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
-LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "sc_pos": "means", "sc_amp": "amp",
+LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp", "sc_pos": "means",
+             "sc_amp": "amp",
              "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "rotations"}
 
 
@@ -429,6 +433,7 @@ class CoherentGaussianField(FlatParameterField):
                       "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
             if self._vis is not None:
                 params["img_through"] = cfg.init_through * params["img_amp"]
+                params["img_slope"] = np.zeros(S * 2)
         self.params: dict = {}
         self.load_state_dict(params)
 
@@ -494,7 +499,7 @@ class CoherentGaussianField(FlatParameterField):
         out = {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
         if self._vis is not None:
-            out["img_through"] = S * 2
+            out["img_through"] = out["img_slope"] = S * 2
         return out
 
     @property
@@ -568,19 +573,20 @@ class CoherentGaussianField(FlatParameterField):
         out = {"nb": len(x), "x": x, "y": y, "q": q, "kw": kw,
                "cols": {"x": _columns(x), "y": _columns(y), "q": _columns(q), "e": _columns(e_world)}}
         if self._vis is not None:
-            exists, clear = self.visibility(x, y)
-            out["vis"] = (B.Float(exists.astype(np.float32).ravel()), B.Float(clear.astype(np.float32).ravel()))
+            exists, clear, cos_in = self.visibility(x, y)
+            out["vis"] = tuple(B.Float(np.asarray(v, np.float32).ravel()) for v in (exists, clear, cos_in - 0.5))
         return out
 
-    def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ray-cast (exists, clear) bool [B, S] of every image path for array centres ``x`` and
-        transmitters ``y`` (float [B, 3] m); all True without a known room. Views already cast
-        are remembered (training revisits the same positions)."""
+    def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ray-cast (exists, clear) bool [B, S] and mean incidence ``|cos|`` float [B, S] of every
+        image path for array centres ``x`` and transmitters ``y`` (float [B, 3] m)
+        (:class:`~rfmitsuba.sim.visibility.PathTrace`); all True and 1 without a known room.
+        Views already cast are remembered (training revisits the same positions)."""
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
         if self._vis is None:
             full = np.ones((len(x), self.num_images), bool)
-            return full, full
+            return full, full, np.ones(full.shape)
         keys = [np.concatenate([a, b]).tobytes() for a, b in zip(x, y)]
         todo = sorted({i for i, k in enumerate(keys) if k not in self._vis_cache}, key=lambda i: keys[i])
         seen = {}
@@ -588,10 +594,10 @@ class CoherentGaussianField(FlatParameterField):
             seen.setdefault(keys[i], i)
         if seen:
             idx = np.array(list(seen.values()))
-            ex, cl = self._vis(x[idx], y[idx], self.planes, self.order)
+            tr = self._vis.trace(x[idx], y[idx], self.planes, self.order)
             for j, k in enumerate(seen):
-                self._vis_cache[k] = (ex[j], cl[j])
-        return (np.stack([self._vis_cache[k][0] for k in keys]), np.stack([self._vis_cache[k][1] for k in keys]))
+                self._vis_cache[k] = (tr.exists[j], tr.clear[j], tr.cos_incidence[j])
+        return tuple(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(3))
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,
@@ -638,9 +644,11 @@ class CoherentGaussianField(FlatParameterField):
             ar, ai = dr.gather(B.Float, amp, 2 * k), dr.gather(B.Float, amp, 2 * k + 1)
             if "vis" in prep:   # ray-cast: absent paths drop out, blocked ones take the through gain
                 lane = ln["b"] * self.num_images + k
-                ex, cl = (dr.gather(B.Float, v, lane) for v in prep["vis"])
-                th = self.params["img_through"]
+                ex, cl, c = (dr.gather(B.Float, v, lane) for v in prep["vis"])
+                th, sl = self.params["img_through"], self.params["img_slope"]
                 tr, ti = dr.gather(B.Float, th, 2 * k), dr.gather(B.Float, th, 2 * k + 1)
+                ar = ar + c * dr.gather(B.Float, sl, 2 * k)
+                ai = ai + c * dr.gather(B.Float, sl, 2 * k + 1)
                 ar, ai = cl * ar + (ex - cl) * tr, cl * ai + (ex - cl) * ti
         else:
             pos = self.params["sc_pos"]

@@ -31,6 +31,7 @@ there too). All rays in one call; the scene is built once from the room's meshes
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -85,6 +86,20 @@ def reflection_points(x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: n
         valid &= np.where(act, cross, True)
         t = np.where(act[..., None], p, t)
     return pts, valid
+
+
+class PathTrace(NamedTuple):
+    """What :meth:`SpecularVisibility.trace` finds for B views and S images (arrays [B, S]).
+
+    exists: bool, the specular path is valid and every reflection point lies on a face;
+    clear: bool, it exists and nothing stands across it;
+    cos_incidence: float64, the mean over its reflections of ``|cos|`` of the angle between the
+    incoming leg and the plane's normal (1 at normal incidence; 1 for the direct path).
+    """
+
+    exists: np.ndarray
+    clear: np.ndarray
+    cos_incidence: np.ndarray
 
 
 class SpecularVisibility:
@@ -152,6 +167,11 @@ class SpecularVisibility:
                  ) -> tuple[np.ndarray, np.ndarray]:
         """(exists, clear), both bool [B, S], for receivers ``x`` and transmitters ``y`` (float
         [B, 3] m) and the images' ``planes`` [S, O, 4] / ``order`` [S] (:func:`reflection_points`)."""
+        tr = self.trace(x, y, planes, order)
+        return tr.exists, tr.clear
+
+    def trace(self, x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray) -> PathTrace:
+        """:class:`PathTrace` of every image for every view (arguments as :meth:`__call__`)."""
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
@@ -205,4 +225,7 @@ class SpecularVisibility:
         on_face = ~ends_on_face | (t_probe <= hp + self.tol)
         exists = valid & on_face.all(-1)
         clear = exists & ~blocked.any(-1)
-        return exists, clear
+        cos_in = np.abs(np.einsum("bsok,sok->bso", u, end_pl[..., :3]))       # incoming leg . the plane it ends on
+        cos_in = np.where(ends_on_face, cos_in, 0.0).sum(-1) / np.maximum(order, 1)[None, :]
+        cos_in = np.where(order[None, :] == 0, 1.0, cos_in)
+        return PathTrace(exists, clear, cos_in)

@@ -278,7 +278,7 @@ def _room_field(**cfg):
                               scene_xml=xml, init="room")
     f.params["img_offset"] = B.Float(maps.b.ravel().astype(np.float32))
     rng = np.random.default_rng(0)
-    for k in ("img_amp", "img_through", "cal"):
+    for k in ("img_amp", "img_through", "img_slope", "cal"):
         if k not in f.params:
             continue
         a = np.asarray(f.params[k].numpy(), np.float64)
@@ -296,8 +296,9 @@ def test_known_room_visibility_and_through_gain_gradients():
     from rfmitsuba.core import backend as B
 
     f, views = _room_field()
-    ex, cl = f.visibility(views.view_pos, views.transmitter)
+    ex, cl, cos_in = f.visibility(views.view_pos, views.transmitter)
     assert (ex & ~cl).any() and cl.any() and (~ex).any()
+    assert np.all((cos_in >= 0) & (cos_in <= 1)) and np.all(cos_in[:, f.order == 0] == 1)
     assert "img_through" in f.parameters()
     rng = np.random.default_rng(2)
     n = 16 * views.count
@@ -308,12 +309,12 @@ def test_known_room_visibility_and_through_gain_gradients():
         hr, hi = f.channels(views)
         return [hr * c_re, hi * c_im]
 
-    for name in ("img_through", "img_amp"):
+    for name in ("img_through", "img_slope", "img_amp"):
         r = fd_check(loss, f.parameters(), name, count=3, top=3, rel_eps=1e-2, min_scale=1.0, seed=4)
         assert len(r.index) >= 3 and r.ok(5e-2, 3e-2), r.report()
     h0 = [np.asarray(v.numpy()) for v in f.channels(views)]
     never = ~ex.any(0)                                                    # images no view sees
-    for k in ("img_amp", "img_through"):
+    for k in ("img_amp", "img_through", "img_slope"):
         a = np.asarray(f.params[k].numpy()).reshape(-1, 2)
         a[never] = 0.0
         f.params[k] = B.Float(a.ravel())

@@ -127,3 +127,12 @@ def test_a_leg_leaving_a_flush_panel_still_sees_what_stands_further_on():
     assert ex[0, 1] and cl[0, 1]
     ex, cl = _vis(panel, pillar)(x, y, m.planes, m.order)
     assert ex[0, 1] and not cl[0, 1]
+
+
+def test_incidence_cosine_closed_form():
+    """Floor bounce between (1, 1.5, 1) and (3, 1.5, 1): the path meets the floor at 45 degrees
+    (cos = 1/sqrt 2); the direct path reports 1."""
+    m = _planes(Plane((0.0, 0.0, 1.0), 0.0, "floor"))
+    tr = _vis().trace(np.array([[3.0, 1.5, 1.0]]), np.array([[1.0, 1.5, 1.0]]), m.planes, m.order)
+    assert tr.exists.all() and tr.clear.all()
+    np.testing.assert_allclose(tr.cos_incidence[0], [1.0, 2 ** -0.5], atol=1e-9)
