@@ -60,7 +60,7 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``vis_center``     (S+P)*3       m           means
 ``vis_log_extent`` S+P           log m       log_scales
 ``cal``            16*2          1           amp
-``pose``           6             rad, m      rotations
+``pose``           6             rad, m      means (decays: the array settles)
 =================  ============  ==========  ==========
 
 All are differentiable (tests/models/test_coherent_gaussians.py checks each against finite
@@ -89,7 +89,7 @@ FORMAT = "rfmitsuba-coherent-gaussians/1"
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp", "sc_pos": "means",
              "sc_amp": "amp",
-             "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "rotations"}
+             "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "means"}
 
 
 @dataclass
@@ -346,6 +346,19 @@ def compose_images(A: np.ndarray, b: np.ndarray, *, max_order: int) -> tuple[np.
 
 # ------------------------------------------------------------------------------ the field
 
+def _builtin_scene(xml: str) -> str:
+    """The built-in scene a missing XML path names (a run saved in another checkout), else RunError."""
+    from ..scenes import path as scene_path
+
+    try:
+        found = Path(scene_path(Path(xml).stem))
+    except Exception:  # noqa: BLE001 - not a built-in scene's name
+        found = None
+    if found is None or found.name != Path(xml).name or not found.is_file():
+        raise RunError(f"CoherentGaussianField: the room's XML {xml} (ray-cast visibility) is missing")
+    return str(found)
+
+
 def _rodrigues(w0, w1, w2, v0, v1, v2):
     """Rotate vectors ``v`` by the rotation vector ``w`` (Dr.Jit arrays, broadcast)."""
     import drjit as dr
@@ -419,7 +432,7 @@ class CoherentGaussianField(FlatParameterField):
                                   f"got {self.planes.shape}")
             self.scene_xml = str(scene_xml)
             if not Path(self.scene_xml).is_file():
-                raise RunError(f"CoherentGaussianField: the room's XML {self.scene_xml} (ray-cast visibility) is missing")
+                self.scene_xml = _builtin_scene(self.scene_xml)
             self._vis = SpecularVisibility.from_xml(self.scene_xml)
             #: (x, y) rows already cast -> (exists, clear) bool [S]
             self._vis_cache: dict = {}

@@ -342,5 +342,8 @@ def test_known_room_state_round_trip(tmp_path):
     st["meta"] = np.asarray(json.dumps(meta))
     with pytest.raises(RunError, match="gone.xml"):
         CoherentGaussianField.from_state_dict(st)
+    meta["scene_xml"] = str(tmp_path / "elsewhere" / "bedroom.xml")     # a checkout moved: the built-in room
+    st["meta"] = np.asarray(json.dumps(meta))
+    assert CoherentGaussianField.from_state_dict(st).scene_xml == f.scene_xml
     off = _room_field(ray_visibility=False)[0]                          # the config turns it off
     assert off.scene_xml is None and "img_through" not in off.parameters()
