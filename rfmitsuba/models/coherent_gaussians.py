@@ -39,7 +39,8 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   a path that does not exist contributes nothing, a blocked one contributes with its own
   complex gain ``img_through`` (what passes through the obstacle), a clear one with ``img_amp +
   img_slope * (c - 1/2)``, where ``c`` is the mean ``|cos|`` of the path's angles of incidence
-  (a reflection coefficient changes with the angle: Fresnel);
+  (a reflection coefficient changes with the angle: Fresnel). Images whose path exists at no
+  training position are left out;
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
@@ -80,7 +81,7 @@ from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
-from ..rf.images import scene_image_maps
+from ..rf.images import ImageMaps, scene_image_maps
 from .base import FlatParameterField, Views, register
 from .coherent import _columns, _write_points_ply
 
@@ -482,6 +483,14 @@ class CoherentGaussianField(FlatParameterField):
             maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
                                     furniture_order=c.furniture_order, min_face_area=c.min_face_area,
                                     distinct_paths=c.ray_visibility, furniture_planes=c.furniture_planes)
+            if c.ray_visibility:
+                # parsimony: an image whose path exists at no training position has no gradient
+                from ..sim.visibility import SpecularVisibility
+
+                seen = SpecularVisibility.from_xml(scene_xml)(x, y, maps.planes, maps.order)[0].any(0)
+                seen[maps.order == 0] = True
+                maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
+                                 label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
             A, order = maps.A, maps.order
             b0 = maps.b
         found = scan(pas, x, y, images=0 if init == "room" else c.images,

@@ -347,3 +347,32 @@ def test_known_room_state_round_trip(tmp_path):
     assert CoherentGaussianField.from_state_dict(st).scene_xml == f.scene_xml
     off = _room_field(ray_visibility=False)[0]                          # the config turns it off
     assert off.scene_xml is None and "img_through" not in off.parameters()
+
+
+def test_known_room_keeps_only_images_seen_in_training():
+    """for_training on a known room: the images whose path exists at no training position are
+    left out (parsimony), the direct path always stays, and every kept image is seen somewhere."""
+    from types import SimpleNamespace
+
+    from rfmitsuba.core import config as C
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
+    from rfmitsuba.rf.images import scene_image_maps
+    from rfmitsuba.scenes import path as scene_path
+    from rfmitsuba.sim.geometry import RoomGeometry
+    from rfmitsuba.train.config import TrainConfig
+
+    xml = scene_path("bedroom")
+    rng = np.random.default_rng(0)
+    q = np.c_[rng.uniform(1.0, 2.2, 12), rng.uniform(2.2, 2.8, 12), rng.uniform(1.0, 1.6, 12)]
+    y = np.tile([0.3, 0.3, 2.0], (12, 1))
+    data = SimpleNamespace(path="stub", train=np.arange(12), rx_to_world=None, frequency_hz=F, measured=False,
+                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
+                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
+    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.room_scatterers=0",
+                                     "coherent_gaussians.room_order=1"])
+    f = CoherentGaussianField.for_training(cfg, data, scene_xml=xml)
+    every = scene_image_maps(RoomGeometry.from_xml(xml), room_order=1, furniture_order=1, distinct_paths=True,
+                             furniture_planes="faces")
+    ex, _, _ = f.visibility(q, y)
+    assert 1 < f.num_images < len(every) and f.order[0] == 0
+    assert ex[:, 1:].any(0).all()
