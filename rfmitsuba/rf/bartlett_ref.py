@@ -23,6 +23,7 @@ because its measured phases have the opposite sign to Sionna's channel; applied 
 from __future__ import annotations
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..core.errors import ConfigError
 from . import array as antenna
@@ -74,9 +75,13 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     el, _ = angle_grid(resolution_deg=resolution_deg)
     out = np.empty((h.shape[0], *el.shape), np.float32)
     hc = h.astype(np.complex64)
-    for s in range(0, h.shape[0], batch):
-        blk = B @ hc[s:s + batch].T  # [pixels, 16] x [16, k]
-        out[s:s + batch] = np.abs(blk).T.reshape(-1, *el.shape)
+    # one BLAS thread: OpenBLAS may take another kernel path with another thread count, which
+    # changes the last float bit; Dask workers run with one, so a dataset state is bit-identical
+    # whichever process made it (tests/core/test_cluster.py)
+    with threadpool_limits(limits=1, user_api="blas"):
+        for s in range(0, h.shape[0], batch):
+            blk = B @ hc[s:s + batch].T  # [pixels, 16] x [16, k]
+            out[s:s + batch] = np.abs(blk).T.reshape(-1, *el.shape)
     return out
 
 
