@@ -131,6 +131,8 @@ class CoherentGaussianConfig:
     furniture_planes: known room: furniture planes from the meshes' faces ("faces") or from each
         piece's bounding box ("box"), :func:`rfmitsuba.rf.images.scene_image_maps`.
     init_through: initial gain of a blocked path relative to its clear gain.
+    prune_unseen: leave out the images whose ray-cast path exists at no training position.
+    incidence_slope: learn ``img_slope`` (False: it stays 0).
     """
 
     init: Literal["auto", "room", "data"] = "auto"
@@ -156,6 +158,8 @@ class CoherentGaussianConfig:
     ray_visibility: bool = True
     furniture_planes: Literal["faces", "box"] = "faces"
     init_through: float = 0.0
+    prune_unseen: bool = True
+    incidence_slope: bool = True
 
     def __post_init__(self) -> None:
         if self.init not in ("auto", "room", "data"):
@@ -483,7 +487,7 @@ class CoherentGaussianField(FlatParameterField):
             maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
                                     furniture_order=c.furniture_order, min_face_area=c.min_face_area,
                                     distinct_paths=c.ray_visibility, furniture_planes=c.furniture_planes)
-            if c.ray_visibility:
+            if c.ray_visibility and c.prune_unseen:
                 # parsimony: an image whose path exists at no training position has no gradient
                 from ..sim.visibility import SpecularVisibility
 
@@ -532,7 +536,8 @@ class CoherentGaussianField(FlatParameterField):
     def trainable(self) -> dict:
         out = super().trainable()  # no scatterers: no empty arrays
         drop = ([] if self.cfg.calibrate else ["cal"]) + ([] if self.cfg.learn_pose else ["pose"]) \
-            + ([] if self.cfg.visibility else ["vis_center", "vis_log_extent"])
+            + ([] if self.cfg.visibility else ["vis_center", "vis_log_extent"]) \
+            + ([] if self.cfg.incidence_slope else ["img_slope"])
         return {k: v for k, v in out.items() if k not in drop}
 
     def state_dict(self) -> dict:

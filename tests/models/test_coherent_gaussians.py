@@ -347,6 +347,8 @@ def test_known_room_state_round_trip(tmp_path):
     assert CoherentGaussianField.from_state_dict(st).scene_xml == f.scene_xml
     off = _room_field(ray_visibility=False)[0]                          # the config turns it off
     assert off.scene_xml is None and "img_through" not in off.parameters()
+    flat = _room_field(incidence_slope=False)[0]                        # img_slope kept at 0, not trained
+    assert "img_slope" in flat.parameters() and "img_slope" not in flat.trainable()
 
 
 def test_known_room_keeps_only_images_seen_in_training():

@@ -63,3 +63,25 @@ def test_a_candidate_that_diverges_is_left_out(tmp_path, monkeypatch):
                               quiet=True)
     choice = json.loads((tmp_path / "run" / "select" / "choice.json").read_text())
     assert cfg.model == "splat" and "nan" in choice["refused"]["coherent_gaussians"]
+
+
+def test_a_known_room_also_tries_the_field_without_ray_casts(tmp_path):
+    """Where the dataset names its room, the coherent Gaussian field is a candidate twice (with
+    and without ray-cast visibility); without a room, or with the casts turned off, once."""
+    from types import SimpleNamespace
+
+    from rfmitsuba.core import config as C
+    from rfmitsuba.train import select
+    from rfmitsuba.train.config import TrainConfig
+
+    cfg = TrainConfig()
+    known, blind = SimpleNamespace(scene_xml="room.xml"), SimpleNamespace(scene_xml=None)
+    assert select.candidates(cfg, known) == ["coherent_gaussians", select.WINDOWS, "splat"]
+    assert select.candidates(cfg, blind) == list(select.AUTO_KINDS)
+    given = C.override(cfg, ['scene="bedroom"'])                         # --set scene=... gives a folder its room
+    assert select.WINDOWS in select.candidates(given, blind)
+    off = C.override(cfg, ["coherent_gaussians.ray_visibility=false"])
+    assert select.WINDOWS not in select.candidates(off, known)
+    w = select.candidate_config(cfg, select.WINDOWS)
+    assert w.model == "coherent_gaussians" and w.coherent_gaussians.ray_visibility is False
+    assert select.candidate_config(cfg, "splat").model == "splat"
