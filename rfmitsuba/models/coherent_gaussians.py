@@ -89,8 +89,7 @@ FORMAT = "rfmitsuba-coherent-gaussians/1"
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp", "sc_pos": "means",
-             "sc_amp": "amp",
-             "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "means"}
+             "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "means"}
 
 
 @dataclass
@@ -392,7 +391,8 @@ class CoherentGaussianField(FlatParameterField):
         params: stored parameters (name -> float32 array) instead of the initial ones.
         planes: float [S, O, 4] each image's reflection planes (:attr:`rfmitsuba.rf.images.ImageMaps.planes`)
             and scene_xml: the room; with both (and ``cfg.ray_visibility``), the images' visibility is ray-cast
-            (:class:`~rfmitsuba.sim.visibility.SpecularVisibility`) and ``img_through`` is learned.
+            (:class:`~rfmitsuba.sim.visibility.SpecularVisibility`) and ``img_through`` and
+            ``img_slope`` are learned.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -439,7 +439,7 @@ class CoherentGaussianField(FlatParameterField):
             if not Path(self.scene_xml).is_file():
                 self.scene_xml = _builtin_scene(self.scene_xml)
             self._vis = SpecularVisibility.from_xml(self.scene_xml)
-            #: (x, y) rows already cast -> (exists, clear) bool [S]
+            #: (x, y) rows already cast -> (exists bool [S], clear bool [S], cos_incidence float [S])
             self._vis_cache: dict = {}
         if params is None:
             a = cfg.init_reflection ** self.order.astype(np.float64)
