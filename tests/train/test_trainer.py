@@ -302,16 +302,17 @@ def empty_bedroom(tmp_path_factory, variant):
     return gen.generate(tmp_path_factory.mktemp("empty_bedroom") / "ds", cfg, quiet=True).path
 
 
-def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bedroom, tmp_path):
+def test_coherent_model_learns_the_bedroom_and_beats_nearest_neighbour(empty_bedroom, tmp_path, one_thread):
     """The coherent image-source model on Sionna data (bedroom, 240 training positions): after 400
     steps (8 views each) its held-out SSIM is above the nearest-neighbour floor, and the run folder
     has the field, the sources as PLY and a summary.
 
-    Measured (2 cores): model 0.755 / nearest neighbour 0.696 / mean image 0.632 mean SSIM, by
-    ``rfmitsuba train DS --set model=coherent --set iterations=400 --set batch_views=8
-    --set coherent.room_order=2 --set coherent.furniture_order=1`` on the fixture's dataset. (With
-    80 training positions the model does not beat nearest neighbour: it has more parameters than
-    80 PAS constrain.)"""
+    Measured on one Dr.Jit thread (this test, deterministic: on two threads the sums run in no
+    fixed order and runs differ by up to 0.03, which this test's margin is): model 0.753 / nearest
+    neighbour 0.696 / mean image 0.537 mean SSIM, the settings of ``rfmitsuba train DS --set
+    model=coherent --set iterations=400 --set batch_views=8 --set coherent.room_order=2 --set
+    coherent.furniture_order=1`` on the fixture's dataset. (With 80 training positions the model
+    does not beat nearest neighbour: it has more parameters than 80 PAS constrain.)"""
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.eval.run import evaluate_run
     from rfmitsuba.models.splat import read_ply
