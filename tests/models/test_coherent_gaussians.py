@@ -378,3 +378,14 @@ def test_known_room_keeps_only_images_seen_in_training():
     ex, _, _ = f.visibility(q, y)
     assert 1 < f.num_images < len(every) and f.order[0] == 0
     assert ex[:, 1:].any(0).all()
+
+
+def test_pose_schedule_decays_in_a_known_room_only():
+    """The array pose trains on the decaying "means" schedule where the room is known, on the
+    constant "rotations" rate from a data scan; every other parameter's group is the table's."""
+    from rfmitsuba.models.coherent_gaussians import LR_GROUPS
+
+    known, scanned = _room_field()[0], _field()
+    assert known.init == "room" and known.lr_group("pose") == "means"
+    assert scanned.init != "room" and scanned.lr_group("pose") == "rotations"
+    assert all(scanned.lr_group(k) == LR_GROUPS[k] for k in LR_GROUPS if k != "pose")
