@@ -625,14 +625,14 @@ class CoherentGaussianField(FlatParameterField):
             full = np.ones((len(x), self.num_images), bool)
             return full, full, np.ones(full.shape)
         keys = [np.concatenate([a, b]).tobytes() for a, b in zip(x, y)]
-        todo = sorted({i for i, k in enumerate(keys) if k not in self._vis_cache}, key=lambda i: keys[i])
-        seen = {}
-        for i in todo:
-            seen.setdefault(keys[i], i)
-        if seen:
-            idx = np.array(list(seen.values()))
+        missing: dict = {}                               # key -> first row index, each uncast view once
+        for i, k in enumerate(keys):
+            if k not in self._vis_cache:
+                missing.setdefault(k, i)
+        if missing:
+            idx = np.array(list(missing.values()))
             tr = self._vis.trace(x[idx], y[idx], self.planes, self.order)
-            for j, k in enumerate(seen):
+            for j, k in enumerate(missing):
                 self._vis_cache[k] = (tr.exists[j], tr.clear[j], tr.cos_incidence[j])
         return tuple(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(3))
 

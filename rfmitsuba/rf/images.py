@@ -213,9 +213,10 @@ def scene_image_maps(geometry, *, room_order: int = 2, furniture_order: int = 2,
     furniture's planes with at least ``min_face_area`` (m^2) of face each: the faces of each
     piece's axis-aligned box (``furniture_planes = "box"``) or the planes its mesh's triangles
     lie in (``"faces"``: also inner surfaces such as a mattress below a bed's frame, slanted
-    faces, and doors and windows set back from their wall; :func:`face_planes`). Faces within 5 cm of a room plane, parallel to it, are left out
-    (the room plane's image stands for them), and so, for ``"faces"``, are faces within 5 cm of
-    a furniture plane already kept. ``distinct_paths`` as :func:`image_maps`."""
+    faces, and doors and windows set back from their wall; :func:`face_planes`). Faces within 5 cm
+    of a room plane, parallel to it, are left out (the room plane's image stands for them), and
+    so, for ``"faces"``, are faces within 5 cm of a furniture plane already kept.
+    ``distinct_paths`` as :func:`image_maps`."""
     if furniture_planes not in ("box", "faces"):
         raise ConfigError(f"furniture_planes must be 'box' or 'faces', got {furniture_planes!r}")
     lo, hi = geometry.bounds

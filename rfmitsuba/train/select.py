@@ -8,8 +8,9 @@ the training positions and keeps the one with the best validation SSIM (validati
 are training positions; test positions are never seen). Where the dataset names its room, the
 coherent Gaussian field is tried twice: with ray-cast visibility (its default) and with its
 Gaussian visibility windows alone (:data:`WINDOWS`): the casts fit a room's shadows, the windows
-extrapolate more smoothly beyond the training positions (NeRF2-like, known room, block split:
-0.801 against 0.915 with the windows alone), and validation decides. The trial runs stay in ``RUN/select/``
+extrapolate more smoothly beyond the training positions (NeRF2-like, known room, block split, 3
+seeds: 0.801 against 0.916 with the windows alone), and validation decides (it may not see such
+a difference: README, *Status*). The trial runs stay in ``RUN/select/``
 with ``choice.json``; the chosen field then trains with the full budget into ``RUN`` itself,
 whose ``config.toml`` names it. The same command resumes at any point, and a finished choice
 is not made again.
@@ -47,7 +48,7 @@ def candidates(cfg, data: TrainData) -> list[str]:
     the field would cast visibility."""
     names = list(AUTO_KINDS)
     c = cfg.coherent_gaussians
-    known = bool(getattr(cfg, "scene", "")) or data.scene_xml is not None    # the trainer's room: cfg.scene first
+    known = bool(cfg.scene) or data.scene_xml is not None    # the trainer's room: cfg.scene first
     if "coherent_gaussians" in names and known and c.ray_visibility and c.init != "data":
         names.insert(names.index("coherent_gaussians") + 1, WINDOWS)
     return names
