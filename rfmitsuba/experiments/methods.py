@@ -11,6 +11,8 @@ continued           the baseline trained longer (same data)                     
 duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
 baseline_human      one field on empty + human-present data, no human position        n1 + n2
 end_to_end          one field on empty + human-present data, human position as input  n1 + n2
+                    (coherent Gaussian family: background + person field trained together,
+                    :mod:`rfmitsuba.models.coherent_gaussians_joint`)
 ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
                     Gaussians (:mod:`rfmitsuba.models.splat_person`) on the human-present data
 ==================  ================================================================  ===========
@@ -139,16 +141,20 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
                                    noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
 
 
-def check_method(name: str, model: str) -> None:
-    """ConfigError when method ``name`` cannot train Stage-1 field kind ``model``: End-to-End (and
-    any single field with the person's position as input) needs a network that takes it, and the
-    coherent Gaussian field has none (its person is Ours' Stage-2 field)."""
-    m = get_method(name)
-    if m.human_input and not m.two_stage and model == "coherent_gaussians":
-        raise ConfigError(f"method {name!r} trains one field with the person's position as a network input; the "
-                          "coherent Gaussian field (model 'coherent_gaussians') has no network to take it. Its "
-                          "person is Ours' Stage-2 field (coherent_gaussians_person): leave this method out, or "
-                          "use model 'coherent' or 'splat'")
+def joint_field(mcfg: MethodConfig):
+    """End-to-End in the coherent Gaussian family: (field factory for the Trainer, extra-input
+    width, features(data, idx)) of :class:`~rfmitsuba.models.coherent_gaussians_joint.CoherentGaussianJointField`,
+    the background and Ours' Stage-2 person field (``mcfg.coherent_gaussians_human``) trained together."""
+    from ..models.coherent_gaussians_joint import CoherentGaussianJointField
+
+    pcfg = mcfg.coherent_gaussians_human
+    width = num_human_features(pcfg.human_octaves) + 3
+
+    def factory(tr, rng):
+        return CoherentGaussianJointField.for_training(tr.cfg, tr.data, scene_xml=tr.scene_xml(), rng=rng,
+                                                       extra_inputs=width, name=tr.name, person=pcfg)
+
+    return factory, width, lambda data, idx: data.features(idx, octaves=pcfg.human_octaves, raw=True)
 
 
 def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
@@ -185,14 +191,16 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         steps, "val_ssim": final validation SSIM of the last stage, "runs": [run folders]}.
     """
     m = get_method(name)
-    check_method(name, mcfg.stage1.model)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if not m.two_stage:
         data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
         cfg = stage1_config(mcfg, m, seed=seed)
         kw = {}
-        if m.human_input:
+        if m.human_input and cfg.model == "coherent_gaussians":
+            factory, width, feats = joint_field(mcfg)
+            kw = {"extra": lambda idx: feats(data, idx), "extra_inputs": width, "field_factory": factory}
+        elif m.human_input:
             nf = num_human_features(mcfg.human.human_octaves)
             kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves), "extra_inputs": nf}
         s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()

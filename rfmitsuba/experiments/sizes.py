@@ -40,11 +40,13 @@ class DataSize:
 class TrainSize:
     """Training sizes shared by every method.
 
-    model: the Stage-1 field kind, "coherent" (image sources read out by Bartlett,
+    model: the Stage-1 field kind of every method, "coherent_gaussians" (the default, below),
+    "coherent" (image sources read out by Bartlett,
     :mod:`rfmitsuba.models.coherent`; trains at full resolution whatever ``downsample`` says; needs
     a scene, so Sionna data only), "coherent_gaussians" (the coherent Gaussian field,
     :mod:`rfmitsuba.models.coherent_gaussians`, known or unknown room; full resolution too; its
-    Stage 2 is :mod:`rfmitsuba.models.coherent_gaussians_person`; no End-to-End variant) or "splat"
+    Stage 2 is :mod:`rfmitsuba.models.coherent_gaussians_person`, its End-to-End
+    :mod:`rfmitsuba.models.coherent_gaussians_joint`) or "splat"
     (Gaussian splatting, WRF-GS+ style).
     stage1_iterations / stage2_iterations: n1 / n2 optimizer steps; batch_views: PAS per step;
     downsample: training image reduction (splat); num_gaussians / max_gaussians: splat Gaussians
@@ -58,7 +60,7 @@ class TrainSize:
     without a size of its own.
     """
 
-    model: str = "coherent"
+    model: str = "coherent_gaussians"
     stage1_iterations: int = 3000
     stage2_iterations: int = 1500
     downsample: int = 2
@@ -140,12 +142,12 @@ SIZES = {
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
     "demo": ExperimentConfig(
         size="demo", seeds=[0], data=DataSize(positions=300, human_positions=8, samples_per_src=20000),
-        train=TrainSize(stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
+        train=TrainSize(model="coherent", stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
                         max_gaussians=4500, human_gaussians=96, val_every=100, room_order=2, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
     "demo_tiny": ExperimentConfig(
         size="demo_tiny", seeds=[0], data=DataSize(positions=30, human_positions=5, samples_per_src=20000),
-        train=TrainSize(stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
+        train=TrainSize(model="coherent", stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
                         max_gaussians=600, human_gaussians=24, val_every=100, room_order=1, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
 }

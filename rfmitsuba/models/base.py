@@ -17,6 +17,9 @@ member                      meaning
 ``person`` (class)          True for a Stage-2 person field: rendered only where a person is
                             present, its extra inputs are the person's features followed by
                             the feet position in metres
+``position_input`` (class)  a field that is not a person field but takes the same extra inputs
+                            (person features, then the feet position in metres), e.g. the
+                            coherent Gaussian End-to-End model; it is rendered for every sample
 ``name``                    optimizer key prefix (``"bg"``, ``"human"``)
 ``extra_inputs``            number of per-view extra network inputs (0 = none)
 ``feature_octaves``         octaves of the person-position features it was trained with, or None
@@ -170,6 +173,7 @@ class Field:
     family: ClassVar[str]
     format: ClassVar[str]
     person: ClassVar[bool] = False
+    position_input: ClassVar[bool] = False
     densify: ClassVar[bool] = False
     name: str = "bg"
     extra_inputs: int = 0
@@ -317,8 +321,8 @@ class FieldSet:
         fields: fields of one family, the background first; person fields
             (``Field.person``) are rendered only for samples with a person present.
         octaves: octaves of the person-position features of fields with extra inputs that are
-            not person fields (the End-to-End model); person fields use their own
-            ``feature_octaves``.
+            not person fields (the End-to-End model); person fields and fields with
+            ``position_input`` use their own ``feature_octaves``.
     """
 
     def __init__(self, fields: list[Field], *, octaves: int = 3):
@@ -334,8 +338,9 @@ class FieldSet:
 
     def _inputs(self, data, k: np.ndarray):
         def inputs(field: Field):
-            octaves = field.feature_octaves if field.person else self.octaves
-            return data.features(k, octaves=octaves, raw=field.person)
+            raw = field.person or field.position_input
+            octaves = field.feature_octaves if raw else self.octaves
+            return data.features(k, octaves=octaves, raw=raw)
 
         return inputs
 

@@ -86,6 +86,8 @@ from .base import FlatParameterField, Views, register
 from .coherent import _columns, _write_points_ply
 
 FORMAT = "rfmitsuba-coherent-gaussians/1"
+#: most training spectra the initial scan reads (evenly spread over the training samples)
+SCAN_SAMPLES = 1024
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp", "sc_pos": "means",
@@ -470,7 +472,8 @@ class CoherentGaussianField(FlatParameterField):
             extra_inputs: must be 0 (this field takes no per-view network inputs).
         """
         if extra_inputs:
-            raise ConfigError("model 'coherent_gaussians' takes no extra per-view inputs (no End-to-End variant)")
+            raise ConfigError("model 'coherent_gaussians' takes no extra per-view inputs (its End-to-End model is "
+                              "the joint field, rfmitsuba.models.coherent_gaussians_joint)")
         c = cfg.coherent_gaussians
         init = c.init if c.init != "auto" else ("room" if scene_xml is not None else "data")
         if init == "room" and scene_xml is None:
@@ -480,7 +483,11 @@ class CoherentGaussianField(FlatParameterField):
         wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
         idx = np.asarray(data.train, np.int64)
         x, y, q = data.positions(idx)
-        pas = data.pas(idx, d=2)
+        # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many
+        # states, e.g. 720 positions x 30 walk states, would otherwise load 2.8 GB of PAS)
+        scan_idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), SCAN_SAMPLES)).astype(np.int64))]
+        xs, ys, _ = data.positions(scan_idx)
+        pas = data.pas(scan_idx, d=2)
         if init == "room":
             from ..sim.geometry import RoomGeometry
 
@@ -491,13 +498,14 @@ class CoherentGaussianField(FlatParameterField):
                 # parsimony: an image whose path exists at no training position has no gradient
                 from ..sim.visibility import SpecularVisibility
 
-                seen = SpecularVisibility.from_xml(scene_xml)(x, y, maps.planes, maps.order)[0].any(0)
+                xy = np.unique(np.concatenate([x, y], axis=1), axis=0)      # each geometry once
+                seen = SpecularVisibility.from_xml(scene_xml)(xy[:, :3], xy[:, 3:], maps.planes, maps.order)[0].any(0)
                 seen[maps.order == 0] = True
                 maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
                                  label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
             A, order = maps.A, maps.order
             b0 = maps.b
-        found = scan(pas, x, y, images=0 if init == "room" else c.images,
+        found = scan(pas, xs, ys, images=0 if init == "room" else c.images,
                      scatterers=c.room_scatterers if init == "room" else c.scatterers,
                      step=c.scan_step, margin=c.scan_margin, rx_to_world=data.rx_to_world,
                      radius_deg=c.room_scan_radius_deg if init == "room" else c.scan_radius_deg)

@@ -24,18 +24,19 @@ def test_method_config_maps_sizes_and_applies_overrides_last():
     m = method_config(t, scene_known=False)
     assert m.stage1.field.num_gaussians == 99 and m.human.num_gaussians == 7 and m.coherent_human.num_points == 3
     assert m.stage1.field.init == "random" and m.stage1.downsample == 5
-    c = method_config(TrainSize(room_order=1, furniture_order=0))
+    assert TrainSize().model == "coherent_gaussians"
+    c = method_config(TrainSize(model="coherent", room_order=1, furniture_order=0))
     assert c.stage1.downsample == 1 and c.stage1.coherent.room_order == 1 and c.stage1.coherent.furniture_order == 0
     assert c.stage1.optim.lr_net == pytest.approx(3e-3) and c.stage2_optim.lr_amp == pytest.approx(3e-3)
     with pytest.raises(ConfigError, match="needs datasets with a scene"):
-        method_config(TrainSize(), scene_known=False)
+        method_config(TrainSize(model="coherent"), scene_known=False)
     with pytest.raises(ConfigError, match="unknown size"):
         size_config("huge")
 
 
 def test_coherent_gaussians_size_known_and_unknown_room():
-    """train.model = "coherent_gaussians": full resolution, known room or not; End-to-End refused
-    by name (the field has no network for the person's position), Ours and Baseline accepted."""
+    """train.model = "coherent_gaussians": full resolution, known room or not; every method
+    accepted (End-to-End trains the joint field), an unknown one named."""
     from rfmitsuba.experiments.compare import CompareConfig
 
     for known in (True, False):
@@ -43,8 +44,9 @@ def test_coherent_gaussians_size_known_and_unknown_room():
                           scene_known=known)
         assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == 1
         assert m.coherent_gaussians_human.num_points == 4
-    with pytest.raises(ConfigError, match="'end_to_end'.*no network"):
-        CompareConfig(train=TrainSize(model="coherent_gaussians"))
+    assert CompareConfig(train=TrainSize(model="coherent_gaussians")).methods == ["baseline", "end_to_end", "ours"]
+    with pytest.raises(ConfigError, match="unknown method 'e2e'"):
+        CompareConfig(methods=["e2e"], train=TrainSize(model="coherent_gaussians"))
     assert CompareConfig(methods=["baseline", "ours"], train=TrainSize(model="coherent_gaussians")).methods
     with pytest.raises(ConfigError, match="coherent_gaussians"):
         TrainSize(model="gaussians")

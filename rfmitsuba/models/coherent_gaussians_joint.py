@@ -1,0 +1,211 @@
+"""The End-to-End model of the coherent Gaussian family: one field, background and person trained
+together in a single stage on person-present data, the person's position as its input.
+
+It is the paper's End-to-End comparison (a single-stage model trained on human-present data with
+the human location as a direct input) built from the same two parts as Ours, so that the
+comparison isolates the training strategy and nothing else:
+
+* the background, a :class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField`
+  (image sources, scatterers, calibration, pose), **trainable**;
+* the person, a :class:`~rfmitsuba.models.coherent_gaussians_person.CoherentGaussianPersonField`
+  on that same background (body scatterers and blockage of the background's paths), also
+  trainable.
+
+Ours trains the first on the empty room, freezes it and trains the second on the walk; this field
+trains both at once on every sample, empty room and walk alike. Its channels are the background's
+plus, where a person is present, the person field's change::
+
+    h = h_bg + present * (h_bg,blocked - h_bg + h_scatterers)
+
+``present`` is the presence flag of the person features (1 with a person, 0 in the empty room,
+:func:`rfmitsuba.data.samples.human_features`), so an empty-room view renders the background alone.
+
+Parameters: the background's, named ``room.<name>``, and the person field's, named
+``person.<name>``, each in its own part's optimizer group (the module tables of
+:mod:`~rfmitsuba.models.coherent_gaussians` and
+:mod:`~rfmitsuba.models.coherent_gaussians_person` give units). All are differentiable;
+tests/models/test_coherent_gaussians_joint.py checks both parts against finite differences.
+
+Per-view input ``extra``: float [B, F + 3], the person features (F =
+``num_human_features(human_octaves)``, presence flag last) followed by the feet position [m],
+as for the person field (:attr:`Field.position_input`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+
+from ..core import backend as B
+from ..core.config import from_dict
+from ..core.errors import ConfigError, RunError
+from .base import Field, Views, register
+from .coherent_gaussians import CoherentGaussianField
+from .coherent_gaussians_person import CoherentGaussianPersonConfig, CoherentGaussianPersonField
+
+FORMAT = "rfmitsuba-coherent-gaussians-joint/1"
+#: parameter name prefixes of the two parts
+ROOM, PERSON = "room.", "person."
+
+
+@register
+class CoherentGaussianJointField(Field):
+    """Background and person trained together (see the module docstring).
+
+    Args:
+        bg: the background field (trainable; its ``name`` is ignored).
+        person: a person field on ``bg`` (``person.bg is bg``).
+        name: optimizer key prefix.
+    """
+
+    kind = "coherent_gaussians_joint"
+    family = "coherent_gaussians"
+    format = FORMAT
+    position_input = True
+
+    def __init__(self, bg: CoherentGaussianField, person: CoherentGaussianPersonField, *, name: str = "bg"):
+        if not isinstance(bg, CoherentGaussianField) or not isinstance(person, CoherentGaussianPersonField):
+            raise ConfigError("the joint coherent Gaussian field needs a coherent_gaussians background and a "
+                              f"coherent_gaussians_person field, got {type(bg).__name__} and {type(person).__name__}")
+        if person.bg is not bg:
+            raise ConfigError("the joint coherent Gaussian field's person field must be built on its background")
+        self.bg, self.person_field = bg, person
+        self.readout, self.frequency_hz = bg.readout, bg.frequency_hz
+        self.extra_inputs = person.extra_inputs
+        self.name = name
+        self.frozen = False
+
+    @classmethod
+    def for_training(cls, cfg, data, *, scene_xml=None, rng: np.random.Generator | None = None,
+                     extra_inputs: int = 0, name: str = "bg",
+                     person: CoherentGaussianPersonConfig | None = None) -> "CoherentGaussianJointField":
+        """The initial joint field: the background as Stage 1 starts it
+        (:meth:`CoherentGaussianField.for_training` on ``data``'s training samples) and a fresh
+        person field on it (:meth:`CoherentGaussianPersonField.for_background`, config ``person``).
+
+        ``extra_inputs``: 0, or the person field's width (features + 3); anything else is a
+        ConfigError naming both."""
+        bg = CoherentGaussianField.for_training(cfg, data, scene_xml=scene_xml, rng=rng, name=name)
+        pf = CoherentGaussianPersonField.for_background(bg, cfg=person, seed=cfg.seed)
+        if extra_inputs and extra_inputs != pf.extra_inputs:
+            raise ConfigError(f"joint coherent Gaussian field: {extra_inputs} extra inputs given, its person field "
+                              f"takes {pf.extra_inputs} (features with {pf.cfg.human_octaves} octaves + position)")
+        return cls(bg, pf, name=name)
+
+    # ---- parameters ------------------------------------------------------------------------
+    @property
+    def feature_octaves(self) -> int:
+        return self.person_field.cfg.human_octaves
+
+    @property
+    def num_primitives(self) -> int:
+        """Background sources plus body scatterers."""
+        return self.bg.num_primitives + self.person_field.num_primitives
+
+    @property
+    def num_parameters(self) -> int:
+        return self.bg.num_parameters + self.person_field.num_parameters
+
+    @property
+    def network_parameters(self) -> int:
+        return 0
+
+    def _parts(self):
+        return ((ROOM, self.bg), (PERSON, self.person_field))
+
+    def parameters(self) -> dict:
+        return {p + k: v for p, f in self._parts() for k, v in f.parameters().items()}
+
+    def trainable(self) -> dict:
+        if self.frozen:
+            return {}
+        return {p + k: v for p, f in self._parts() for k, v in f.trainable().items()}
+
+    def _split(self, name: str):
+        for p, f in self._parts():
+            if name.startswith(p):
+                return f, name[len(p):]
+        raise ConfigError(f"CoherentGaussianJointField has no parameter {name!r} (names start with "
+                          f"{ROOM!r} or {PERSON!r})")
+
+    def lr_group(self, name: str) -> str:
+        """The optimizer group of parameter ``name``: its part's own group."""
+        f, k = self._split(name)
+        return f.lr_group(k)
+
+    def assign(self, values: dict) -> None:
+        for name, v in values.items():
+            f, k = self._split(name)
+            f.assign({k: v})
+
+    def freeze(self) -> None:
+        self.frozen = True
+        self.bg.freeze()
+        self.person_field.freeze()
+
+    # ---- state -------------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        out = {ROOM + k: v for k, v in self.bg.state_dict().items()}
+        out.update({PERSON + k: v for k, v in self.person_field.state_dict().items() if not k.startswith("bg.")})
+        out["meta"] = np.asarray(json.dumps({"format": FORMAT, "name": self.name, "frozen": self.frozen}))
+        return out
+
+    def load_state_dict(self, state: dict) -> None:
+        self.bg.load_state_dict({k[len(ROOM):]: v for k, v in state.items() if k.startswith(ROOM)})
+        self.person_field.load_state_dict({k[len(PERSON):]: v for k, v in state.items() if k.startswith(PERSON)})
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> "CoherentGaussianJointField":
+        try:
+            meta = json.loads(str(state["meta"]))
+            if meta.get("format") != FORMAT:
+                raise RunError(f"not a CoherentGaussianJointField state (format {meta.get('format')!r})")
+            bg = CoherentGaussianField.from_state_dict({k[len(ROOM):]: v for k, v in state.items()
+                                                        if k.startswith(ROOM)})
+            pst = {k[len(PERSON):]: v for k, v in state.items() if k.startswith(PERSON)}
+            pmeta = json.loads(str(pst["meta"]))
+            pf = CoherentGaussianPersonField(bg, cfg=from_dict(CoherentGaussianPersonConfig, pmeta["config"]),
+                                             reference_amplitude=pmeta["reference_amplitude"], seed=pmeta["seed"],
+                                             name=pmeta.get("name", "human"), params=pst)
+        except KeyError as e:
+            raise RunError(f"CoherentGaussianJointField state lacks {e}") from None
+        f = cls(bg, pf, name=meta.get("name", "bg"))
+        if meta.get("frozen"):
+            f.freeze()
+        return f
+
+    # ---- evaluation --------------------------------------------------------------------------
+    def presence(self, views: Views) -> np.ndarray:
+        """1 where a person is present in a view, 0 in the empty room: float32 [B] (the presence
+        flag, the last person feature; ConfigError on missing or misshapen inputs)."""
+        e = views.extra(self)
+        if e is None or np.shape(e) != (views.count, self.extra_inputs):
+            raise ConfigError(f"joint coherent Gaussian field: extra inputs must be [B, {self.extra_inputs}] "
+                              f"(person features, then the feet position in metres) for B = {views.count} views, "
+                              f"got {None if e is None else np.shape(e)}")
+        return (np.asarray(e, np.float32)[:, self.extra_inputs - 4] > 0.5).astype(np.float32)
+
+    def channels(self, views: Views) -> tuple:
+        """Calibrated channels at the 16 elements (see the module docstring): (re, im) ``Float``
+        [B*16], differentiable in both parts' parameters."""
+        from ..rf import array as antenna
+
+        hr, hi = self.bg.channels(views)
+        present = self.presence(views)
+        if not present.any():
+            return hr, hi
+        e = np.asarray(views.extra(self), np.float32)
+        pv = dataclasses.replace(views, inputs=lambda field: e)
+        dr_, di = self.person_field.channels(pv)
+        m = B.Float(np.repeat(present, antenna.NUM_ELEMENTS))
+        return hr + m * dr_, hi + m * di
+
+    @classmethod
+    def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
+        """As :meth:`CoherentGaussianField.render_family` (channels summed, one Bartlett read-out)."""
+        return CoherentGaussianField.render_family(fields, views, height=height, width=width, normalize=normalize)
+
+    def export_ply(self, folder, *, views: Views) -> list:
+        """The background's ``sources.ply`` (the body's scatterers move with the person)."""
+        return self.bg.export_ply(folder, views=views)
