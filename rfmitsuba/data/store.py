@@ -321,11 +321,20 @@ def config_diff(a: Any, b: Any, prefix: str = "") -> str | None:
     return None
 
 
+def _without_location(meta: dict) -> dict:
+    """``meta`` without where the scene file lies (``scene.file``): the scene is identified by its
+    name and content hashes, so one dataset resumes from another checkout or machine."""
+    out = dict(meta)
+    if isinstance(out.get("scene"), dict):
+        out["scene"] = {k: v for k, v in out["scene"].items() if k != "file"}
+    return out
+
+
 def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, split: Split) -> Path:
     """Create the dataset folder (meta, split, antenna positions), or check an existing one matches.
 
     An existing ``meta.json`` of another configuration raises DatasetError naming
-    the first differing key; nothing is overwritten then. A folder holding
+    the first differing key (the scene file's location does not count); nothing is overwritten then. A folder holding
     other files but no ``meta.json`` is refused too.
     """
     root = Path(path)
@@ -336,7 +345,7 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
             old = json.loads(meta_file.read_text())
         except ValueError as e:
             raise DatasetError(f"{meta_file}: not valid JSON ({e}); refusing to overwrite") from None
-        key = config_diff(old, meta)
+        key = config_diff(_without_location(old), _without_location(meta))
         if key is not None:
             raise DatasetError(f"{root} holds a dataset of another configuration: key {key!r} differs; "
                                "nothing was overwritten (choose another --out)")

@@ -14,13 +14,15 @@ from .sizes import DatasetSpec
 @dataclass(frozen=True)
 class Job:
     """One training + evaluation: dataset, method, seed, noise SNR (None = clean), training
-    antenna positions (0 = all)."""
+    antenna positions (0 = all), and the dataset it is evaluated on (None = the one it trains on;
+    the Rx-count table trains on extra empty-room positions and tests on the main dataset)."""
 
     dataset: DatasetSpec
     method: str
     seed: int
     snr_db: float | None = None
     positions: int = 0
+    eval_dataset: DatasetSpec | None = None
 
     @property
     def key(self) -> str:
@@ -29,6 +31,8 @@ class Job:
             k += f"_snr{self.snr_db:g}"
         if self.positions:
             k += f"_n{self.positions}"
+        if self.eval_dataset is not None:
+            k += f"_on_{self.eval_dataset.key}"
         return k
 
     def folder(self, out: Path) -> Path:
@@ -38,6 +42,8 @@ class Job:
         return dataclasses.replace(self, method="baseline")
 
     def record(self) -> dict:
+        """What the job's metrics are filed under (``eval_dataset`` only when it is not ``dataset``)."""
         return {"dataset": self.dataset.key, "scene": self.dataset.scene, "task": self.dataset.task,
                 "material": self.dataset.material, "method": self.method, "seed": self.seed,
-                "snr_db": "none" if self.snr_db is None else float(self.snr_db), "positions": self.positions}
+                "snr_db": "none" if self.snr_db is None else float(self.snr_db), "positions": self.positions,
+                **({"eval_dataset": self.eval_dataset.key} if self.eval_dataset is not None else {})}

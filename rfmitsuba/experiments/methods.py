@@ -260,9 +260,9 @@ def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
 
 def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
             noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
-            reevaluate: bool = False, quiet: bool = True) -> dict:
-    """Train method ``name`` into ``job_dir``, evaluate it, and mark the job done; or return the
-    metrics of a job done before.
+            reevaluate: bool = False, quiet: bool = True, eval_dataset: str | Path | None = None) -> dict:
+    """Train method ``name`` into ``job_dir``, evaluate it (on ``eval_dataset``, default
+    ``dataset``), and mark the job done; or return the metrics of a job done before.
 
     The job folder holds the training runs (:func:`train_method`), ``metrics.json`` (written
     atomically) and then the ``DONE`` marker: a job with a marker is not trained again, so a
@@ -284,13 +284,13 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     if (jd / "DONE").is_file():
         metrics = json.loads((jd / "metrics.json").read_text())
         if reevaluate:
-            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), dataset)
+            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset)
             _write_json(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                       train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
-    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), dataset)
+    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     _write_json(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")

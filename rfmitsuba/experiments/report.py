@@ -38,6 +38,13 @@ def _model_line(cfg) -> str:
         return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.models.coherent`): "
                 "training images 90x360, one source per image of each room, Stage 2 of kind "
                 f"`{method_config(cfg.train, scene_known=cfg.source == 'sionna').coherent_human.kind}`")
+    if t.model == "coherent_gaussians":
+        m = method_config(cfg.train, scene_known=cfg.source == "sionna")
+        return ("Coherent Gaussian field (`rfmitsuba.models.coherent_gaussians`: image sources of the room "
+                "with ray-cast visibility where the room is known, else found by the data scan, plus scatterers, "
+                "read out by Bartlett): training images 90x360; Stage 2 the person field "
+                f"(`coherent_gaussians_person`, {m.coherent_gaussians_human.num_points} body scatterers + blockage); "
+                "End-to-End the joint field (`coherent_gaussians_joint`)")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
             f"background Gaussians, {t.human_gaussians} human Gaussians")
 

@@ -2,7 +2,8 @@
 
 :func:`reproduce` runs an :class:`ExperimentConfig` into an output folder::
 
-    OUT/experiment.toml     the configuration (another configuration here -> RunError)
+    OUT/experiment.toml     the configuration; a later run into OUT must keep its size, source,
+                            data and train (else RunError) and may add seeds, rooms, tables, ...
     OUT/data/<dataset>/     generated datasets (unless --data points elsewhere)
     OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>]/
         job.toml            what the job is (checked on resume)
@@ -57,8 +58,16 @@ def all_jobs(cfg: ExperimentConfig) -> list[Job]:
 
 
 def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
+    """Where the dataset of ``spec`` lives: ``data_dir/<key>_<source>_<positions>x<walk positions>``."""
     d = cfg.data
+    if spec.static_positions:
+        return Path(data_dir) / f"{spec.key}_{cfg.source}_{spec.static_positions}x0"
     return Path(data_dir) / f"{spec.key}_{cfg.source}_{d.positions}x{d.human_positions}"
+
+
+#: position seed of the Rx-count table's empty-room datasets (added to the main dataset's seed):
+#: other positions in the same room
+STATIC_SEED_OFFSET = 1000
 
 
 def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True) -> Path:
@@ -66,19 +75,23 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
     path = dataset_path(spec, cfg, data_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
     d = cfg.data
+    positions, walk = (spec.static_positions, 0) if spec.static_positions else (d.positions, d.human_positions)
     if cfg.source == "synthetic":
         if not (path / "meta.json").is_file():
             from ..sim import synthetic
 
+            # the seed draws the synthetic scene first, so the static dataset keeps it and differs
+            # in its antenna positions by their count (and in the 2 walk states, which it ignores)
             seed = {"tissue": 0, "metal": 1, "concrete": 2}.get(spec.material, 3) + (10 if spec.task == "tx" else 0)
-            synthetic.make_dataset(path, antennas=d.positions, humans=d.human_positions, seed=seed, task=spec.task)
+            synthetic.make_dataset(path, antennas=positions, humans=max(walk, 2), seed=seed, task=spec.task)
         return path
     from ..sim import generate as gen
     from ..sim.simulate import SolverConfig
 
     solver = SolverConfig(samples_per_src=d.samples_per_src) if d.samples_per_src else None
-    gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=d.positions, human_positions=d.human_positions,
-                            material=spec.material, seed=data_seed(spec.scene, d.human_positions), solver=solver)
+    seed = data_seed(spec.scene, d.human_positions) + (STATIC_SEED_OFFSET if spec.static_positions else 0)
+    gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=positions, human_positions=walk,
+                            material=spec.material, seed=seed, solver=solver)
     gen.generate(path, gcfg, quiet=quiet)
     return path
 
@@ -105,12 +118,18 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
     raise PlacementError(f"no clear walk of {human_positions} positions in {scene} for seeds 0..{tries - 1}")
 
 
+#: what every job's content depends on; the other keys of an ExperimentConfig only choose jobs, so
+#: a later run into the same folder may add seeds, rooms, tables, ... (done jobs are reused)
+SHARED_KEYS = ("size", "source", "data", "train")
+
+
 def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
 
     f = out / "experiment.toml"
     if f.is_file():
         have = C.to_dict(C.load(ExperimentConfig, f))
-        diff = config_diff(have, C.to_dict(cfg))
+        want = C.to_dict(cfg)
+        diff = config_diff({k: have.get(k) for k in SHARED_KEYS}, {k: want[k] for k in SHARED_KEYS})
         if diff:
             raise RunError(f"output folder {out} holds another experiment configuration: {'; '.join(diff)}. "
                            "Use another --out (nothing was changed)")
@@ -146,7 +165,8 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
         stage1 = b.folder(out) / "train"
     return run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
                    record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
-                   stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
+                   stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet,
+                   eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
 
 class Stopped(RunError):
@@ -181,14 +201,13 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     cluster = cluster or ClusterConfig()
     _check_experiment(out, cfg)
     out.mkdir(parents=True, exist_ok=True)
-    if not (out / "experiment.toml").is_file():
-        C.save(cfg, out / "experiment.toml")
+    C.save(cfg, out / "experiment.toml")        # the latest selection of jobs (the shared keys are checked)
     data_dir = Path(data_dir) if data_dir else out / "data"
     # workers elsewhere resolve relative paths against their own folder
     out_arg, data_arg = (out, data_dir) if cluster.serial else (out.resolve(), data_dir.resolve())
     t_start = time.perf_counter()
     jobs = all_jobs(cfg)
-    specs = list(dict.fromkeys(j.dataset for j in jobs))
+    specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
     run_tasks([Task(s.key, ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs], cluster=cluster,
               desc="datasets", unit="dataset", quiet=quiet)
     names = [f"{j.dataset.key}/{j.key}" for j in jobs]

@@ -18,11 +18,15 @@ from .methods import METHODS
 LABEL = {k: m.label for k, m in METHODS.items()}
 
 
-def select(results: dict, *, dataset: str, method: str, snr=None, positions: int = 0) -> list[dict]:
+def select(results: dict, *, dataset: str, method: str, snr=None, positions: int = 0,
+           eval_dataset: str | None = None) -> list[dict]:
+    """The jobs trained on ``dataset`` by ``method`` at noise ``snr`` (None = clean) with
+    ``positions`` training positions (0 = all), evaluated on ``eval_dataset`` (None = ``dataset``)."""
     out = []
     for r in results.values():
         j = r["job"]
         if (j["dataset"] == dataset and j["method"] == method and j["positions"] == positions
+                and j.get("eval_dataset", j["dataset"]) == (eval_dataset or dataset)
                 and (j["snr_db"] == "none" if snr is None else j["snr_db"] == float(snr))):
             out.append(r)
     return out
@@ -81,9 +85,40 @@ AFF_EMPTY = "eval.affected.empty_room.mean"
 
 
 class Claims:
+    """The report's verdicts on the paper's claims: Markdown table rows (claim, paper, ours, verdict)."""
+
     def __init__(self):
         self.rows = []
 
     def add(self, claim: str, paper_evidence: str, ours: str, holds):
-        verdict = "n/a (not run)" if holds is None else ("**holds**" if holds else "**does not hold**")
+        """A verdict decided by the caller: ``holds`` True, False, None (not run) or "unclear"."""
+        verdict = {None: "n/a (not run)", "unclear": "**unclear**", True: "**holds**", False: "**does not hold**"}[holds]
         self.rows.append(f"| {claim} | {paper_evidence} | {ours} | {verdict} |")
+
+    def paired(self, claim: str, paper_evidence: str, a: list[dict], b: list[dict], path: str, *,
+               names: tuple[str, str]) -> None:
+        """The claim "a scores higher than b on ``path``", judged on the per-seed differences of the
+        seeds both ran: the effect is their mean, the spread their sample std. It **holds** when
+        every seed's difference is positive and the effect exceeds the spread, **does not hold**
+        when no seed's difference is positive or the effect is below minus the spread, and is
+        **unclear** otherwise (also with fewer than 2 seeds)."""
+        va = {r["job"]["seed"]: value(r, path) for r in a if value(r, path) is not None}
+        vb = {r["job"]["seed"]: value(r, path) for r in b if value(r, path) is not None}
+        seeds = sorted(set(va) & set(vb))
+        if not seeds:
+            self.add(claim, paper_evidence, "-", None)
+            return
+        d = np.array([va[s] - vb[s] for s in seeds], np.float64)
+        eff, sd = float(d.mean()), (float(d.std(ddof=1)) if len(d) > 1 else float("nan"))
+        if len(d) < 2:
+            holds = "unclear"
+        elif (d > 0).all() and eff > sd:
+            holds = True
+        elif (d <= 0).all() or eff < -sd:
+            holds = False
+        else:
+            holds = "unclear"
+        ma, mb = np.mean([va[s] for s in seeds]), np.mean([vb[s] for s in seeds])
+        self.add(claim, paper_evidence,
+                 f"{names[0]} {ma:.3f} vs {names[1]} {mb:.3f}: effect {eff:+.3f} ± {sd:.3f} over {len(d)} seeds "
+                 f"(per seed {', '.join(f'{x:+.3f}' for x in d)})", holds)

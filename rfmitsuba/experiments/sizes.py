@@ -23,7 +23,7 @@ from ..train.config import TrainConfig
 from ..train.density import DensityConfig
 from .methods import MethodConfig
 
-TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise")
+TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise", "rx_count")
 
 
 @dataclass
@@ -92,7 +92,9 @@ class ExperimentConfig:
     mean +- std); rooms / tasks: of the main table (the first room and task are used by the
     ablations); materials: perturber materials; large_room: scene of the large-room table ("" =
     skip); snr_db: noise levels of the noise table; position_counts: training antenna positions of
-    the positions table; tables: which tables to run.
+    the positions table; rx_counts: Baseline's training positions in the Rx-count table beyond
+    the main dataset's (from an empty-room dataset of ``max(rx_counts) / 0.8`` positions of the
+    same room and task, :attr:`DatasetSpec.static_positions`); tables: which tables to run.
     """
 
     size: str = "full"
@@ -106,6 +108,7 @@ class ExperimentConfig:
     large_room: str = "large_room"
     snr_db: list[float] = dc_field(default_factory=lambda: [20.0, 10.0, 0.0])
     position_counts: list[int] = dc_field(default_factory=lambda: [180, 360])
+    rx_counts: list[int] = dc_field(default_factory=lambda: [1800, 3600, 6000])
     tables: list[str] = dc_field(default_factory=lambda: list(TABLES))
 
     def __post_init__(self) -> None:
@@ -116,6 +119,8 @@ class ExperimentConfig:
             raise ConfigError(f"ExperimentConfig.tables: unknown {bad}; known: {list(TABLES)}")
         if not self.seeds or not self.rooms or not self.tasks:
             raise ConfigError("ExperimentConfig: seeds, rooms and tasks must not be empty")
+        if any(n < 1 for n in self.rx_counts):
+            raise ConfigError(f"ExperimentConfig.rx_counts must be >= 1, got {self.rx_counts}")
         if any(t not in ("rx", "tx") for t in self.tasks):
             raise ConfigError(f"ExperimentConfig.tasks must be 'rx' / 'tx', got {self.tasks}")
         if self.train.model == "coherent" and self.source == "synthetic":
@@ -132,7 +137,8 @@ SIZES = {
         train=TrainSize(model="splat", stage1_iterations=30, stage2_iterations=30, downsample=10, batch_views=4,
                         num_gaussians=120, max_gaussians=400, human_gaussians=24, val_every=30, density=False),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", snr_db=[10.0],
-        position_counts=[10], tables=["main", "two_stage", "perturbation", "positions", "noise"]),
+        position_counts=[10], rx_counts=[30], tables=["main", "two_stage", "perturbation", "positions", "noise",
+                                                      "rx_count"]),
     "quick": ExperimentConfig(
         size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
         train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
@@ -162,15 +168,19 @@ def size_config(name: str) -> ExperimentConfig:
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """One dataset: scene, task and perturber material."""
+    """One dataset: scene, task and perturber material; ``static_positions`` > 0: instead an
+    empty-room dataset of that many antenna positions (another position seed, no walk), the
+    Rx-count table's extra training positions."""
 
     scene: str
     task: str
     material: str = "tissue"
+    static_positions: int = 0
 
     @property
     def key(self) -> str:
-        return f"{self.scene}_{self.task}_{self.material}"
+        k = f"{self.scene}_{self.task}_{self.material}"
+        return k + (f"_static{self.static_positions}" if self.static_positions else "")
 
 
 def method_config(train: TrainSize, *, scene_known: bool = True):

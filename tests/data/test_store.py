@@ -98,6 +98,20 @@ def test_other_configuration_refused_nothing_overwritten(tmp_path):
     assert digests(tmp_path / "d") == before and (tmp_path / "d" / "meta.json").read_text() == meta_before
 
 
+def test_scene_location_is_not_configuration(tmp_path):
+    """The same scene (name and hashes) from another checkout resumes the folder; another scene
+    content is refused by its hash."""
+    scene = {"name": "bedroom", "file": "/a/scenes/bedroom.xml", "sha256": "x1", "meshes_sha256": "m1"}
+    A = 10
+    sp = splits.make_split(A, 2)
+    ap = np.random.default_rng(0).random((A, 3))
+    D.prepare_folder(tmp_path / "d", {"scene": scene}, antenna_pos=ap, split=sp)
+    D.prepare_folder(tmp_path / "d", {"scene": {**scene, "file": "/b/other/checkout/bedroom.xml"}}, antenna_pos=ap,
+                     split=sp)
+    with pytest.raises(DatasetError, match="'scene.sha256' differs"):
+        D.prepare_folder(tmp_path / "d", {"scene": {**scene, "sha256": "x2"}}, antenna_pos=ap, split=sp)
+
+
 def test_truncated_chunk_named_on_open(tmp_path):
     tiny(tmp_path / "d")
     f = tmp_path / "d" / "chunks" / "00002" / "pas.npy"
