@@ -9,6 +9,7 @@ of :data:`rfmitsuba.experiments.sizes.TABLES`; ``reproduce`` runs the union of t
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from ..eval.dynamic_static import AFFECTED_SSIM
 from . import paper
@@ -56,6 +57,10 @@ class Table:
         """Markdown lines of this table from ``results`` (jobs not yet run show as "-"); adds the
         verdicts of its claims to ``claims``."""
         raise NotImplementedError
+
+    def figures(self, out: Path, cfg: ExperimentConfig, results: dict) -> list[str]:
+        """Draw this table's figures into folder ``out``; Markdown lines that show them (none by default)."""
+        return []
 
 
 class MainTable(Table):
@@ -365,6 +370,50 @@ class RxCountTable(Table):
         L += ["", "Paper (Baseline, empty room, bedroom, moving RX): "
               + ", ".join(f"{k}: {paper_fmt(v)}" for k, v in paper.POSITIONS.items()), ""]
         return L
+
+    def figures(self, out: Path, cfg: ExperimentConfig, results: dict) -> list[str]:
+        """``rx_count.png``: per room and task, Baseline's static, dynamic and where-the-person-matters
+        SSIM (mean and seed std) against its training positions, Ours at its own positions plus
+        the walk, and the nearest-neighbour floors; nothing when no job has finished."""
+        from ..core import plots
+        from ..data.split import ANTENNA_TEST_FRACTION
+
+        own = cfg.data.positions - int(round(ANTENNA_TEST_FRACTION * cfg.data.positions))
+        pairs = self._pairs(cfg)
+        if not any(select(results, dataset=m.key, method="baseline") for m, _ in pairs):
+            return []
+        fig, axes = plots.subplots(1, len(pairs), figsize=(4.6 * len(pairs), 3.8), squeeze=False)
+        for ax, (main, extra) in zip(axes[0], pairs):
+            series = [(own, select(results, dataset=main.key, method="baseline"))] + [
+                (n, select(results, dataset=extra.key, method="baseline", positions=n, eval_dataset=main.key))
+                for n in sorted(cfg.rx_counts)]
+            ro = select(results, dataset=main.key, method="ours")
+            rb = series[0][1]
+            for path, name, color in ((STAT, "static", "tab:blue"), (DYN, "dynamic", "tab:orange"),
+                                      (AFF, "where the person matters", "tab:red")):
+                pts = [(n, *mean_std_n(rs, path)[:2]) for n, rs in series if mean_std_n(rs, path)[2]]
+                if pts:
+                    x, y, e = zip(*pts)
+                    ax.errorbar(x, y, yerr=e, marker="o", color=color, capsize=3, label=f"Baseline, {name}")
+                mo, so, no = mean_std_n(ro, path)
+                if no and path != STAT:
+                    ax.errorbar([own], [mo], yerr=[so], marker="*", markersize=13, color=color, linestyle="none",
+                                label=f"Ours ({own} + walk), {name}")
+                    ax.axhline(mo, color=color, linestyle=":", alpha=0.6)
+            for path, name in ((STAT_NN, "static"), (DYN_NN, "dynamic")):
+                mn = mean(rb, path)
+                if math.isfinite(mn):
+                    ax.axhline(mn, color="grey", linestyle="--", alpha=0.5, linewidth=1)
+                    ax.annotate(f"NN {name}", (own, mn), fontsize=7, color="grey", va="bottom")
+            ax.set_xscale("log")
+            ticks = [n for n, _ in series]
+            ax.set_xticks(ticks, [str(n) for n in ticks])
+            ax.minorticks_off()
+            ax.set_title(f"{paper.ROOM_LABELS.get(main.scene, main.scene)}, moving {main.task.upper()}", fontsize=9)
+            plots.label(ax, xlabel="Baseline's training positions", ylabel="test SSIM (mean over seeds)",
+                        legend_fontsize=6)
+        plots.save(fig, Path(out) / "rx_count.png")
+        return ["![Static positions against one walk](rx_count.png)", ""]
 
 
 TABLES: dict[str, Table] = {t.key: t for t in (MainTable(), TwoStageTable(), PerturbationTable(), MaterialTable(),

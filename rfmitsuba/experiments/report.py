@@ -82,6 +82,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
 
     for key in cfg.tables:
         L += TABLES[key].section(cfg, results, claims)
+        L += TABLES[key].figures(out, cfg, results)
 
     # ---------------------------------------------------------------- speed
     L += ["## Speed against accuracy", "", "Every dataset's clean jobs (all training positions, no added noise):", ""]

@@ -21,8 +21,9 @@ def test_report_has_every_table(tiny_reproduction):
     # the Rx-count table: Baseline trained on the extra empty-room dataset, tested on the main one
     assert re.search(r"\| Baseline \| 30 \| 0\.\d+ ± 0\.\d+ \| 0\.\d+ ± ", text)
     assert "effect " in text and "over 3 seeds (per seed " in text
-    png = out / "speed_accuracy.png"
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for png in (out / "speed_accuracy.png", out / "rx_count.png"):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "![Static positions against one walk](rx_count.png)" in text
     assert "time to within 0.005 (s)" in text
     assert re.search(r"\| \w+ \| Ours \(two-stage\) \| 3 \| 0\.\d+ ± ", text)  # a curve for every seed
     res = json.loads((out / "results.json").read_text())
