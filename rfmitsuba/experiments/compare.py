@@ -33,7 +33,7 @@ from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
 from .curves import speed_accuracy
-from .methods import METHODS, MethodConfig, get_method
+from .methods import METHODS, MethodConfig, get_method, prior_kwargs
 from .methods import run_job
 from .sizes import TrainSize, method_config
 
@@ -77,13 +77,14 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
 def compare_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodConfig, *, quiet: bool = True,
                 reevaluate: bool = False) -> dict:
     """One (method, seed) into ``out/seed<seed>/<method>`` by :func:`rfmitsuba.experiments.methods.run_job`
-    (skipped when done; Ours first runs that seed's Baseline, its Stage 1)."""
-    stage1 = None
-    if get_method(method).two_stage:
-        compare_job("baseline", seed, dataset, out, mcfg, quiet=quiet)
-        stage1 = out / f"seed{seed}" / "baseline" / "train"
+    (skipped when done; a method that builds on another first runs that one: Ours its Baseline,
+    Stage 3 its Ours)."""
+    prior = get_method(method).builds_on
+    if prior:
+        compare_job(prior, seed, dataset, out, mcfg, quiet=quiet)
     return run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
-                   record={"method": method, "seed": seed}, stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet)
+                   record={"method": method, "seed": seed}, reevaluate=reevaluate, quiet=quiet,
+                   **prior_kwargs(method, out / f"seed{seed}" / prior if prior else None))
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
@@ -110,7 +111,7 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
 
     mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
-    order = sorted(cfg.methods, key=lambda m: (m != "baseline", m))
+    order = sorted(cfg.methods, key=lambda m: (_depth(m), m))     # each after what it builds on
     jobs = [(m, seed) for seed in cfg.seeds for m in order]
     # jobs of earlier seeds / methods of the same comparison stay in the results
     earlier = []
@@ -123,12 +124,19 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     tasks: list[Task] = []
     for m, seed in jobs + earlier:
         names = {t.name for t in tasks}
-        after = tuple(n for n in [_job_name("baseline", seed)] if get_method(m).two_stage and n in names)
+        prior = get_method(m).builds_on
+        after = tuple(n for n in [_job_name(prior, seed)] if prior and n in names)
         tasks.append(Task(_job_name(m, seed), compare_job, (m, seed, ds_arg, out_arg, mcfg),
                           {"quiet": quiet, "reevaluate": reevaluate}, after=after))
     results = list(run_tasks(tasks, cluster=cluster, desc="compare", unit="job", quiet=not progress).values())
     write_json(out / "results.json", results, allow_nan=True)
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg, out=out))
+
+
+def _depth(method: str) -> int:
+    """How many methods ``method`` builds on in a chain (Baseline 0, Ours 1, Stage 3 2)."""
+    prior = get_method(method).builds_on
+    return 0 if prior is None else 1 + _depth(prior)
 
 
 def _job_name(method: str, seed: int) -> str:

@@ -8,6 +8,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+from .methods import get_method
 from .sizes import DatasetSpec
 
 
@@ -38,8 +39,11 @@ class Job:
     def folder(self, out: Path) -> Path:
         return Path(out) / "jobs" / self.dataset.key / self.key
 
-    def stage1_job(self) -> "Job":
-        return dataclasses.replace(self, method="baseline")
+    def prior_job(self) -> "Job | None":
+        """The job this one starts from (its method's ``builds_on``: Ours' Baseline, Stage 3's
+        Ours), same dataset, seed and variant; None when it trains from scratch."""
+        prior = get_method(self.method).builds_on
+        return dataclasses.replace(self, method=prior) if prior else None
 
     def record(self) -> dict:
         """What the job's metrics are filed under (``eval_dataset`` only when it is not ``dataset``)."""

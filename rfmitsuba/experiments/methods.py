@@ -15,6 +15,9 @@ end_to_end          one field on empty + human-present data, human position as i
                     :mod:`rfmitsuba.models.coherent_gaussians_joint`)
 ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
                     Gaussians (:mod:`rfmitsuba.models.splat_person`) on the human-present data
+refined             Ours, then Stage 3: background and person field trained together    n1 + 2 n2
+                    on empty + human-present data at Stage 1's final learning rates
+                    (coherent Gaussian family only; does the walk improve the background?)
 ==================  ================================================================  ===========
 
 So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
@@ -67,6 +70,8 @@ class Method:
     two_stage: bool = False
     duplicate: bool = False
     long_budget: bool = True
+    #: the method whose finished job this one starts from (None: it trains from scratch)
+    builds_on: str | None = None
 
 
 METHODS: dict[str, Method] = {m.name: m for m in [
@@ -77,7 +82,9 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("end_to_end", "End-to-End", "one model on human-present data with the human position as input", "all",
            human_input=True),
     Method("ours", "Ours (two-stage)", "frozen background + human Gaussians", "human", human_input=True,
-           two_stage=True),
+           two_stage=True, builds_on="baseline"),
+    Method("refined", "Ours + Stage 3", "Ours, then background and person trained together on empty + walk data",
+           "all", human_input=True, two_stage=True, builds_on="ours"),
 ]}
 
 
@@ -172,9 +179,67 @@ def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
     return kind, mcfg.coherent_human
 
 
+def stage3_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
+    """Stage-3 training configuration: n2 steps, no density control, Stage 1's learning rates held
+    at their final values (a refinement of a trained background, not a new fit)."""
+    s1 = mcfg.stage1
+    o = s1.optim
+    optim = dataclasses.replace(o, lr_means=o.lr_means_final, lr_net=o.lr_net_final, lr_amp=o.lr_amp_final)
+    return dataclasses.replace(s1, iterations=mcfg.stage2_iterations, seed=seed, state=0, max_train_positions=0,
+                               density=dataclasses.replace(s1.density, enabled=False), optim=optim)
+
+
+def prior_kwargs(name: str, prior_job: str | Path | None) -> dict:
+    """The :func:`train_method` / :func:`run_job` keyword that hands method ``name`` the finished
+    job folder of the method it builds on (``Method.builds_on``): ``stage1_dir`` (its Baseline's
+    run) for Ours, ``ours_dir`` for Stage 3; {} without one."""
+    m = get_method(name)
+    if prior_job is None or m.builds_on is None:
+        return {}
+    return {"stage1_dir": Path(prior_job) / "train"} if m.builds_on == "baseline" else {"ours_dir": Path(prior_job)}
+
+
+def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
+                  ours_dir: Path | None, quiet: bool) -> dict:
+    """Stage 3 (method "refined"): Ours' background and person field, unfrozen as one joint field
+    (:class:`~rfmitsuba.models.coherent_gaussians_joint.CoherentGaussianJointField`), trained on
+    empty-room and walk samples into ``out/stage3``."""
+    from ..models.coherent_gaussians_joint import CoherentGaussianJointField
+    from ..models.coherent_gaussians_person import CoherentGaussianPersonField
+
+    if mcfg.stage1.model != "coherent_gaussians":
+        raise ConfigError(f"method 'refined' (Stage 3) needs model 'coherent_gaussians', not {mcfg.stage1.model!r}: "
+                          "only that family trains its background and person field together")
+    if ours_dir is None:
+        ours_dir = out / "ours_job"
+        train_method("ours", dataset, ours_dir, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                     train_antennas=train_antennas, quiet=quiet)
+    ours_dir = Path(ours_dir)
+    s2_file = ours_dir / "stage2" / "final" / "summary.json"
+    if not s2_file.is_file() or not (ours_dir / "stage1.json").is_file():
+        raise RunError(f"Ours job {ours_dir} has not finished (no stage2/final/summary.json)")
+    s2 = json.loads(s2_file.read_text())
+    s1 = json.loads((Path(json.loads((ours_dir / "stage1.json").read_text())["stage1_dir"]) / "final"
+                     / "summary.json").read_text())
+    person = load_field(ours_dir / "stage2" / "final" / "field.npz")
+    if not isinstance(person, CoherentGaussianPersonField):
+        raise RunError(f"{ours_dir}: Stage 3 needs a coherent_gaussians_person Stage 2, found {type(person).__name__}")
+    factory, width, feats = joint_field(mcfg)
+    data = open_data(dataset, get_method("refined"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                     seed=seed)
+    tr = Trainer(stage3_config(mcfg, seed=seed), data, out / "stage3", quiet=quiet, extra=lambda idx: feats(data, idx),
+                 extra_inputs=width, field_factory=lambda t, rng: CoherentGaussianJointField.from_person(person))
+    _write_json(out / "ours.json", {"ours_dir": str(ours_dir.resolve())})
+    s3 = tr.run()
+    return {"train_time_s": s1["train_time_s"] + s2["train_time_s"] + s3["train_time_s"],
+            "steps": s1["steps"] + s2["steps"] + s3["steps"], "stage1_train_time_s": s1["train_time_s"],
+            "val_ssim": s3["val_ssim"], "stage1_val_ssim": s1["val_ssim"], "stage2_val_ssim": s2["val_ssim"],
+            "runs": [str(ours_dir / "stage2"), str(out / "stage3")]}
+
+
 def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
                  noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
-                 quiet: bool = True) -> dict:
+                 ours_dir: str | Path | None = None, quiet: bool = True) -> dict:
     """Train method ``name`` on ``dataset`` into folder ``out`` (resumable).
 
     Args:
@@ -184,6 +249,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
             ``out/stage2`` on top of ``stage1_dir`` (default: trains its own ``out/stage1``).
         mcfg: sizes; seed: training (and noise) seed; noise_snr_db: noise on the training data;
         train_antennas: number of training antenna positions (0 = all).
+        ours_dir: Stage 3 ("refined") starts from this finished Ours job folder (default: trains
+            its own ``out/ours_job``).
         quiet: no progress bars.
 
     Returns:
@@ -192,6 +259,13 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     """
     m = get_method(name)
     out = Path(out)
+    if m.builds_on == "ours":
+        if mcfg.stage1.model != "coherent_gaussians":   # refused before any folder is made
+            raise ConfigError(f"method {name!r} (Stage 3) needs model 'coherent_gaussians', not "
+                              f"{mcfg.stage1.model!r}: only that family trains its background and person together")
+        out.mkdir(parents=True, exist_ok=True)
+        return _train_stage3(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                             train_antennas=train_antennas, ours_dir=ours_dir, quiet=quiet)
     out.mkdir(parents=True, exist_ok=True)
     if not m.two_stage:
         data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
@@ -244,8 +318,8 @@ def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
     two-stage method). ``octaves``: the person-feature octaves of the End-to-End model."""
     m = get_method(name)
     jd = Path(job_dir)
-    if not m.two_stage:
-        f = load_field(jd / "train" / "final" / "field.npz")
+    if not m.two_stage or m.builds_on == "ours":
+        f = load_field(jd / ("stage3" if m.builds_on == "ours" else "train") / "final" / "field.npz")
         f.freeze()
         return FieldSet([f], octaves=octaves)
     info = json.loads((jd / "stage1.json").read_text()) if (jd / "stage1.json").is_file() else None
@@ -260,7 +334,8 @@ def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
 
 def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
             noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
-            reevaluate: bool = False, quiet: bool = True, eval_dataset: str | Path | None = None) -> dict:
+            ours_dir: str | Path | None = None, reevaluate: bool = False, quiet: bool = True,
+            eval_dataset: str | Path | None = None) -> dict:
     """Train method ``name`` into ``job_dir``, evaluate it (on ``eval_dataset``, default
     ``dataset``), and mark the job done; or return the metrics of a job done before.
 
@@ -269,7 +344,7 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     killed caller (:mod:`rfmitsuba.experiments.compare`, :mod:`rfmitsuba.experiments.reproduce`) resumes where it stopped.
 
     Args:
-        name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir: as :func:`train_method`.
+        name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir, ours_dir: as :func:`train_method`.
         job_dir: the job folder.
         record: what the caller files the job under (merged into the metrics).
         reevaluate: a finished job is evaluated again (its training kept, ``metrics.json``
@@ -289,7 +364,7 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                      train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+                      train_antennas=train_antennas, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
     ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     _write_json(jd / "metrics.json", metrics)

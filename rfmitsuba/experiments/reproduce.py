@@ -32,8 +32,7 @@ from ..core.errors import PlacementError, RfmError, RunError
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
-from .methods import config_dict
-from .methods import run_job
+from .methods import config_dict, prior_kwargs, run_job
 from .paper_tables import TABLES
 from .report import write_report
 from .sizes import DatasetSpec, ExperimentConfig, method_config
@@ -46,14 +45,15 @@ def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:
 
 
 def all_jobs(cfg: ExperimentConfig) -> list[Job]:
-    """Every job once, each Ours after the Baseline it builds on."""
+    """Every job once, each after the jobs it builds on (Ours after its Baseline, Stage 3 after its Ours)."""
     seen: dict[str, Job] = {}
     for jobs in table_jobs(cfg).values():
         for j in jobs:
-            if j.method == "ours":
-                b = j.stage1_job()
+            chain = [j]
+            while chain[-1].prior_job() is not None:
+                chain.append(chain[-1].prior_job())
+            for b in reversed(chain):
                 seen.setdefault(f"{b.dataset.key}/{b.key}", b)
-            seen.setdefault(f"{j.dataset.key}/{j.key}", j)
     return list(seen.values())
 
 
@@ -158,14 +158,12 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
                                "(nothing was changed)")
         jd.mkdir(parents=True, exist_ok=True)
         _write_json(jt, want)
-    stage1 = None
-    if job.method == "ours":
-        b = job.stage1_job()
-        reproduce_job(b, out, cfg, data_dir, quiet=quiet)
-        stage1 = b.folder(out) / "train"
+    prior = job.prior_job()
+    if prior is not None:
+        reproduce_job(prior, out, cfg, data_dir, quiet=quiet)
     return run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
                    record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
-                   stage1_dir=stage1, reevaluate=reevaluate, quiet=quiet,
+                   reevaluate=reevaluate, quiet=quiet, **prior_kwargs(job.method, prior and prior.folder(out)),
                    eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
 
@@ -212,7 +210,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
               desc="datasets", unit="dataset", quiet=quiet)
     names = [f"{j.dataset.key}/{j.key}" for j in jobs]
     tasks = [Task(n, reproduce_job, (j, out_arg, cfg, data_arg), {"quiet": True, "reevaluate": reevaluate},
-                  after=(f"{j.dataset.key}/{j.stage1_job().key}",) if j.method == "ours" else ())
+                  after=(f"{j.dataset.key}/{j.prior_job().key}",) if j.prior_job() else ())
              for n, j in zip(names, jobs)]
     new = {n for n, j in zip(names, jobs) if not (j.folder(out) / "DONE").is_file()}
     done_new = 0

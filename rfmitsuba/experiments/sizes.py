@@ -23,7 +23,8 @@ from ..train.config import TrainConfig
 from ..train.density import DensityConfig
 from .methods import MethodConfig
 
-TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise", "rx_count")
+TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise", "rx_count",
+          "third_stage")
 
 
 @dataclass
@@ -94,7 +95,8 @@ class ExperimentConfig:
     skip); snr_db: noise levels of the noise table; position_counts: training antenna positions of
     the positions table; rx_counts: Baseline's training positions in the Rx-count table beyond
     the main dataset's (from an empty-room dataset of ``max(rx_counts) / 0.8`` positions of the
-    same room and task, :attr:`DatasetSpec.static_positions`); tables: which tables to run.
+    same room and task, :attr:`DatasetSpec.static_positions`); tables: which tables to run
+    (``third_stage`` runs only with ``train.model = "coherent_gaussians"``).
     """
 
     size: str = "full"
@@ -143,7 +145,7 @@ SIZES = {
         size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
         train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
                         num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
-        snr_db=[10.0], position_counts=[12]),
+        snr_db=[10.0], position_counts=[12], rx_counts=[60]),
     "full": ExperimentConfig(),
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
     "demo": ExperimentConfig(

@@ -93,6 +93,15 @@ class CoherentGaussianJointField(Field):
                               f"takes {pf.extra_inputs} (features with {pf.cfg.human_octaves} octaves + position)")
         return cls(bg, pf, name=name)
 
+    @classmethod
+    def from_person(cls, person: CoherentGaussianPersonField, *, name: str = "bg") -> "CoherentGaussianJointField":
+        """Stage 3: a trained person field and its (frozen) background, both made trainable again
+        as one joint field (their values kept)."""
+        if not isinstance(person, CoherentGaussianPersonField):
+            raise ConfigError(f"from_person needs a coherent_gaussians_person field, got {type(person).__name__}")
+        person.frozen = person.bg.frozen = False
+        return cls(person.bg, person, name=name)
+
     # ---- parameters ------------------------------------------------------------------------
     @property
     def feature_octaves(self) -> int:

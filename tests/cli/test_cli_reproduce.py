@@ -14,9 +14,9 @@ def test_cli_other_config_error(tiny_reproduction, capsys):
     from rfmitsuba.cli import main
 
     out, _, _, _ = tiny_reproduction
-    assert main(["reproduce", "--size", "tiny", "--out", str(out), "--set", "seeds=[4, 5, 6]", "--quiet"]) == 2
+    assert main(["reproduce", "--size", "tiny", "--out", str(out), "--set", "train.batch_views=3", "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "another experiment configuration" in err and "seeds" in err
+    assert "another experiment configuration" in err and "train.batch_views" in err
 
 
 def test_cli_bad_arguments(tmp_path, capsys):

@@ -23,7 +23,8 @@ def _mcfg(stage1, stage2):
 def test_registry_and_budgets():
     from rfmitsuba.experiments.methods import METHODS, get_method, stage1_config
 
-    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_human", "end_to_end", "ours"}
+    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_human", "end_to_end", "ours", "refined"}
+    assert [get_method(m).builds_on for m in ("baseline", "ours", "refined")] == [None, "baseline", "ours"]
     mc = _mcfg(30, 20)
     assert stage1_config(mc, get_method("baseline"), seed=0).iterations == 30
     for m in ("continued", "duplicated", "baseline_human", "end_to_end"):
@@ -242,3 +243,35 @@ def test_coherent_gaussians_end_to_end_trains_background_and_person_together(qui
     assert ev["static"]["model"]["mean"] == pytest.approx(ev_bg["static"]["model"]["mean"], abs=1e-6)
     assert ev["dynamic"]["model"]["n"] == ev["dynamic"]["nearest_neighbour"]["n"] > 0
     assert 0 < ev["dynamic"]["model"]["mean"] <= 1
+
+
+def test_stage3_refines_ours_background_and_person_together(quick_dataset, tmp_path, one_thread):
+    """Method "refined" (Stage 3): starts from a finished Ours job, unfreezes its background and
+    person field as one joint field and trains n2 more steps on empty-room and walk samples; the
+    background moves (its static score changes) while Ours' own job stays as it was; splat is
+    refused by name before a folder is made."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.experiments import methods
+    from rfmitsuba.models.coherent_gaussians_joint import CoherentGaussianJointField
+
+    mc = _cg_mcfg(60, 40)
+    methods.train_method("ours", quick_dataset.path, tmp_path / "ours", mcfg=mc, seed=0)
+    before = (tmp_path / "ours" / "stage2" / "final" / "field.npz").read_bytes()
+    r = methods.train_method("refined", quick_dataset.path, tmp_path / "refined", mcfg=mc, seed=0,
+                             ours_dir=tmp_path / "ours")
+    assert r["steps"] == 60 + 40 + 40 and r["runs"][-1].endswith("stage3")
+    assert (tmp_path / "ours" / "stage2" / "final" / "field.npz").read_bytes() == before
+    model = methods.load_model("refined", tmp_path / "refined")
+    (f,) = model.fields
+    assert isinstance(f, CoherentGaussianJointField)
+    ours = methods.load_model("ours", tmp_path / "ours")
+    a = np.asarray(f.bg.params["img_amp"].numpy())
+    b = np.asarray(ours.fields[0].params["img_amp"].numpy())
+    assert a.shape == b.shape and 0 < np.abs(a - b).max() < 0.5 * np.abs(b).max()   # refined, not refitted
+    ev = dynamic_static.evaluate(model, quick_dataset.path)
+    assert 0 < ev["static"]["model"]["mean"] <= 1 and ev["dynamic"]["model"]["n"] > 0
+    splat = methods.MethodConfig(stage1=C.override(mc.stage1, ["model='splat'"]), stage2_iterations=5)
+    with pytest.raises(ConfigError, match="'refined'.*needs model 'coherent_gaussians'"):
+        methods.train_method("refined", quick_dataset.path, tmp_path / "r2", mcfg=splat, seed=0)
+    assert not (tmp_path / "r2").exists()

@@ -39,3 +39,24 @@ def test_main_table_section_and_claims_follow_the_results(ours):
     verdicts = "\n".join(claims.rows)
     assert "Ours beats Baseline" in verdicts
     assert ("**holds**" if ours > 0.7 else "**does not hold**") in verdicts.splitlines()[0]
+
+
+def test_third_stage_table_judges_the_static_scene():
+    """Stage 3 above Baseline on every seed by more than the spread -> the walk improves the
+    static scene holds; another model family -> no jobs and a section that says why."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.experiments.paper_tables import ThirdStageTable
+
+    cfg = size_config("full")
+    results = {}
+    for seed in cfg.seeds:
+        for job in ThirdStageTable().jobs(cfg, seed):
+            stat = {"baseline": 0.90, "continued": 0.90, "ours": 0.90, "refined": 0.92}[job.method] + 0.001 * seed
+            results.update([_result(job, 0.9, stat)])
+    claims = Claims()
+    text = "\n".join(ThirdStageTable().section(cfg, results, claims))
+    assert "| Ours + Stage 3 | 10 | 0.921 ± 0.001 |" in text
+    assert claims.rows[0].startswith("| The walk improves the static scene") and claims.rows[0].endswith("**holds** |")
+    splat = C.override(cfg, ["train.model='splat'"])
+    assert ThirdStageTable().jobs(splat, 0) == []
+    assert "Not run" in "\n".join(ThirdStageTable().section(splat, {}, Claims()))

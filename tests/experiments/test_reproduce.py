@@ -87,8 +87,8 @@ def test_config_round_trip_and_jobs():
         keys = [f"{j.dataset.key}/{j.key}" for j in jobs]
         assert len(keys) == len(set(keys))
         for i, j in enumerate(jobs):
-            if j.method == "ours":  # its Stage 1 (the Baseline job) runs first
-                b = j.stage1_job()
+            if j.prior_job() is not None:  # what it builds on (Ours: its Baseline) runs first
+                b = j.prior_job()
                 assert keys.index(f"{b.dataset.key}/{b.key}") < i
         assert len(cfg.seeds) >= 3 or name not in PAPER_SIZES  # the paper's sizes claim over 3 seeds
     assert set(PAPER_SIZES) <= set(SIZES)
