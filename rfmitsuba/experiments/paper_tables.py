@@ -464,3 +464,22 @@ TABLES: dict[str, Table] = {t.key: t for t in (MainTable(), TwoStageTable(), Per
                                                 LargeRoomTable(), PositionsTable(), NoiseTable(), RxCountTable(),
                                                 ThirdStageTable())}
 assert tuple(TABLES) == tuple(TABLE_NAMES), "paper_tables.TABLES and sizes.TABLES must name the same tables"
+
+
+def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:
+    """The jobs of every configured table (a job may serve several tables)."""
+    return {t: [j for seed in cfg.seeds for j in TABLES[t].jobs(cfg, seed)] for t in cfg.tables}
+
+
+def all_jobs(cfg: ExperimentConfig) -> list[Job]:
+    """Every job of the configured tables once, each after the jobs it builds on (Ours after its
+    Baseline, Stage 3 after its Ours)."""
+    seen: dict[str, Job] = {}
+    for jobs in table_jobs(cfg).values():
+        for j in jobs:
+            chain = [j]
+            while chain[-1].prior_job() is not None:
+                chain.append(chain[-1].prior_job())
+            for b in reversed(chain):
+                seen.setdefault(f"{b.dataset.key}/{b.key}", b)
+    return list(seen.values())

@@ -7,6 +7,7 @@ Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png`` (:mod:`rfmitsuba.experi
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import platform
 import time
@@ -15,7 +16,7 @@ from pathlib import Path
 from ..core.atomic import write_text
 from .curves import speed_accuracy
 from .methods import METHODS
-from .paper_tables import TABLES
+from .paper_tables import TABLES, all_jobs
 from .results import (
     DYN,
     DYN_NN,
@@ -47,6 +48,24 @@ def _model_line(cfg) -> str:
                 "End-to-End the joint field (`coherent_gaussians_joint`)")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
             f"background Gaussians, {t.human_gaussians} human Gaussians")
+
+
+def table_wall_times(cfg, results: dict) -> list[str]:
+    """Markdown: per configured table, its jobs (with those they build on) and the sum of their
+    wall times (training + evaluation, ``wall_s`` of each job's metrics); a job shared by
+    tables counts in each, the total counts it once."""
+    L = ["Wall time per table (each job's training + evaluation as it ran; a job shared by several tables "
+         "counts in each, the total once; dataset generation not included):", "",
+         "| table | jobs | done | wall time (min) |", "|---|---|---|---|"]
+    everything: dict[str, float] = {}
+    for key in cfg.tables:
+        sub = dataclasses.replace(cfg, tables=[key])
+        names = [f"{j.dataset.key}/{j.key}" for j in all_jobs(sub)]
+        walls = {n: results[n]["wall_s"] for n in names if n in results and "wall_s" in results[n]}
+        everything.update(walls)
+        L.append(f"| {key} | {len(names)} | {len(walls)} | {sum(walls.values()) / 60:.1f} |")
+    L += [f"| **all** | {len(all_jobs(cfg))} | {len(everything)} | {sum(everything.values()) / 60:.1f} |", ""]
+    return L
 
 
 def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
@@ -97,6 +116,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
             L.append(f"| {LABEL[m]} | {len(rs)} | {fmt(rs, 'train.train_time_s', 1)} | "
                      f"{fmt(rs, 'eval.render_ms_per_pas', 1)} | {fmt(rs, 'eval.num_gaussians', 0)} | {fmt(rs, DYN)} |")
     L.append("")
+    L += table_wall_times(cfg, results)
 
     # ---------------------------------------------------------------- stability
     L += ["## Where methods break (below the nearest-neighbour floor)", "",

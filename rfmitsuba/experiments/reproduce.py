@@ -33,28 +33,9 @@ from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
 from .methods import config_dict, prior_kwargs, run_job
-from .paper_tables import TABLES
+from .paper_tables import all_jobs
 from .report import write_report
 from .sizes import DatasetSpec, ExperimentConfig, method_config
-
-
-def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:
-    """The jobs of every configured table (:data:`rfmitsuba.experiments.paper_tables.TABLES`; a job
-    may serve several tables)."""
-    return {t: [j for seed in cfg.seeds for j in TABLES[t].jobs(cfg, seed)] for t in cfg.tables}
-
-
-def all_jobs(cfg: ExperimentConfig) -> list[Job]:
-    """Every job once, each after the jobs it builds on (Ours after its Baseline, Stage 3 after its Ours)."""
-    seen: dict[str, Job] = {}
-    for jobs in table_jobs(cfg).values():
-        for j in jobs:
-            chain = [j]
-            while chain[-1].prior_job() is not None:
-                chain.append(chain[-1].prior_job())
-            for b in reversed(chain):
-                seen.setdefault(f"{b.dataset.key}/{b.key}", b)
-    return list(seen.values())
 
 
 def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
