@@ -14,13 +14,14 @@ def test_report_has_every_table(tiny_reproduction):
     text = report.read_text()
     for heading in ("Main table", "Two-stage ablation", "Role of perturbation data", "Number of training positions",
                     "Measurement noise", "Static positions against one walk", "Speed against accuracy",
-                    "Where methods break", "Paper claims"):
+                    "Where methods break", "Paper claims", "Wall time per table"):
         assert heading in text, heading
     assert "0.927 / 0.967" in text  # the paper's Ours figure for scene 1, moving RX, beside ours
     assert " ± " in text and ("**holds**" in text or "**does not hold**" in text or "**unclear**" in text)
     # the Rx-count table: Baseline trained on the extra empty-room dataset, tested on the main one
     assert re.search(r"\| Baseline \| 30 \| 0\.\d+ ± 0\.\d+ \| 0\.\d+ ± ", text)
     assert "effect " in text and "over 3 seeds (per seed " in text
+    assert re.search(r"\| \*\*all\*\* \| (\d+) \| \1 \| \d+\.\d \|", text)   # every job done and timed
     for png in (out / "speed_accuracy.png", out / "rx_count.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "![Static positions against one walk](rx_count.png)" in text
