@@ -55,8 +55,9 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
     t_data = time.perf_counter() - t0
 
     has_scene = TrainData.open(dataset).scene_xml is not None
-    train = cfg.train if has_scene or cfg.train.model == "splat" else dataclasses.replace(cfg.train, model="splat")
-    model = train.model  # the coherent model needs the room's geometry
+    # the image-source model needs the room's geometry; the others start from the data without one
+    train = cfg.train if has_scene or cfg.train.model != "coherent" else dataclasses.replace(cfg.train, model="splat")
+    model = train.model
     mcfg = method_config(train, scene_known=has_scene)
     C.save(mcfg, out / "method_config.toml") if not (out / "method_config.toml").exists() else None
     res = {}

@@ -150,12 +150,12 @@ SIZES = {
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
     "demo": ExperimentConfig(
         size="demo", seeds=[0], data=DataSize(positions=300, human_positions=8, samples_per_src=20000),
-        train=TrainSize(model="coherent", stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
+        train=TrainSize(stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
                         max_gaussians=4500, human_gaussians=96, val_every=100, room_order=2, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
     "demo_tiny": ExperimentConfig(
         size="demo_tiny", seeds=[0], data=DataSize(positions=30, human_positions=5, samples_per_src=20000),
-        train=TrainSize(model="coherent", stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
+        train=TrainSize(stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
                         max_gaussians=600, human_gaussians=24, val_every=100, room_order=1, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
 }
