@@ -84,7 +84,7 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("ours", "Ours (two-stage)", "frozen background + human Gaussians", "human", human_input=True,
            two_stage=True, builds_on="baseline"),
     Method("refined", "Ours + Stage 3", "Ours, then background and person trained together on empty + walk data",
-           "all", human_input=True, two_stage=True, builds_on="ours"),
+           "all", human_input=True, builds_on="ours"),
 ]}
 
 
@@ -201,15 +201,13 @@ def prior_kwargs(name: str, prior_job: str | Path | None) -> dict:
 
 def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
                   ours_dir: Path | None, quiet: bool) -> dict:
-    """Stage 3 (method "refined"): Ours' background and person field, unfrozen as one joint field
+    """Stage 3 (method "refined"; :func:`train_method` has checked the model family): Ours'
+    background and person field, unfrozen as one joint field
     (:class:`~rfmitsuba.models.coherent_gaussians_joint.CoherentGaussianJointField`), trained on
     empty-room and walk samples into ``out/stage3``."""
     from ..models.coherent_gaussians_joint import CoherentGaussianJointField
     from ..models.coherent_gaussians_person import CoherentGaussianPersonField
 
-    if mcfg.stage1.model != "coherent_gaussians":
-        raise ConfigError(f"method 'refined' (Stage 3) needs model 'coherent_gaussians', not {mcfg.stage1.model!r}: "
-                          "only that family trains its background and person field together")
     if ours_dir is None:
         ours_dir = out / "ours_job"
         train_method("ours", dataset, ours_dir, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
@@ -224,7 +222,7 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
     person = load_field(ours_dir / "stage2" / "final" / "field.npz")
     if not isinstance(person, CoherentGaussianPersonField):
         raise RunError(f"{ours_dir}: Stage 3 needs a coherent_gaussians_person Stage 2, found {type(person).__name__}")
-    factory, width, feats = joint_field(mcfg)
+    _, width, feats = joint_field(mcfg)
     data = open_data(dataset, get_method("refined"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
                      seed=seed)
     tr = Trainer(stage3_config(mcfg, seed=seed), data, out / "stage3", quiet=quiet, extra=lambda idx: feats(data, idx),
@@ -318,7 +316,7 @@ def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
     two-stage method). ``octaves``: the person-feature octaves of the End-to-End model."""
     m = get_method(name)
     jd = Path(job_dir)
-    if not m.two_stage or m.builds_on == "ours":
+    if not m.two_stage:
         f = load_field(jd / ("stage3" if m.builds_on == "ours" else "train") / "final" / "field.npz")
         f.freeze()
         return FieldSet([f], octaves=octaves)

@@ -185,26 +185,31 @@ class CoherentGaussianJointField(Field):
         return f
 
     # ---- evaluation --------------------------------------------------------------------------
-    def presence(self, views: Views) -> np.ndarray:
-        """1 where a person is present in a view, 0 in the empty room: float32 [B] (the presence
-        flag, the last person feature; ConfigError on missing or misshapen inputs)."""
+    def person_inputs(self, views: Views) -> np.ndarray:
+        """The views' person inputs, checked: float32 [B, F + 3] (ConfigError on missing or
+        misshapen inputs)."""
         e = views.extra(self)
         if e is None or np.shape(e) != (views.count, self.extra_inputs):
             raise ConfigError(f"joint coherent Gaussian field: extra inputs must be [B, {self.extra_inputs}] "
                               f"(person features, then the feet position in metres) for B = {views.count} views, "
                               f"got {None if e is None else np.shape(e)}")
-        return (np.asarray(e, np.float32)[:, self.extra_inputs - 4] > 0.5).astype(np.float32)
+        return np.asarray(e, np.float32)
+
+    def presence(self, inputs: np.ndarray) -> np.ndarray:
+        """1 where a person is present, 0 in the empty room: float32 [B], from
+        :meth:`person_inputs` (the presence flag, the last person feature)."""
+        return (inputs[:, self.extra_inputs - 4] > 0.5).astype(np.float32)
 
     def channels(self, views: Views) -> tuple:
         """Calibrated channels at the 16 elements (see the module docstring): (re, im) ``Float``
         [B*16], differentiable in both parts' parameters."""
         from ..rf import array as antenna
 
+        e = self.person_inputs(views)
         hr, hi = self.bg.channels(views)
-        present = self.presence(views)
+        present = self.presence(e)
         if not present.any():
             return hr, hi
-        e = np.asarray(views.extra(self), np.float32)
         pv = dataclasses.replace(views, inputs=lambda field: e)
         dr_, di = self.person_field.channels(pv)
         m = B.Float(np.repeat(present, antenna.NUM_ELEMENTS))
