@@ -65,9 +65,10 @@ def test_a_candidate_that_diverges_is_left_out(tmp_path, monkeypatch):
     assert cfg.model == "splat" and "nan" in choice["refused"]["coherent_gaussians"]
 
 
-def test_a_known_room_also_tries_the_field_without_ray_casts(tmp_path):
-    """Where the dataset names its room, the coherent Gaussian field is a candidate twice (with
-    and without ray-cast visibility); without a room, or with the casts turned off, once."""
+def test_a_known_room_also_tries_more_paths_and_the_field_without_ray_casts(tmp_path):
+    """Where the dataset names its room, the coherent Gaussian field is a candidate three times
+    (ray casts, ray casts with more paths, windows alone); without a room, or with the casts
+    turned off, once; with the orders already at PATHS_ORDERS, PATHS is not tried twice."""
     from types import SimpleNamespace
 
     from rfmitsuba.core import config as C
@@ -76,12 +77,21 @@ def test_a_known_room_also_tries_the_field_without_ray_casts(tmp_path):
 
     cfg = TrainConfig()
     known, blind = SimpleNamespace(scene_xml="room.xml"), SimpleNamespace(scene_xml=None)
-    assert select.candidates(cfg, known) == ["coherent_gaussians", select.WINDOWS, "splat"]
+    assert select.candidates(cfg, known) == ["coherent_gaussians", select.PATHS, select.WINDOWS, "splat"]
     assert select.candidates(cfg, blind) == list(select.AUTO_KINDS)
     given = C.override(cfg, ['scene="bedroom"'])                         # --set scene=... gives a folder its room
     assert select.WINDOWS in select.candidates(given, blind)
     off = C.override(cfg, ["coherent_gaussians.ray_visibility=false"])
-    assert select.WINDOWS not in select.candidates(off, known)
+    assert select.WINDOWS not in select.candidates(off, known) and select.PATHS not in select.candidates(off, known)
+    p = select.candidate_config(cfg, select.PATHS)
+    assert p.model == "coherent_gaussians" and p.coherent_gaussians.ray_visibility is True
+    assert (p.coherent_gaussians.room_order, p.coherent_gaussians.furniture_order) == select.PATHS_ORDERS
+    assert (cfg.coherent_gaussians.room_order, cfg.coherent_gaussians.furniture_order) != select.PATHS_ORDERS
+    rich = C.override(cfg, ["coherent_gaussians.room_order=4", "coherent_gaussians.furniture_order=2"])
+    assert select.candidates(rich, known) == ["coherent_gaussians", select.WINDOWS, "splat"]
+    lower = C.override(cfg, ["coherent_gaussians.room_order=4", "coherent_gaussians.furniture_order=1"])
+    q = select.candidate_config(lower, select.PATHS).coherent_gaussians
+    assert (q.room_order, q.furniture_order) == (4, 2)                     # never fewer paths than asked
     w = select.candidate_config(cfg, select.WINDOWS)
     assert w.model == "coherent_gaussians" and w.coherent_gaussians.ray_visibility is False
     assert select.candidate_config(cfg, "splat").model == "splat"
