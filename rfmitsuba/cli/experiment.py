@@ -1,18 +1,24 @@
-"""``rfmitsuba experiment motivation|parsimony DATASET --out DIR``: multi-run Stage-1 tables;
+"""``rfmitsuba experiment motivation|parsimony|splits DATASET --out DIR``: multi-run Stage-1 tables;
 ``rfmitsuba experiment truth --scene S --positions N --out DIR``: the ground truth's own error bar."""
 from __future__ import annotations
 
 
 def register(sub) -> None:
     p = sub.add_parser("experiment", help="motivation table (SSIM vs positions), parsimony curve (SSIM vs "
-                                          "Gaussians) or truth uncertainty (synthetic array vs exact tracing)")
-    p.add_argument("kind", choices=["motivation", "parsimony", "truth"])
-    p.add_argument("dataset", nargs="?", default=None, help="dataset folder (motivation, parsimony)")
+                                          "Gaussians), split sensitivity (every field and floor under the "
+                                          "dataset's split and the block split) or truth uncertainty (synthetic "
+                                          "array vs exact tracing)")
+    p.add_argument("kind", choices=["motivation", "parsimony", "splits", "truth"])
+    p.add_argument("dataset", nargs="?", default=None, help="dataset folder (motivation, parsimony, splits)")
     p.add_argument("--out", required=True, help="folder for the runs (or datasets) and the table")
     p.add_argument("--config", default=None, help="TrainConfig TOML for every run")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     p.add_argument("--counts", default=None, help="comma-separated positions (motivation), caps (parsimony, splat) "
                                                    "or scatterers (parsimony, model=coherent_gaussians)")
+    p.add_argument("--fields", default=None,
+                   help="splits: comma-separated field kinds (default coherent_gaussians,splat; 'auto' is what "
+                        "`rfmitsuba train` picks)")
+    p.add_argument("--seeds", default="0,1,2", help="splits: comma-separated training seeds (default 0,1,2)")
     p.add_argument("--quick", action="store_true", help="quick training config and small counts")
     t = p.add_argument_group("truth", "generate the same positions with the synthetic and the exact array "
                                       "(rfmitsuba.experiments.truth) and compare channels and PAS")
@@ -55,7 +61,14 @@ def run(args) -> int:
 
     cfg = build_config(args)
     counts = tuple(int(c) for c in args.counts.split(",")) if args.counts else None
-    if args.kind == "motivation":
+    if args.kind == "splits":
+        fields = tuple(f.strip() for f in args.fields.split(",") if f.strip()) if args.fields else E.SENSITIVITY_FIELDS
+        try:
+            seeds = tuple(int(s) for s in args.seeds.split(",") if s.strip())
+        except ValueError:
+            raise ConfigError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+        E.split_sensitivity(args.dataset, args.out, fields=fields, seeds=seeds, cfg=cfg, quiet=args.quiet)
+    elif args.kind == "motivation":
         counts = counts or (E.QUICK_MOTIVATION_COUNTS if args.quick else E.MOTIVATION_COUNTS)
         E.motivation_table(args.dataset, args.out, counts=counts, cfg=cfg, quiet=args.quiet)
     else:

@@ -1,4 +1,5 @@
-"""Stage-1 experiments made of several runs: the motivation table and the parsimony curve.
+"""Stage-1 experiments made of several runs: the motivation table, the parsimony curve and the
+split sensitivity.
 
 * :func:`motivation_table` - test SSIM against the number of static antenna positions
   (paper, Table "motivation": 900, 1500, 3600, 6000, 10000 positions). A row with C positions
@@ -8,6 +9,8 @@
 * :func:`parsimony_curve` - test SSIM against the number of Gaussians ("a model no larger than
   the scene needs"): splat runs whose density control is capped at different sizes, or coherent
   Gaussian runs with different numbers of scatterers; :func:`knee` picks the knee of the curve.
+* :func:`split_sensitivity` - every field and floor under the dataset's own split and the
+  spatial-block split: how much of a score is interpolation (SPEC, "Splits").
 
 Each run is an ordinary run folder ``OUT/<name>`` (resumable, evaluated by
 :func:`rfmitsuba.eval.run.evaluate_run`); the table is written to ``OUT/table.md`` and
@@ -151,4 +154,171 @@ def _plot(path: Path, rows: list[dict], key: str, label: str, *, knee_index: int
         ax.plot([x[knee_index]], [rows[knee_index]["mean"]], "r*", markersize=12, label="knee")
     ax.set_xscale("log")
     plots.label(ax, xlabel=label, ylabel="test SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)
+
+
+#: the two splits of :func:`split_sensitivity`: the dataset's own (a NeRF2 folder's published
+#: random index files) and the held-out slab of the largest x (SPEC, "Splits")
+SENSITIVITY_SPLITS = ("dataset", "block")
+#: fields of :func:`split_sensitivity` by default: the coherent Gaussian field and the paper's splat field
+SENSITIVITY_FIELDS = ("coherent_gaussians", "splat")
+
+
+def _mean_std(xs) -> tuple[float, float]:
+    import numpy as np
+
+    a = np.asarray(xs, np.float64)
+    return float(a.mean()), float(a.std())
+
+
+def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVITY_FIELDS, seeds=(0, 1, 2),
+                      cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
+    """How much of a score is interpolation: every field and every floor under the dataset's own
+    split and the spatial-block split (SPEC, "Splits": measured data, always both).
+
+    One run per field x split x seed (``OUT/<field>_<split>_s<seed>``, an ordinary run folder:
+    a killed experiment resumes, finished runs are not trained or evaluated again). The table
+    also shows the runs of other fields already in ``OUT``, so a field that needs other settings
+    (fewer splat steps) can be added by a second call into the same folder. A field is a
+    ``model`` kind (``"auto"`` included: what ``rfmitsuba train`` picks). The table
+    (``OUT/table.md``, ``OUT/table.json``) gives per field and split the model's and the
+    neighbour-anchored prediction's mean / median test SSIM (mean and std over seeds), the
+    nearest-neighbour, IDW-3 and mean-image floors of the same split, how many seeds beat the best
+    floor in mean and median, size and training time; then the drop from the dataset's split to
+    the block split, for each field and floor. ``OUT/splits.png`` draws it.
+
+    Args:
+        dataset: dataset folder (rfmitsuba or NeRF2 layout).
+        out: folder for the runs and the table.
+        fields: model kinds, one row each per split.
+        seeds: training seeds (the block split is the same for every seed; the dataset's is its own).
+        cfg: training configuration of every run (``model``, ``split`` and ``seed`` are set per run).
+    Returns:
+        the table rows (one per field and split).
+    Raises:
+        ConfigError: no fields or no seeds, or a field that is not a Stage-1 kind.
+    """
+    fields, seeds = tuple(fields), tuple(int(s) for s in seeds)
+    if not fields or not seeds:
+        raise ConfigError("split sensitivity needs at least one field and one seed")
+    cfg = cfg or TrainConfig()
+    for f in fields:  # every field is a Stage-1 kind (ConfigError naming the known ones) before any run starts
+        C.override(cfg, [f'model="{f}"'])
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for split in SENSITIVITY_SPLITS:
+        for f in fields:
+            for s in seeds:
+                rd = out / f"{f}_{split}_s{s}"
+                if (rd / "eval" / "metrics.json").is_file() and (rd / "final" / "field.npz").is_file():
+                    continue
+                from ..train.trainer import train
+
+                train(dataset, rd, cfg=C.override(cfg, [f'model="{f}"', f'split="{split}"', f"seed={s}"]), quiet=quiet)
+                evaluate_run(rd)
+            _write_sensitivity(out, dataset, _sensitivity_rows(out, fields))
+    rows = _sensitivity_rows(out, fields)
+    _write_sensitivity(out, dataset, rows)
+    _plot_sensitivity(out / "splits.png", rows)
+    return rows
+
+
+def _sensitivity_rows(out: Path, fields) -> list[dict]:
+    """One row per field and split from the evaluated runs in ``out``: ``fields`` first, then any
+    other field found there (an earlier call with other fields or settings into the same folder)."""
+    import re
+
+    found: dict[tuple[str, str], list[dict]] = {}
+    for rd in sorted(out.iterdir()):
+        m = re.fullmatch(r"(.+)_(" + "|".join(SENSITIVITY_SPLITS) + r")_s(\d+)", rd.name)
+        if m and (rd / "eval" / "metrics.json").is_file():
+            found.setdefault((m.group(1), m.group(2)), []).append(json.loads((rd / "eval" / "metrics.json").read_text()))
+    order = list(fields) + sorted({f for f, _ in found} - set(fields))
+    return [_sensitivity_row(f, split, found[f, split]) for split in SENSITIVITY_SPLITS for f in order
+            if (f, split) in found]
+
+
+def _sensitivity_row(field: str, split: str, ms: list[dict]) -> dict:
+    def both(key):
+        return {"mean": _mean_std([m[key]["mean"] for m in ms]), "median": _mean_std([m[key]["median"] for m in ms])}
+
+    anch = [m.get("anchored", {}).get("test") or m["model"] for m in ms]
+    return {"field": field, "split": split, "seeds": len(ms), "model": both("model"),
+            "anchored": {"mean": _mean_std([a["mean"] for a in anch]), "median": _mean_std([a["median"] for a in anch])},
+            "nearest_neighbour": both("nearest_neighbour"), "idw3": both("idw3"), "mean_image": both("mean_image"),
+            "beats_best_floor": sum(bool(m["beats_best_floor"]) for m in ms),
+            "anchored_beats_best_floor": sum(bool(m.get("anchored", m)["beats_best_floor"]) for m in ms),
+            "num_gaussians": _mean_std([m["num_gaussians"] for m in ms])[0],
+            "num_parameters": _mean_std([m["num_parameters"] for m in ms])[0],
+            "train_steps": ms[0].get("train_steps"), "train_time_s": _mean_std([m["train_time_s"] for m in ms]),
+            "test_positions": ms[0]["test_positions"], "train_positions": ms[0]["train_positions"],
+            "runs": [m["run"] for m in ms]}
+
+
+def _ms(v: tuple[float, float], n: int) -> str:
+    return f"{v[0]:.3f} ± {v[1]:.3f}" if n > 1 else f"{v[0]:.3f}"
+
+
+def _write_sensitivity(out: Path, dataset, rows: list[dict]) -> None:
+    lines = ["# Split sensitivity: how much of a score is interpolation", "",
+             f"Dataset `{dataset}`. Every field and floor under the dataset's own split (a NeRF2 folder's published "
+             "index files: random, test tags millimetres from training ones) and the spatial-block split (the 20% "
+             "of positions with the largest x held out as a slab; SPEC, \"Splits\"). Mean ± std over seeds; "
+             "*anchored* is eval's neighbour-anchored prediction (`rfmitsuba.eval.anchor`), chosen on validation; "
+             "*beats* counts the seeds that beat the best floor (NN or IDW-3) in mean and median (model / anchored).",
+             "", "| split | field | seeds | model mean / median | anchored mean / median | beats | NN mean / median | "
+                 "IDW-3 mean / median | mean image | Gaussians | parameters | steps | train s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        n = r["seeds"]
+        lines.append(
+            f"| {r['split']} ({r['train_positions']}/{r['test_positions']}) | {r['field']} | {n} | "
+            f"{_ms(r['model']['mean'], n)} / {_ms(r['model']['median'], n)} | "
+            f"{_ms(r['anchored']['mean'], n)} / {_ms(r['anchored']['median'], n)} | "
+            f"{r['beats_best_floor']}/{n} / {r['anchored_beats_best_floor']}/{n} | "
+            f"{r['nearest_neighbour']['mean'][0]:.3f} / {r['nearest_neighbour']['median'][0]:.3f} | "
+            f"{r['idw3']['mean'][0]:.3f} / {r['idw3']['median'][0]:.3f} | {r['mean_image']['mean'][0]:.3f} | "
+            f"{r['num_gaussians']:.0f} | {r['num_parameters']:.0f} | {r['train_steps']} | {r['train_time_s'][0]:.0f} |")
+    by = {(r["field"], r["split"]): r for r in rows}
+    fields = list(dict.fromkeys(r["field"] for r in rows))
+    a, b = SENSITIVITY_SPLITS
+    drops = []
+    for f in fields:
+        if (f, a) in by and (f, b) in by:
+            drops.append((f, by[f, a]["model"]["mean"][0] - by[f, b]["model"]["mean"][0],
+                          by[f, a]["anchored"]["mean"][0] - by[f, b]["anchored"]["mean"][0]))
+    if drops:
+        r0, r1 = by[drops[0][0], a], by[drops[0][0], b]
+        lines += ["", f"Drop in mean SSIM from the {a} split to the {b} split (what interpolation was worth):", "",
+                  "| what | drop |", "|---|---|"]
+        lines += [f"| {f} (model / anchored) | {d:+.3f} / {da:+.3f} |" for f, d, da in drops]
+        lines += [f"| {name} | {r0[k]['mean'][0] - r1[k]['mean'][0]:+.3f} |"
+                  for k, name in (("nearest_neighbour", "nearest neighbour"), ("idw3", "IDW-3"),
+                                  ("mean_image", "mean image"))]
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    (out / "table.json").write_text(json.dumps(rows, indent=1))
+
+
+def _plot_sensitivity(path: Path, rows: list[dict]) -> None:
+    import numpy as np
+
+    fields = list(dict.fromkeys(r["field"] for r in rows))
+    names = list(fields) + ["nearest neighbour", "IDW-3", "mean image"]
+    fig, ax = plots.subplots(figsize=(1.2 * len(names) + 2.5, 3.6))
+    width = 0.8 / len(SENSITIVITY_SPLITS)
+    for j, split in enumerate(SENSITIVITY_SPLITS):
+        rs = {r["field"]: r for r in rows if r["split"] == split}
+        if not rs:
+            continue
+        any_r = next(iter(rs.values()))
+        vals = [rs[f]["model"]["mean"] if f in rs else (np.nan, 0.0) for f in fields]
+        vals += [any_r[k]["mean"] for k in ("nearest_neighbour", "idw3", "mean_image")]
+        x = np.arange(len(names)) + (j - (len(SENSITIVITY_SPLITS) - 1) / 2) * width
+        ax.bar(x, [v[0] for v in vals], width, yerr=[v[1] for v in vals], capsize=2,
+               label=f"{split} split ({any_r['train_positions']}/{any_r['test_positions']})")
+    ax.set_xticks(np.arange(len(names)))
+    ax.set_xticklabels(names, rotation=20, ha="right", fontsize=8)
+    lo = min((r[k]["mean"][0] for r in rows for k in ("model", "mean_image")), default=0.0)
+    ax.set_ylim(max(0.0, lo - 0.05), 1.0)
+    plots.label(ax, xlabel="", ylabel="test mean SSIM", legend_fontsize=8)
     plots.save(fig, path, dpi=110)

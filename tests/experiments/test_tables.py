@@ -25,3 +25,45 @@ def test_parsimony_curve_of_the_coherent_gaussian_field(tmp_path):
     text = (tmp_path / "par" / "table.md").read_text()
     assert "Knee" in text and "IDW-3" in text and (tmp_path / "par" / "parsimony.png").is_file()
     assert all(0 < r["idw3_mean"] <= 1 for r in rows)
+
+
+def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_path):
+    """Both splits per field, the floors of each split, resumable, and a second call into the same
+    folder adds a field with its own settings."""
+    import json
+
+    import pytest
+    from stage1_data import make_dataset
+    from test_trainer import tiny_cfg
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments.tables import split_sensitivity
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=40, task="tx")
+    out = tmp_path / "sp"
+    with pytest.raises(ConfigError, match="coherent_gaussians_person.*person field"):
+        split_sensitivity(ds, out, fields=("coherent_gaussians", "coherent_gaussians_person"), seeds=(0,),
+                          cfg=tiny_cfg(), quiet=True)
+    assert not out.exists()                                   # refused before any run started
+    cfg = tiny_cfg(iterations=4, val_every=4, checkpoint_every=4, **{"coherent_gaussians.scatterers": 2})
+    rows = split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0, 1), cfg=cfg, quiet=True)
+    assert [(r["field"], r["split"], r["seeds"]) for r in rows] == [("coherent_gaussians", "dataset", 2),
+                                                                     ("coherent_gaussians", "block", 2)]
+    split = {r["split"]: r for r in rows}
+    for sp in ("dataset", "block"):
+        runs = sorted(out.glob(f"coherent_gaussians_{sp}_s*"))
+        assert len(runs) == 2 and all(json.loads((r / "eval" / "metrics.json").read_text())["split"] == sp for r in runs)
+    # the floors differ by split (other test positions), and the same split gives one floor for every seed
+    assert split["dataset"]["nearest_neighbour"]["mean"] != split["block"]["nearest_neighbour"]["mean"]
+    assert split["block"]["nearest_neighbour"]["mean"][1] == 0.0
+    text = (out / "table.md").read_text()
+    assert "| block (32/8) | coherent_gaussians | 2 |" in text and "nearest neighbour |" in text
+    assert (out / "splits.png").is_file()
+    # again: nothing is trained; a second field with other settings joins the table
+    stamp = {p: p.stat().st_mtime_ns for p in out.rglob("field.npz")}
+    rows2 = split_sensitivity(ds, out, fields=("splat",), seeds=(0,), cfg=tiny_cfg(iterations=6), quiet=True)
+    assert all(p.stat().st_mtime_ns == t for p, t in stamp.items())
+    assert [(r["field"], r["split"]) for r in rows2] == [("splat", "dataset"), ("coherent_gaussians", "dataset"),
+                                                         ("splat", "block"), ("coherent_gaussians", "block")]
+    assert {r["field"]: r["train_steps"] for r in rows2 if r["split"] == "block"} == {"splat": 6,
+                                                                                      "coherent_gaussians": 4}
