@@ -36,11 +36,16 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   doors' and windows' faces), each plane sequence its own image. Whether each image's path
   exists for a view, and whether something stands across it, is decided by Mitsuba ray casts
   in the room's meshes (:class:`rfmitsuba.sim.visibility.SpecularVisibility`, the same JIT):
-  a path that does not exist contributes nothing, a blocked one contributes with its own
-  complex gain ``img_through`` (what passes through the obstacle), a clear one with ``img_amp +
-  img_slope * (c - 1/2)``, where ``c`` is the mean ``|cos|`` of the path's angles of incidence
-  (a reflection coefficient changes with the angle: Fresnel). Images whose path exists at no
-  training position are left out;
+  a path that does not exist contributes nothing, a clear one with ``g = img_amp + img_slope *
+  (c - 1/2)``, where ``c`` is the mean ``|cos|`` of the path's angles of incidence (a reflection
+  coefficient changes with the angle: Fresnel), and a blocked one with ``g * T + img_through``:
+  what passes through the obstacle. ``T = exp(sum_g n_g (rho_g + j phi_g))`` over the radio
+  materials ``g`` of the room, ``n_g`` the surfaces of material ``g`` the path crosses (ray
+  cast) and ``rho_g + j phi_g`` = ``mat_through`` the learned log-transmission of one crossing,
+  as Sionna RT refracts through each surface as a thin slab without bending the ray; so a path
+  blocked by the wardrobe at one position and by the bed at another is attenuated by each.
+  ``img_through`` is a per-image remainder. Images whose path exists at no training position
+  are left out;
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
@@ -56,6 +61,8 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``img_amp``        S*2 (re, im)  1           amp
 ``img_through``    S*2           1           amp  (known room with ray-cast visibility only)
 ``img_slope``      S*2           1           amp  (known room with ray-cast visibility only)
+``mat_through``    G*2           1, rad      amp  (log-magnitude, phase per crossing of each of
+                                                  the room's G radio materials; ray casts only)
 ``sc_pos``         P*3           m           means
 ``sc_amp``         P*2           1           amp
 ``vis_center``     (S+P)*3       m           means
@@ -69,6 +76,7 @@ differences). State is plain NumPy (npz, no pickle).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,7 +98,8 @@ FORMAT = "rfmitsuba-coherent-gaussians/1"
 SCAN_SAMPLES = 1024
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
-LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp", "sc_pos": "means",
+LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp",
+             "mat_through": "amp", "sc_pos": "means",
              "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "means"}
 
 
@@ -131,7 +140,11 @@ class CoherentGaussianConfig:
         everywhere, up to its learned window.
     furniture_planes: known room: furniture planes from the meshes' faces ("faces") or from each
         piece's bounding box ("box"), :func:`rfmitsuba.rf.images.scene_image_maps`.
-    init_through: initial gain of a blocked path relative to its clear gain.
+    init_through: initial per-image remainder ``img_through`` of a blocked path, relative to its clear gain.
+    material_through: learn one transmission per crossing of each radio material (``mat_through``):
+        a blocked path keeps its clear gain times the transmissions of the surfaces it crosses.
+        False: a blocked path has only its own gain ``img_through`` (before this option).
+    init_transmission: initial magnitude of one crossing's transmission (``mat_through``), in (0, 1].
     prune_unseen: leave out the images whose ray-cast path exists at no training position.
     incidence_slope: learn ``img_slope`` (False: it stays 0).
     """
@@ -159,6 +172,8 @@ class CoherentGaussianConfig:
     ray_visibility: bool = True
     furniture_planes: Literal["faces", "box"] = "faces"
     init_through: float = 0.0
+    material_through: bool = True
+    init_transmission: float = 0.5
     prune_unseen: bool = True
     incidence_slope: bool = True
 
@@ -182,9 +197,10 @@ class CoherentGaussianConfig:
         if self.furniture_planes not in ("faces", "box"):
             raise ConfigError(f"CoherentGaussianConfig.furniture_planes must be 'faces' or 'box', got "
                               f"{self.furniture_planes!r}")
-        if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0 and 0 <= self.init_through <= 1):
-            raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1], scatterer_gain > 0 and init_through "
-                              "in [0, 1] required")
+        if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0 and 0 <= self.init_through <= 1
+                and 0 < self.init_transmission <= 1):
+            raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1], scatterer_gain > 0, init_through "
+                              "in [0, 1] and init_transmission in (0, 1] required")
 
 
 # ------------------------------------------------------------------------------ initialisation
@@ -454,6 +470,9 @@ class CoherentGaussianField(FlatParameterField):
             if self._vis is not None:
                 params["img_through"] = cfg.init_through * params["img_amp"]
                 params["img_slope"] = np.zeros(S * 2)
+                if cfg.material_through:
+                    G = len(self._vis.group_names)
+                    params["mat_through"] = np.tile([np.log(cfg.init_transmission), 0.0], G)
         self.params: dict = {}
         self.load_state_dict(params)
 
@@ -544,6 +563,8 @@ class CoherentGaussianField(FlatParameterField):
                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
         if self._vis is not None:
             out["img_through"] = out["img_slope"] = S * 2
+            if self.cfg.material_through:
+                out["mat_through"] = 2 * len(self._vis.group_names)
         return out
 
     @property
@@ -578,8 +599,11 @@ class CoherentGaussianField(FlatParameterField):
             if meta.get("format") != FORMAT:
                 raise RunError(f"not a CoherentGaussianField state (format {meta.get('format')!r})")
             P = len(np.asarray(state["sc_pos"]).ravel()) // 3
+            cfg = from_dict(CoherentGaussianConfig, meta["config"])
+            if "mat_through" not in state and cfg.material_through:   # saved before material transmission
+                cfg = dataclasses.replace(cfg, material_through=False)
             f = cls(state["geometry.A"], state["geometry.order"], np.zeros((P, 3)),
-                    cfg=from_dict(CoherentGaussianConfig, meta["config"]), readout=meta["readout"],
+                    cfg=cfg, readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
                     seed=meta["seed"], name=meta.get("name", "bg"), params=state,
                     scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"),
@@ -618,20 +642,31 @@ class CoherentGaussianField(FlatParameterField):
         out = {"nb": len(x), "x": x, "y": y, "q": q, "kw": kw,
                "cols": {"x": _columns(x), "y": _columns(y), "q": _columns(q), "e": _columns(e_world)}}
         if self._vis is not None:
-            exists, clear, cos_in = self.visibility(x, y)
-            out["vis"] = tuple(B.Float(np.asarray(v, np.float32).ravel()) for v in (exists, clear, cos_in - 0.5))
+            tr = self.path_trace(x, y)
+            out["vis"] = tuple(B.Float(np.asarray(v, np.float32).ravel())
+                               for v in (tr.exists, tr.clear, tr.cos_incidence - 0.5))
+            if self.cfg.material_through:
+                out["cross"] = B.Float(np.ascontiguousarray(tr.crossings, np.float32).ravel())
         return out
 
     def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ray-cast (exists, clear) bool [B, S] and mean incidence ``|cos|`` float [B, S] of every
         image path for array centres ``x`` and transmitters ``y`` (float [B, 3] m)
-        (:class:`~rfmitsuba.sim.visibility.PathTrace`); all True and 1 without a known room.
-        Views already cast are remembered (training revisits the same positions)."""
+        (:class:`~rfmitsuba.sim.visibility.PathTrace`); all True and 1 without a known room."""
         x = np.asarray(x, np.float64).reshape(-1, 3)
-        y = np.asarray(y, np.float64).reshape(-1, 3)
         if self._vis is None:
             full = np.ones((len(x), self.num_images), bool)
             return full, full, np.ones(full.shape)
+        return tuple(self.path_trace(x, y))[:3]
+
+    def path_trace(self, x: np.ndarray, y: np.ndarray):
+        """The :class:`~rfmitsuba.sim.visibility.PathTrace` of every image path for array centres
+        ``x`` and transmitters ``y`` (float [B, 3] m; known room with ray casts only). Views
+        already cast are remembered (training revisits the same positions)."""
+        from ..sim.visibility import PathTrace
+
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        y = np.asarray(y, np.float64).reshape(-1, 3)
         keys = [np.concatenate([a, b]).tobytes() for a, b in zip(x, y)]
         missing: dict = {}                               # key -> first row index, each uncast view once
         for i, k in enumerate(keys):
@@ -641,8 +676,8 @@ class CoherentGaussianField(FlatParameterField):
             idx = np.array(list(missing.values()))
             tr = self._vis.trace(x[idx], y[idx], self.planes, self.order)
             for j, k in enumerate(missing):
-                self._vis_cache[k] = (tr.exists[j], tr.clear[j], tr.cos_incidence[j])
-        return tuple(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(3))
+                self._vis_cache[k] = tuple(a[j] for a in tr)
+        return PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,
@@ -694,6 +729,17 @@ class CoherentGaussianField(FlatParameterField):
                 tr, ti = dr.gather(B.Float, th, 2 * k), dr.gather(B.Float, th, 2 * k + 1)
                 ar = ar + c * dr.gather(B.Float, sl, 2 * k)
                 ai = ai + c * dr.gather(B.Float, sl, 2 * k + 1)
+                if "cross" in prep:  # the clear gain through every crossed surface: g * exp(sum n (rho + j phi))
+                    G = len(self._vis.group_names)
+                    mt = self.params["mat_through"]
+                    lr = li = 0.0
+                    for g in range(G):
+                        n = dr.gather(B.Float, prep["cross"], lane * G + g)
+                        lr = lr + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g, dr.width(lane)))
+                        li = li + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g + 1, dr.width(lane)))
+                    mag = dr.exp(lr)
+                    Tr, Ti = mag * dr.cos(li), mag * dr.sin(li)
+                    tr, ti = tr + ar * Tr - ai * Ti, ti + ar * Ti + ai * Tr
                 ar, ai = cl * ar + (ex - cl) * tr, cl * ai + (ex - cl) * ti
         else:
             pos = self.params["sc_pos"]

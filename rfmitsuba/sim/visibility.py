@@ -21,8 +21,12 @@ does not answer. :class:`SpecularVisibility` answers it the way a ray tracer doe
 
 The result per (view, image) is ``exists`` (valid, and every reflection point lies on a real
 face) and ``clear`` (exists, and no leg is blocked). A path that exists but is blocked may still
-carry power through what blocks it (Sionna's refraction through thin objects); the coherent
-Gaussian field gives such paths a gain of their own.
+carry power through what blocks it: Sionna RT refracts through every surface it crosses as
+through a thin slab of the surface's radio material, without bending the ray. So a blocked path
+also reports its **crossings**: how many surfaces of each material group its legs cross before
+their ends (casts continue past each hit, at most ``max_crossings`` per leg). The coherent
+Gaussian field multiplies such a path's clear gain by one learned transmission per crossing of
+each material.
 
 Positions are metres; the receiver is the array centre (Sionna's synthetic array traces from
 there too). All rays in one call; the scene is built once from the room's meshes
@@ -94,12 +98,16 @@ class PathTrace(NamedTuple):
     exists: bool, the specular path is valid and every reflection point lies on a face;
     clear: bool, it exists and nothing stands across it;
     cos_incidence: float64, the mean over its reflections of ``|cos|`` of the angle between the
-    incoming leg and the plane's normal (1 at normal incidence; 1 for the direct path).
+    incoming leg and the plane's normal (1 at normal incidence; 1 for the direct path);
+    crossings: float32 [B, S, G], the surfaces of each of the G material groups
+    (:attr:`SpecularVisibility.group_names`) that the path's legs cross (0 where it is clear
+    or does not exist).
     """
 
     exists: np.ndarray
     clear: np.ndarray
     cos_incidence: np.ndarray
+    crossings: np.ndarray
 
 
 class SpecularVisibility:
@@ -116,18 +124,32 @@ class SpecularVisibility:
             a surface before it passes the plane by ``tol``.
         rounds: how many surfaces within ``flush`` of the plane a leg starts on are looked past
             (a panel on a wall has a front and a back).
+        groups: the material group of each mesh (names, one per mesh; default: one group per
+            mesh). :meth:`from_xml` groups by radio material.
+        max_crossings: most surfaces counted along one blocked leg.
     """
 
-    def __init__(self, meshes, *, tol: float = 0.02, flush: float = 0.05, probe: float = 0.05, rounds: int = 3):
+    def __init__(self, meshes, *, tol: float = 0.02, flush: float = 0.05, probe: float = 0.05, rounds: int = 3,
+                 groups=None, max_crossings: int = 8):
         if not meshes:
             raise ConfigError("SpecularVisibility needs at least one mesh")
         if not (tol > 0 and flush > 0 and probe > tol):
             raise ConfigError(f"SpecularVisibility: tol > 0, flush > 0 and probe > tol required, got tol {tol}, "
                               f"flush {flush}, probe {probe}")
+        if groups is None:
+            groups = [f"mesh{i}" for i in range(len(meshes))]
+        groups = [str(g) for g in groups]
+        if len(groups) != len(meshes) or max_crossings < 1:
+            raise ConfigError(f"SpecularVisibility: one group per mesh ({len(meshes)}) and max_crossings >= 1 "
+                              f"required, got {len(groups)} groups and max_crossings {max_crossings}")
         B.ensure()
+        import drjit as dr
         import mitsuba as mi
 
         self.tol, self.flush, self.probe, self.rounds = float(tol), float(flush), float(probe), int(rounds)
+        self.max_crossings = int(max_crossings)
+        #: the material groups, in order of first appearance; crossings are counted per group
+        self.group_names: list[str] = list(dict.fromkeys(groups))
         desc = {"type": "scene"}
         for i, m in enumerate(meshes):
             v = np.asarray(m.vertices, np.float32).reshape(-1, 3)
@@ -142,26 +164,42 @@ class SpecularVisibility:
             p.update()
             desc[f"shape{i}"] = mesh
         self.scene = mi.load_dict(desc)
+        # a hit names its shape by Mitsuba's registry id; each shape's own id ("shape<i>") names its mesh
+        ids = np.asarray(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()).numpy(), np.int64)
+        self._group_of_id = np.full(int(ids.max()) + 1, -1, np.int64)
+        for sid, shape in zip(ids, self.scene.shapes()):
+            self._group_of_id[sid] = self.group_names.index(groups[int(shape.id()[len("shape"):])])
 
     @classmethod
     def from_xml(cls, xml_path: str | Path, **kw) -> "SpecularVisibility":
-        """The room of a Mitsuba scene XML (every shape; SceneError names a bad file)."""
+        """The room of a Mitsuba scene XML (every shape, grouped by radio material; SceneError
+        names a bad file)."""
         from ..data.scene_xml import read_shapes
 
-        return cls([s.mesh for s in read_shapes(xml_path)], **kw)
+        shapes = read_shapes(xml_path)
+        return cls([s.mesh for s in shapes], groups=[s.material for s in shapes], **kw)
 
     def first_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """Distance to the first surface along each ray: float [R, 3] origins [m] and unit
         directions -> float64 [R] metres (inf where the ray leaves the scene)."""
+        return self.hits(origin, direction)[0]
+
+    def hits(self, origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The first surface along each ray: (distance float64 [R] m, inf where the ray leaves the
+        scene; material group int64 [R], -1 there)."""
+        import drjit as dr
         import mitsuba as mi
 
         if len(origin) == 0:
-            return np.zeros(0)
+            return np.zeros(0), np.zeros(0, np.int64)
         o = np.ascontiguousarray(np.asarray(origin, np.float32).T)
         d = np.ascontiguousarray(np.asarray(direction, np.float32).T)
         pi = self.scene.ray_intersect_preliminary(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d)))
         t = np.asarray(pi.t.numpy(), np.float64)
-        return np.where(np.isfinite(t), t, np.inf)
+        sid = np.asarray(dr.reinterpret_array(mi.UInt32, pi.shape).numpy(), np.int64)
+        hit = np.isfinite(t)
+        group = np.where(hit & (sid < len(self._group_of_id)), self._group_of_id[np.minimum(sid, len(self._group_of_id) - 1)], -1)
+        return np.where(hit, t, np.inf), group
 
     def __call__(self, x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -193,11 +231,13 @@ class SpecularVisibility:
         eps = 1e-3
         # legs: from just past the start towards the end; probes: the last ``probe`` metres before a face
         hp = np.minimum(self.probe, 0.5 * L)
-        t = self.first_hits(np.concatenate([(a + eps * u)[active], (b - hp[..., None] * u)[ends_on_face]]),
-                            np.concatenate([u[active], u[ends_on_face]]))
+        t, g = self.hits(np.concatenate([(a + eps * u)[active], (b - hp[..., None] * u)[ends_on_face]]),
+                         np.concatenate([u[active], u[ends_on_face]]))
         n_leg = int(active.sum())
         t_leg = np.full(active.shape, np.inf)
         t_leg[active] = eps + t[:n_leg]
+        g_leg = np.full(active.shape, -1, np.int64)
+        g_leg[active] = g[:n_leg]
         t_probe = np.full(active.shape, np.nan)
         t_probe[ends_on_face] = t[n_leg:]
         # A hit within ``flush`` of the plane a leg starts on is that plane's own face (a panel
@@ -218,14 +258,40 @@ class SpecularVisibility:
                 & ~(ends_on_face & (off(end_pl) <= self.flush))
             if not again.any():
                 break
-            t2 = self.first_hits((a + (t_leg + eps)[..., None] * u)[again], u[again])
+            t2, g2 = self.hits((a + (t_leg + eps)[..., None] * u)[again], u[again])
             t_leg[again] = t_leg[again] + eps + t2
+            g_leg[again] = g2
         near_end = ends_on_face & (off(end_pl) <= self.flush)
         blocked = active & (t_leg < L - self.tol) & ~near_end
         on_face = ~ends_on_face | (t_probe <= hp + self.tol)
         exists = valid & on_face.all(-1)
         clear = exists & ~blocked.any(-1)
+        crossings = self._crossings(a, u, L, t_leg, g_leg, blocked & (exists & ~clear)[..., None],
+                                    np.where(ends_on_face, self.flush, 0.0))
         cos_in = np.abs(np.einsum("bsok,sok->bso", u, end_pl[..., :3]))       # incoming leg . the plane it ends on
         cos_in = np.where(ends_on_face, cos_in, 0.0).sum(-1) / np.maximum(order, 1)[None, :]
         cos_in = np.where(order[None, :] == 0, 1.0, cos_in)
-        return PathTrace(exists, clear, cos_in)
+        return PathTrace(exists, clear, cos_in, crossings)
+
+    def _crossings(self, a, u, L, t_leg, g_leg, blocked, margin) -> np.ndarray:
+        """Surfaces of each group crossed by the blocked legs: float32 [B, S, G]. From each leg's
+        first blocking hit (distance ``t_leg``, group ``g_leg``), casts go on past every hit
+        until one reaches the leg's end less ``tol`` and ``margin`` (the face the leg reflects off)."""
+        nb, S = blocked.shape[:2]
+        G = len(self.group_names)
+        out = np.zeros((nb, S, G), np.float32)
+        bi, si, li = np.nonzero(blocked)
+        t, g = t_leg[bi, si, li], g_leg[bi, si, li]
+        end = L[bi, si, li] - self.tol - margin[bi, si, li]
+        for _ in range(self.max_crossings):
+            live = np.isfinite(t) & (t < end) & (g >= 0)
+            if not live.any():
+                break
+            np.add.at(out, (bi[live], si[live], g[live]), 1.0)
+            origin = a[bi[live], si[live], li[live]] + (t[live] + 1e-3)[:, None] * u[bi[live], si[live], li[live]]
+            t2, g2 = self.hits(origin, u[bi[live], si[live], li[live]])
+            t_new = np.full(len(t), np.inf)
+            g_new = np.full(len(t), -1, np.int64)
+            t_new[live], g_new[live] = t[live] + 1e-3 + t2, g2
+            t, g = t_new, g_new
+        return out

@@ -136,3 +136,29 @@ def test_incidence_cosine_closed_form():
     tr = _vis().trace(np.array([[3.0, 1.5, 1.0]]), np.array([[1.0, 1.5, 1.0]]), m.planes, m.order)
     assert tr.exists.all() and tr.clear.all()
     np.testing.assert_allclose(tr.cos_incidence[0], [1.0, 2 ** -0.5], atol=1e-9)
+
+
+def test_crossings_count_the_surfaces_of_each_material_group():
+    """Between (0.5, 1.5, 1) and (3.5, 1.5, 1) stand a wooden box and two panes of glass (two thin
+    boxes, each crossed twice): the direct path crosses 2 wood and 4 glass surfaces; its floor
+    bounce passes under them (clear, no crossings). ``max_crossings`` caps the count per leg; a
+    group per mesh is the default; groups must match the meshes."""
+    from rfmitsuba.sim.visibility import SpecularVisibility
+
+    def box(ext, at):
+        return trimesh.creation.box(extents=ext, transform=trimesh.transformations.translation_matrix(at))
+
+    wood = box((0.4, 0.4, 0.4), (1.5, 1.5, 1.0))
+    glass = [box((0.02, 0.6, 0.6), (2.5, 1.5, 1.0)), box((0.02, 0.6, 0.6), (3.0, 1.5, 1.0))]
+    m = _planes(Plane((0.0, 0.0, 1.0), 0.0, "floor"))
+    x, y = np.array([[3.5, 1.5, 1.0]]), np.array([[0.5, 1.5, 1.0]])
+    vis = SpecularVisibility([ROOM, wood, *glass], groups=["concrete", "wood", "glass", "glass"])
+    assert vis.group_names == ["concrete", "wood", "glass"]
+    tr = vis.trace(x, y, m.planes, m.order)
+    assert tr.exists.all() and not tr.clear[0, 0] and tr.clear[0, 1]
+    np.testing.assert_array_equal(tr.crossings[0], [[0, 2, 4], [0, 0, 0]])
+    capped = SpecularVisibility([ROOM, wood, *glass], groups=["c", "w", "g", "g"], max_crossings=3)
+    np.testing.assert_array_equal(capped.trace(x, y, m.planes, m.order).crossings[0, 0], [0, 2, 1])
+    assert _vis(wood).trace(x, y, m.planes, m.order).crossings.shape == (1, 2, 2)   # one group per mesh
+    with pytest.raises(ConfigError, match="one group per mesh"):
+        SpecularVisibility([ROOM, wood], groups=["concrete"])
