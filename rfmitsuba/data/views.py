@@ -54,6 +54,17 @@ def _scene_xml(meta: dict, root: Path) -> Path | None:
     return None
 
 
+def _max_depth(meta: dict, root: Path) -> int | None:
+    """The simulating ray tracer's path depth (meta "solver": {"max_depth": n}), or None."""
+    solver = meta.get("solver")
+    if not isinstance(solver, dict) or solver.get("max_depth") is None:
+        return None
+    d = solver["max_depth"]
+    if isinstance(d, bool) or not isinstance(d, int) or d < 0:
+        raise DatasetError(f"{root}: solver.max_depth must be an integer >= 0, got {d!r}")
+    return d
+
+
 @dataclass
 class TrainData:
     """What a run trains and is evaluated on.
@@ -85,6 +96,9 @@ class TrainData:
     #: measured data (a NeRF2 folder as published, not written by this package): exact geometry
     #: and impairments are unknown, so models should expect calibration errors
     measured: bool = False
+    #: most interactions (reflections and surface crossings) per path of the ray tracer that
+    #: simulated the data (meta "solver": {"max_depth"}), None when no tracer made it (measured data)
+    max_depth: int | None = None
 
     @classmethod
     def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
@@ -126,7 +140,8 @@ class TrainData:
         data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
                    scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
                    frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
-                   readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)))
+                   readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)),
+                   max_depth=_max_depth(meta, path))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))
         if shp != (len(ap), *PAS_SHAPE):

@@ -44,7 +44,11 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   cast) and ``rho_g + j phi_g`` = ``mat_through`` the learned log-transmission of one crossing,
   as Sionna RT refracts through each surface as a thin slab without bending the ray; so a path
   blocked by the wardrobe at one position and by the bed at another is attenuated by each.
-  ``img_through`` is a per-image remainder. Images whose path exists at no training position
+  ``img_through`` is a per-image remainder. A ray tracer counts each crossing as an interaction,
+  so where the data were simulated with at most ``D`` interactions per path (the dataset's
+  ``solver.max_depth``), a blocked path with more reflections plus crossings than ``D`` does not
+  exist (Sionna's default D = 3: the direct path through a wardrobe, two crossings, exists; a
+  double reflection through it does not). Images whose path exists at no training position
   are left out;
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
@@ -145,6 +149,9 @@ class CoherentGaussianConfig:
         a blocked path keeps its clear gain times the transmissions of the surfaces it crosses.
         False: a blocked path has only its own gain ``img_through`` (before this option).
     init_transmission: initial magnitude of one crossing's transmission (``mat_through``), in (0, 1].
+    depth_limit: a blocked path whose reflections plus crossings exceed the simulating ray
+        tracer's depth (:attr:`rfmitsuba.data.views.TrainData.max_depth`) is absent; no effect
+        where the data name no tracer (measured data).
     prune_unseen: leave out the images whose ray-cast path exists at no training position.
     incidence_slope: learn ``img_slope`` (False: it stays 0).
     """
@@ -174,6 +181,7 @@ class CoherentGaussianConfig:
     init_through: float = 0.0
     material_through: bool = True
     init_transmission: float = 0.5
+    depth_limit: bool = True
     prune_unseen: bool = True
     incidence_slope: bool = True
 
@@ -411,6 +419,8 @@ class CoherentGaussianField(FlatParameterField):
             and scene_xml: the room; with both (and ``cfg.ray_visibility``), the images' visibility is ray-cast
             (:class:`~rfmitsuba.sim.visibility.SpecularVisibility`) and ``img_through`` and
             ``img_slope`` are learned.
+        max_depth: most reflections plus crossings of a path in the data (their ray tracer's
+            depth; None: no limit), applied with ``cfg.depth_limit``.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -421,7 +431,8 @@ class CoherentGaussianField(FlatParameterField):
     def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
                  readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,
                  name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0,
-                 init: str | None = None, planes: np.ndarray | None = None, scene_xml: str | Path | None = None):
+                 init: str | None = None, planes: np.ndarray | None = None, scene_xml: str | Path | None = None,
+                 max_depth: int | None = None):
         B.ensure()
         self.A = np.asarray(A, np.float64).reshape(-1, 3, 3)
         self.order = np.asarray(order, np.int64).reshape(-1)
@@ -445,6 +456,8 @@ class CoherentGaussianField(FlatParameterField):
         S, P = len(self.A), len(sc)
         self.num_images, self.num_scatterers = S, P
         self.planes = self.scene_xml = self._vis = None
+        #: most reflections plus crossings of a path (None: no limit); see CoherentGaussianConfig.depth_limit
+        self.max_depth = None if max_depth is None or not cfg.depth_limit else int(max_depth)
         if planes is not None and scene_xml is not None and cfg.ray_visibility:
             from ..sim.visibility import SpecularVisibility
 
@@ -518,7 +531,12 @@ class CoherentGaussianField(FlatParameterField):
                 from ..sim.visibility import SpecularVisibility
 
                 xy = np.unique(np.concatenate([x, y], axis=1), axis=0)      # each geometry once
-                seen = SpecularVisibility.from_xml(scene_xml)(xy[:, :3], xy[:, 3:], maps.planes, maps.order)[0].any(0)
+                tr = SpecularVisibility.from_xml(scene_xml).trace(xy[:, :3], xy[:, 3:], maps.planes, maps.order)
+                seen = tr.exists
+                depth = getattr(data, "max_depth", None)
+                if c.depth_limit and depth is not None:
+                    seen = seen & (maps.order[None, :] + tr.crossings.sum(-1) <= depth)
+                seen = seen.any(0)
                 seen[maps.order == 0] = True
                 maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
                                  label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
@@ -542,7 +560,8 @@ class CoherentGaussianField(FlatParameterField):
         ray = init == "room" and c.ray_visibility
         f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
                 frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
-                planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None)
+                planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
+                max_depth=getattr(data, "max_depth", None))
         f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
         return f
 
@@ -589,7 +608,7 @@ class CoherentGaussianField(FlatParameterField):
             "scene_xml": self.scene_xml,
             "format": FORMAT, "config": to_dict(self.cfg), "readout": self.readout, "wavefront": self.wavefront,
             "frequency_hz": self.frequency_hz, "seed": self.seed, "name": self.name, "frozen": self.frozen,
-            "scatterer_scale": self.scatterer_scale, "init": self.init}))
+            "scatterer_scale": self.scatterer_scale, "init": self.init, "max_depth": self.max_depth}))
         return out
 
     @classmethod
@@ -607,7 +626,8 @@ class CoherentGaussianField(FlatParameterField):
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
                     seed=meta["seed"], name=meta.get("name", "bg"), params=state,
                     scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"),
-                    planes=state.get("geometry.planes"), scene_xml=meta.get("scene_xml"))
+                    planes=state.get("geometry.planes"), scene_xml=meta.get("scene_xml"),
+                    max_depth=meta.get("max_depth"))
         except KeyError as e:
             raise RunError(f"CoherentGaussianField state lacks {e}") from None
         if meta.get("frozen"):
@@ -661,8 +681,9 @@ class CoherentGaussianField(FlatParameterField):
 
     def path_trace(self, x: np.ndarray, y: np.ndarray):
         """The :class:`~rfmitsuba.sim.visibility.PathTrace` of every image path for array centres
-        ``x`` and transmitters ``y`` (float [B, 3] m; known room with ray casts only). Views
-        already cast are remembered (training revisits the same positions)."""
+        ``x`` and transmitters ``y`` (float [B, 3] m; known room with ray casts only), blocked
+        paths deeper than :attr:`max_depth` marked absent. Views already cast are remembered
+        (training revisits the same positions)."""
         from ..sim.visibility import PathTrace
 
         x = np.asarray(x, np.float64).reshape(-1, 3)
@@ -677,7 +698,12 @@ class CoherentGaussianField(FlatParameterField):
             tr = self._vis.trace(x[idx], y[idx], self.planes, self.order)
             for j, k in enumerate(missing):
                 self._vis_cache[k] = tuple(a[j] for a in tr)
-        return PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
+        tr = PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
+        if self.max_depth is None:
+            return tr
+        # a path needs its reflections plus crossings within the tracer's depth
+        deep = self.order[None, :] + tr.crossings.sum(-1) > self.max_depth
+        return tr._replace(exists=tr.exists & ~deep, crossings=np.where(deep[..., None], 0.0, tr.crossings))
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,
