@@ -259,7 +259,7 @@ def test_training_step_kernels_compile_once(variant):
     assert all(k["cache_hit"] for k in jit), [k.get("operation_count") for k in jit if not k["cache_hit"]]
 
 
-def _room_field(**cfg):
+def _room_field(max_depth=None, **cfg):
     """A known-room field in the built-in bedroom (room order 1 and furniture faces, ray-cast
     visibility), its parameters perturbed as in :func:`_field`, and 6 moving-RX views."""
     from rfmitsuba.core import backend as B
@@ -275,7 +275,7 @@ def _room_field(**cfg):
     c = CoherentGaussianConfig(init_extent=3.0, init_through=0.3, **cfg)
     f = CoherentGaussianField(maps.A, maps.order, np.zeros((0, 3)), cfg=c, readout="amplitude", wavefront="plane",
                               vis_center=np.array([2.0, 1.7, 1.0]), frequency_hz=F, planes=maps.planes,
-                              scene_xml=xml, init="room")
+                              scene_xml=xml, init="room", max_depth=max_depth)
     f.params["img_offset"] = B.Float(maps.b.ravel().astype(np.float32))
     rng = np.random.default_rng(0)
     for k in ("img_amp", "img_through", "img_slope", "mat_through", "cal"):
@@ -364,6 +364,28 @@ def test_material_transmission_of_blocked_paths():
     st = f.state_dict()
     st.pop("mat_through")
     assert CoherentGaussianField.from_state_dict(st).cfg.material_through is False
+
+
+def test_paths_deeper_than_the_tracer_are_absent(tmp_path):
+    """With the data's tracer depth D, a path exists only if its reflections plus crossings are at
+    most D: at D = 1 the blocked direct path (2 wood crossings) and every blocked reflection are
+    gone, clear first-order reflections stay; at D = 3 the blocked direct path is back; no depth
+    (measured data) or ``depth_limit = false`` keeps every path; the depth travels with the state."""
+    from rfmitsuba.models.base import load_field
+
+    free, views = _room_field()
+    raw = free.path_trace(views.view_pos, views.transmitter)
+    blocked = raw.exists & ~raw.clear
+    assert blocked[:, 0].any() and blocked[:, free.order == 1].any()
+    d1 = _room_field(max_depth=1)[0].path_trace(views.view_pos, views.transmitter)
+    assert not (d1.exists & ~d1.clear).any() and np.array_equal(d1.clear, raw.clear)
+    d3 = _room_field(max_depth=3)[0]
+    t3 = d3.path_trace(views.view_pos, views.transmitter)
+    assert np.array_equal(t3.exists[:, 0], raw.exists[:, 0])
+    deep = free.order[None, :] + raw.crossings.sum(-1) > 3
+    np.testing.assert_array_equal(t3.exists, raw.exists & ~deep)
+    assert _room_field(max_depth=1, depth_limit=False)[0].max_depth is None
+    assert load_field(d3.save(tmp_path / "f.npz")).max_depth == 3
 
 
 def test_known_room_state_round_trip(tmp_path):
