@@ -224,6 +224,9 @@ class SpecularVisibility:
         leg = np.arange(O + 1)
         active = (leg[None, :] <= order[:, None])[None] & valid[..., None]          # [B, S, O+1]
         ends_on_face = (leg[None, :] < order[:, None])[None] & active
+        # inactive legs (past an image's order, or of a path that is not valid) may hold NaN or inf
+        # points: only active legs are measured
+        pts = np.where(np.isfinite(pts), pts, 0.0)
         a, b = pts[:, :, :-1], pts[:, :, 1:]
         seg = np.where(active[..., None], b - a, 1.0)
         L = np.linalg.norm(seg, axis=-1)
