@@ -24,9 +24,10 @@ face) and ``clear`` (exists, and no leg is blocked). A path that exists but is b
 carry power through what blocks it: Sionna RT refracts through every surface it crosses as
 through a thin slab of the surface's radio material, without bending the ray. So a blocked path
 also reports its **crossings**: how many surfaces of each material group its legs cross before
-their ends (casts continue past each hit, at most ``max_crossings`` per leg). The coherent
-Gaussian field multiplies such a path's clear gain by one learned transmission per crossing of
-each material.
+their ends (casts continue past each hit, at most ``max_crossings`` per leg). A tracer counts
+each crossing as an interaction, so a path with more reflections plus crossings than its depth
+does not exist in its data; the coherent Gaussian field can also attenuate a blocked path by one
+learned transmission per crossing of each material.
 
 Positions are metres; the receiver is the array centre (Sionna's synthetic array traces from
 there too). All rays in one call; the scene is built once from the room's meshes
@@ -198,7 +199,7 @@ class SpecularVisibility:
         t = np.asarray(pi.t.numpy(), np.float64)
         sid = np.asarray(dr.reinterpret_array(mi.UInt32, pi.shape).numpy(), np.int64)
         hit = np.isfinite(t)
-        group = np.where(hit & (sid < len(self._group_of_id)), self._group_of_id[np.minimum(sid, len(self._group_of_id) - 1)], -1)
+        group = np.where(hit, self._group_of_id[np.clip(sid, 0, len(self._group_of_id) - 1)], -1)
         return np.where(hit, t, np.inf), group
 
     def __call__(self, x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray

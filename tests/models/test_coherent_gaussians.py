@@ -327,12 +327,12 @@ def test_material_transmission_of_blocked_paths():
     """A blocked path keeps its clear gain times exp(sum n_g (rho_g + j phi_g)) over the surfaces it
     crosses: the views whose direct path the furniture blocks cross 2 wood surfaces; the gradient of
     the materials' log-transmission matches finite differences; a material no path crosses changes
-    no channel; with ``material_through = False`` the parameter is gone and blocked paths keep
-    img_through alone; a field saved before the option loads without it."""
+    no channel; by default (``material_through = False``) the parameter is absent and blocked paths
+    keep img_through alone; a field saved before the option loads without it."""
     from rfmitsuba.core import backend as B
     from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
 
-    f, views = _room_field()
+    f, views = _room_field(material_through=True)
     tr = f.path_trace(views.view_pos, views.transmitter)
     names = f._vis.group_names
     blocked = tr.exists & ~tr.clear
@@ -359,7 +359,7 @@ def test_material_transmission_of_blocked_paths():
     f.params["mat_through"] = B.Float(m.ravel())
     h1 = [np.asarray(v.numpy()) for v in f.channels(views)]
     np.testing.assert_array_equal(h1[0], h0[0])
-    off = _room_field(material_through=False)[0]
+    off = _room_field()[0]
     assert "mat_through" not in off.parameters() and "img_through" in off.parameters()
     st = f.state_dict()
     st.pop("mat_through")
