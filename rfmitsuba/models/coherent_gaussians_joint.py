@@ -19,6 +19,9 @@ plus, where a person is present, the person field's change::
 
 ``present`` is the presence flag of the person features (1 with a person, 0 in the empty room,
 :func:`rfmitsuba.data.samples.human_features`), so an empty-room view renders the background alone.
+It is computed in one pass over the background's sources, each term weighted ``1 + present *
+(blockage - 1)`` (:meth:`CoherentGaussianPersonField.channels` with ``with_background``), not as
+two renders of them.
 
 Parameters: the background's, named ``room.<name>``, and the person field's, named
 ``person.<name>``, each in its own part's optimizer group (the module tables of
@@ -37,7 +40,6 @@ import json
 
 import numpy as np
 
-from ..core import backend as B
 from ..core.config import from_dict
 from ..core.errors import ConfigError, RunError
 from .base import Field, Views, register
@@ -203,17 +205,13 @@ class CoherentGaussianJointField(Field):
     def channels(self, views: Views) -> tuple:
         """Calibrated channels at the 16 elements (see the module docstring): (re, im) ``Float``
         [B*16], differentiable in both parts' parameters."""
-        from ..rf import array as antenna
-
         e = self.person_inputs(views)
-        hr, hi = self.bg.channels(views)
         present = self.presence(e)
         if not present.any():
-            return hr, hi
+            return self.bg.channels(views)
+        # one pass over the background's sources: each term weighted 1 + presence * (blockage - 1)
         pv = dataclasses.replace(views, inputs=lambda field: e)
-        dr_, di = self.person_field.channels(pv)
-        m = B.Float(np.repeat(present, antenna.NUM_ELEMENTS))
-        return hr + m * dr_, hi + m * di
+        return self.person_field.channels(pv, with_background=present)
 
     @classmethod
     def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):

@@ -293,17 +293,29 @@ class CoherentGaussianPersonField(FlatParameterField):
 
         return weight
 
-    def channels(self, views: Views) -> tuple:
+    def channels(self, views: Views, *, with_background: np.ndarray | None = None) -> tuple:
         """What the person changes at the 16 elements, through the background's array and
         calibration: (re, im) ``Float`` [B*16] (see the module docstring). ConfigError on a missing,
-        misshapen or non-finite person position or view position."""
+        misshapen or non-finite person position or view position.
+
+        ``with_background``: None, or float [B] person presence (1 present, 0 absent): then the
+        channels are the background's plus, where present, the person's change, in one pass over
+        the background's sources (each term weighted ``1 + presence * (blockage - 1)``), not two."""
         import drjit as dr
 
         bg, c = self.bg, self.cfg
         prep = bg._prepare(views)
         h = self.person_position(views)
         hc = _columns(h)
-        hr, hi = bg._paths(prep, weight=self._blockage(hc))
+        weight = self._blockage(hc)
+        pres = None
+        if with_background is not None:
+            pres = B.Float(np.asarray(with_background, np.float32).reshape(prep["nb"]))
+            change = weight
+
+            def weight(group, ln, s):
+                return 1.0 + dr.gather(B.Float, pres, ln["b"]) * change(group, ln, s)
+        hr, hi = bg._paths(prep, weight=weight)
         K = c.num_points
         if K:
             ln = bg._lanes(prep, K)
@@ -315,8 +327,9 @@ class CoherentGaussianPersonField(FlatParameterField):
                  for i in range(3)]
             lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
             amp = self.params["sc_amp"]
+            on = 1.0 if pres is None else dr.gather(B.Float, pres, ln["b"])
             cr, ci = bg._propagate(prep, ln, s, lead, lead, dr.gather(B.Float, amp, 2 * k),
-                                   dr.gather(B.Float, amp, 2 * k + 1), 1.0)
+                                   dr.gather(B.Float, amp, 2 * k + 1), on)
             hr, hi = hr + cr, hi + ci
         return bg._calibrate(prep, hr, hi)
 
