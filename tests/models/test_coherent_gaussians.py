@@ -289,6 +289,20 @@ def _room_field(max_depth=None, **cfg):
     return f, Views(antenna_pos=q, view_pos=q, transmitter=y, rx_to_world=None, frequency_hz=F, task="rx")
 
 
+def _channel_loss(f, views, *, seed):
+    """A loss of ``f``'s channels for :func:`fd_check`: fixed random weights on every channel."""
+    rng = np.random.default_rng(seed)
+    n = 16 * views.count
+    c_re, c_im = _w(rng, n), _w(rng, n)
+
+    def loss(p):
+        f.assign(p)
+        hr, hi = f.channels(views)
+        return [hr * c_re, hi * c_im]
+
+    return loss
+
+
 def test_known_room_visibility_and_through_gain_gradients():
     """Ray-cast visibility: some views see a blocked path (the wardrobe, the bed), whose term takes
     ``img_through``; its gradient (and ``img_amp``'s) matches finite differences; a path that does not
@@ -300,14 +314,7 @@ def test_known_room_visibility_and_through_gain_gradients():
     assert (ex & ~cl).any() and cl.any() and (~ex).any()
     assert np.all((cos_in >= 0) & (cos_in <= 1)) and np.all(cos_in[:, f.order == 0] == 1)
     assert "img_through" in f.parameters()
-    rng = np.random.default_rng(2)
-    n = 16 * views.count
-    c_re, c_im = _w(rng, n), _w(rng, n)
-
-    def loss(p):
-        f.assign(p)
-        hr, hi = f.channels(views)
-        return [hr * c_re, hi * c_im]
+    loss = _channel_loss(f, views, seed=2)
 
     for name in ("img_through", "img_slope", "img_amp"):
         r = fd_check(loss, f.parameters(), name, count=3, top=3, rel_eps=1e-2, min_scale=1.0, seed=4)
@@ -340,14 +347,7 @@ def test_material_transmission_of_blocked_paths():
     direct = blocked[:, 0]                                              # image 0 is the direct path
     assert direct.any() and np.all(tr.crossings[direct, 0, names.index("furniture_wood")] == 2)
     assert f.parameters()["mat_through"].shape == (2 * len(names),)
-    rng = np.random.default_rng(5)
-    n = 16 * views.count
-    c_re, c_im = _w(rng, n), _w(rng, n)
-
-    def loss(p):
-        f.assign(p)
-        hr, hi = f.channels(views)
-        return [hr * c_re, hi * c_im]
+    loss = _channel_loss(f, views, seed=5)
 
     r = fd_check(loss, f.parameters(), "mat_through", count=4, top=4, rel_eps=1e-2, min_scale=1.0, seed=6)
     assert r.ok(5e-2, 3e-2), r.report()
