@@ -248,8 +248,8 @@ def _sensitivity_row(field: str, split: str, ms: list[dict]) -> dict:
             "nearest_neighbour": both("nearest_neighbour"), "idw3": both("idw3"), "mean_image": both("mean_image"),
             "beats_best_floor": sum(bool(m["beats_best_floor"]) for m in ms),
             "anchored_beats_best_floor": sum(bool(m.get("anchored", m)["beats_best_floor"]) for m in ms),
-            "num_gaussians": _mean_std([m["num_gaussians"] for m in ms])[0],
-            "num_parameters": _mean_std([m["num_parameters"] for m in ms])[0],
+            "num_gaussians": sorted({int(m["num_gaussians"]) for m in ms}),
+            "num_parameters": sorted({int(m["num_parameters"]) for m in ms}),
             "train_steps": ms[0].get("train_steps"), "train_time_s": _mean_std([m["train_time_s"] for m in ms]),
             "test_positions": ms[0]["test_positions"], "train_positions": ms[0]["train_positions"],
             "runs": [m["run"] for m in ms]}
@@ -257,6 +257,11 @@ def _sensitivity_row(field: str, split: str, ms: list[dict]) -> dict:
 
 def _ms(v: tuple[float, float], n: int) -> str:
     return f"{v[0]:.3f} ± {v[1]:.3f}" if n > 1 else f"{v[0]:.3f}"
+
+
+def _span(values: list[int]) -> str:
+    """One size, or the range over seeds (``auto`` may choose another field per seed)."""
+    return str(values[0]) if len(values) == 1 else f"{values[0]}–{values[-1]}"
 
 
 def _write_sensitivity(out: Path, dataset, rows: list[dict]) -> None:
@@ -278,7 +283,7 @@ def _write_sensitivity(out: Path, dataset, rows: list[dict]) -> None:
             f"{r['beats_best_floor']}/{n} / {r['anchored_beats_best_floor']}/{n} | "
             f"{r['nearest_neighbour']['mean'][0]:.3f} / {r['nearest_neighbour']['median'][0]:.3f} | "
             f"{r['idw3']['mean'][0]:.3f} / {r['idw3']['median'][0]:.3f} | {r['mean_image']['mean'][0]:.3f} | "
-            f"{r['num_gaussians']:.0f} | {r['num_parameters']:.0f} | {r['train_steps']} | {r['train_time_s'][0]:.0f} |")
+            f"{_span(r['num_gaussians'])} | {_span(r['num_parameters'])} | {r['train_steps']} | {r['train_time_s'][0]:.0f} |")
     by = {(r["field"], r["split"]): r for r in rows}
     fields = list(dict.fromkeys(r["field"] for r in rows))
     a, b = SENSITIVITY_SPLITS
