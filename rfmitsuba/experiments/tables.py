@@ -27,7 +27,7 @@ from ..core.errors import ConfigError
 from ..data.views import TrainData
 from ..eval.run import evaluate_run
 from ..train.config import TrainConfig
-from ..train.trainer import Trainer
+from ..train.trainer import Trainer, train
 
 MOTIVATION_COUNTS = (900, 1500, 3600, 6000, 10000)
 QUICK_MOTIVATION_COUNTS = (150, 300, 600, 900)
@@ -212,13 +212,10 @@ def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVIT
                 rd = out / f"{f}_{split}_s{s}"
                 if (rd / "eval" / "metrics.json").is_file() and (rd / "final" / "field.npz").is_file():
                     continue
-                from ..train.trainer import train
-
                 train(dataset, rd, cfg=C.override(cfg, [f'model="{f}"', f'split="{split}"', f"seed={s}"]), quiet=quiet)
                 evaluate_run(rd)
-            _write_sensitivity(out, dataset, _sensitivity_rows(out, fields))
-    rows = _sensitivity_rows(out, fields)
-    _write_sensitivity(out, dataset, rows)
+            rows = _sensitivity_rows(out, fields)      # the table grows field by field
+            _write_sensitivity(out, dataset, rows)
     _plot_sensitivity(out / "splits.png", rows)
     return rows
 

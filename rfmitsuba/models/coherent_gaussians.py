@@ -47,7 +47,7 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   (``material_through``; off by default, ``T = 0``: it did not help in the bedroom).
   ``img_through`` is the blocked path's own gain. A ray tracer counts each crossing as an interaction,
   so where the data were simulated with at most ``D`` interactions per path (the dataset's
-  ``solver.max_depth``), a blocked path with more reflections plus crossings than ``D`` does not
+  ``solver.max_depth``), a path with more reflections plus crossings than ``D`` does not
   exist (Sionna's default D = 3: the direct path through a wardrobe, two crossings, exists; a
   double reflection through it does not). Images whose path exists at no training position
   are left out;
@@ -519,6 +519,7 @@ class CoherentGaussianField(FlatParameterField):
         wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
         idx = np.asarray(data.train, np.int64)
         x, y, q = data.positions(idx)
+        depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
         # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many
         # states, e.g. 720 positions x 30 walk states, would otherwise load 2.8 GB of PAS)
         scan_idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), SCAN_SAMPLES)).astype(np.int64))]
@@ -536,11 +537,7 @@ class CoherentGaussianField(FlatParameterField):
 
                 xy = np.unique(np.concatenate([x, y], axis=1), axis=0)      # each geometry once
                 tr = SpecularVisibility.from_xml(scene_xml).trace(xy[:, :3], xy[:, 3:], maps.planes, maps.order)
-                seen = tr.exists
-                depth = getattr(data, "max_depth", None)
-                if c.depth_limit and depth is not None:
-                    seen = seen & (maps.order[None, :] + tr.crossings.sum(-1) <= depth)
-                seen = seen.any(0)
+                seen = tr.within_depth(maps.order, depth).exists.any(0)
                 seen[maps.order == 0] = True
                 maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
                                  label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
@@ -565,7 +562,7 @@ class CoherentGaussianField(FlatParameterField):
         f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
                 frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
                 planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
-                max_depth=getattr(data, "max_depth", None))
+                max_depth=depth)
         f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
         return f
 
@@ -703,11 +700,7 @@ class CoherentGaussianField(FlatParameterField):
             for j, k in enumerate(missing):
                 self._vis_cache[k] = tuple(a[j] for a in tr)
         tr = PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
-        if self.max_depth is None:
-            return tr
-        # a path needs its reflections plus crossings within the tracer's depth
-        deep = self.order[None, :] + tr.crossings.sum(-1) > self.max_depth
-        return tr._replace(exists=tr.exists & ~deep, crossings=np.where(deep[..., None], 0.0, tr.crossings))
+        return tr.within_depth(self.order, self.max_depth)
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,

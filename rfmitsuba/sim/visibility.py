@@ -110,6 +110,15 @@ class PathTrace(NamedTuple):
     cos_incidence: np.ndarray
     crossings: np.ndarray
 
+    def within_depth(self, order: np.ndarray, max_depth: int | None) -> "PathTrace":
+        """The trace with every path whose reflections (``order``, int [S]) plus crossings exceed
+        ``max_depth`` marked absent, as a tracer limited to that many interactions would have it
+        (None: unchanged)."""
+        if max_depth is None:
+            return self
+        deep = np.asarray(order)[None, :] + self.crossings.sum(-1) > max_depth
+        return self._replace(exists=self.exists & ~deep, crossings=np.where(deep[..., None], 0.0, self.crossings))
+
 
 class SpecularVisibility:
     """Ray-cast existence and blockage of image-source paths in one room (module docstring).
