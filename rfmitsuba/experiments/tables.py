@@ -165,10 +165,12 @@ SENSITIVITY_FIELDS = ("coherent_gaussians", "splat")
 
 
 def _mean_std(xs) -> tuple[float, float]:
+    """Mean and sample standard deviation (ddof 1, as :func:`rfmitsuba.experiments.results.mean_std_n`;
+    0 for one seed)."""
     import numpy as np
 
     a = np.asarray(xs, np.float64)
-    return float(a.mean()), float(a.std())
+    return float(a.mean()), (float(a.std(ddof=1)) if len(a) > 1 else 0.0)
 
 
 def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVITY_FIELDS, seeds=(0, 1, 2),
@@ -265,7 +267,7 @@ def _write_sensitivity(out: Path, dataset, rows: list[dict]) -> None:
     lines = ["# Split sensitivity: how much of a score is interpolation", "",
              f"Dataset `{dataset}`. Every field and floor under the dataset's own split (a NeRF2 folder's published "
              "index files: random, test tags millimetres from training ones) and the spatial-block split (the 20% "
-             "of positions with the largest x held out as a slab; SPEC, \"Splits\"). Mean ± std over seeds; "
+             "of positions with the largest x held out as a slab; SPEC, \"Splits\"). Mean ± sample std over seeds; "
              "*anchored* is eval's neighbour-anchored prediction (`rfmitsuba.eval.anchor`), chosen on validation; "
              "*beats* counts the seeds that beat the best floor (NN or IDW-3) in mean and median (model / anchored).",
              "", "| split | field | seeds | model mean / median | anchored mean / median | beats | NN mean / median | "
