@@ -1,0 +1,196 @@
+"""Predictions of a trained Stage-1 run at positions of the user's choice (``rfmitsuba predict``).
+
+A run is evaluated on its own test split by :func:`rfmitsuba.eval.run.evaluate_run`; this module
+renders it anywhere else: a grid for a coverage map, a trajectory, another tool's test positions.
+The positions are the moving device's (the receiver array's centre in the moving-RX task, the
+transmitter in the moving-TX task); the fixed device, the array's orientation and the carrier
+come from the run's dataset.
+
+:func:`predict_run` returns the PAS min-max normalised per image (the metric protocol's scale,
+docs/conventions.md), optionally as the neighbour-anchored prediction
+(:mod:`rfmitsuba.eval.anchor`) with the ``(k, alpha)`` that ``rfmitsuba eval`` chose on the
+run's validation positions. :func:`write_prediction` writes them as a NeRF2-style folder::
+
+    OUT/pas.npy            float32 [K, 90, 360] in [0, 1]
+    OUT/spectrum/00001.png 8-bit greyscale, row = elevation (SPEC layout), one per position
+    OUT/positions.csv      x,y,z [m], one row per image, in the order given
+    OUT/predict.json       run, dataset, task, count, how the PAS were made
+
+Bad input is named: a malformed or non-finite positions file (with its line), a position
+outside a known room or inside its furniture (:meth:`rfmitsuba.sim.geometry.RoomGeometry.check_points`),
+an anchored prediction asked of a run that was never evaluated.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import write_json
+from ..core.errors import ConfigError, DatasetError, RunError
+from ..models.base import FieldSet, Views
+from ..rf.bartlett_ref import normalize as minmax
+from ..train.trainer import load_run
+from .anchor import anchored
+
+
+def read_positions(path: str | Path) -> np.ndarray:
+    """Positions [m] from ``path``: a ``.npy`` array [K, 3], or text with three numbers per line
+    separated by commas, semicolons or white space (an optional header row, ``#`` comments, blank
+    lines and CRLF line ends are accepted; a NeRF2 ``tx_pos.csv`` reads as it is).
+
+    Returns:
+        float64 [K, 3], K >= 1, every value finite.
+    Raises:
+        DatasetError naming the file (and the line) when it is missing, malformed or not finite.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"positions file {p} does not exist")
+    if p.suffix == ".npy":
+        try:
+            a = np.load(p, allow_pickle=False)
+        except (ValueError, OSError) as e:
+            raise DatasetError(f"{p}: not a NumPy array file ({e})") from None
+        a = np.asarray(a, np.float64) if np.issubdtype(np.asarray(a).dtype, np.number) else None
+        if a is None or a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
+            raise DatasetError(f"{p}: expected a numeric array of shape [K, 3], K >= 1")
+        bad = np.flatnonzero(~np.isfinite(a).all(1))
+        if len(bad):
+            raise DatasetError(f"{p}: row {int(bad[0])} is not finite: {a[bad[0]].tolist()}")
+        return a
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise DatasetError(f"{p}: not a text file of positions (UTF-8), nor a .npy array") from None
+    rows: list[list[float]] = []
+    first = True
+    for n, line in enumerate(text.splitlines(), start=1):
+        s = line.split("#", 1)[0].strip()
+        if not s:
+            continue
+        parts = [t for t in re.split(r"[,;\s]+", s) if t]
+        try:
+            vals = [float(t) for t in parts]
+        except ValueError:
+            if first:                                       # a header row (x,y,z)
+                first = False
+                continue
+            raise DatasetError(f"{p}:{n}: cannot read three numbers from {line.strip()!r}") from None
+        first = False
+        if len(vals) != 3:
+            raise DatasetError(f"{p}:{n}: expected 3 numbers (x, y, z in metres), got {len(vals)}")
+        if not np.isfinite(vals).all():
+            raise DatasetError(f"{p}:{n}: position is not finite: {line.strip()!r}")
+        rows.append(vals)
+    if not rows:
+        raise DatasetError(f"{p}: no positions")
+    return np.asarray(rows, np.float64)
+
+
+def views_at(data, positions: np.ndarray) -> Views:
+    """The views of a dataset's geometry with the moving device at ``positions`` (float [K, 3] m):
+    moving RX puts the array there, the transmitter at the dataset's fixed source; moving TX the
+    transmitter there, the array at the dataset's fixed position."""
+    q = np.asarray(positions, np.float64).reshape(-1, 3)
+    k = len(q)
+    if data.task == "tx":
+        x = np.tile(np.asarray(data.view_pos[0], np.float64), (k, 1))
+        y = q
+    else:
+        x = q
+        y = np.tile(np.asarray(data.source, np.float64), (k, 1))
+    return Views(antenna_pos=q, view_pos=x, transmitter=y, rx_to_world=data.rx_to_world,
+                 frequency_hz=float(data.frequency_hz), task=data.task)
+
+
+def render_at(renderer: FieldSet, data, positions: np.ndarray, *, batch: int = 8) -> np.ndarray:
+    """Raw PAS of the run's fields at ``positions``: float32 [K, 90, 360]."""
+    import drjit as dr
+
+    from ..models.base import render
+
+    if any(f.extra_inputs or f.person for f in renderer.fields):
+        raise ConfigError("predict renders Stage-1 fields only (this run's field takes per-view inputs)")
+    q = np.asarray(positions, np.float64).reshape(-1, 3)
+    out = np.zeros((len(q), 90, 360), np.float32)
+    for i in range(0, len(q), batch):
+        with dr.suspend_grad():
+            img = render(renderer.fields, views_at(data, q[i:i + batch]), height=90, width=360, normalize=False)
+        out[i:i + batch] = np.asarray(img.numpy(), np.float32).reshape(-1, 90, 360)
+    return out
+
+
+def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = False, batch: int = 8,
+                check_room: bool = True) -> dict:
+    """Render a finished run at ``positions`` (float [K, 3] m, the moving device).
+
+    Args:
+        anchor: the neighbour-anchored prediction with the ``(k, alpha)`` that ``rfmitsuba eval``
+            chose (RUN/eval/metrics.json); where it chose the field alone, the field's PAS.
+        check_room: in a known room, refuse positions outside it or inside its furniture.
+    Returns:
+        {"pas": float32 [K, 90, 360] in [0, 1], "positions": float64 [K, 3], "how": "field" or
+        "anchored k=.. alpha=..", "run", "dataset", "task"}.
+    Raises:
+        RunError (not a finished run; anchored without an evaluation), PlacementError (a position
+        outside the room), ConfigError (bad positions array).
+    """
+    rd = Path(run_dir)
+    q = np.asarray(positions, np.float64)
+    if q.ndim != 2 or q.shape[1] != 3 or len(q) == 0 or not np.isfinite(q).all():
+        raise ConfigError(f"positions must be a finite array [K, 3] with K >= 1, got shape {q.shape}")
+    cfg, data, renderer = load_run(rd)
+    if check_room and data.scene_xml is not None:
+        from ..sim.geometry import RoomGeometry
+
+        RoomGeometry.from_xml(data.scene_xml).check_points(q, what="position")
+    how = "field"
+    choice = None
+    if anchor:
+        mfile = rd / "eval" / "metrics.json"
+        if not mfile.is_file():
+            raise RunError(f"{rd}: no evaluation; run `rfmitsuba eval {rd}` first (the anchored prediction's "
+                           "(k, alpha) are chosen there on the run's validation positions)")
+        choice = json.loads(mfile.read_text()).get("anchored")
+        if choice is None:
+            raise RunError(f"{mfile}: this run has no validation positions, so no anchored prediction was chosen")
+    pred = minmax(render_at(renderer, data, q, batch=batch))
+    if choice is not None and choice.get("use") != "field":
+        split = json.loads((rd / "split.json").read_text())
+        train_idx = np.asarray(split["train"], np.int64)
+        field_train = minmax(renderer.render(data, train_idx, batch=batch))
+        pred = anchored(pred, field_train, data.pas(train_idx), data.antenna_pos[train_idx], q,
+                        k=int(choice["k"]), alpha=float(choice["alpha"]))
+        how = f"anchored k={int(choice['k'])} alpha={float(choice['alpha']):g}"
+    return {"pas": np.asarray(pred, np.float32), "positions": q, "how": how, "run": str(rd),
+            "dataset": str(data.path), "task": data.task}
+
+
+def new_folder(out: str | Path) -> Path:
+    """``out`` as a Path if it is new or empty, else RunError: a prediction never overwrites one."""
+    o = Path(out)
+    if o.exists() and (not o.is_dir() or any(o.iterdir())):
+        raise RunError(f"{o} is not an empty folder; choose a new one for the prediction")
+    return o
+
+
+def write_prediction(out: str | Path, result: dict) -> Path:
+    """Write :func:`predict_run`'s result as the folder of the module docstring. ``out`` must be new
+    or empty (:func:`new_folder`)."""
+    from PIL import Image
+
+    from ..data.nerf2 import to_uint8
+
+    o = new_folder(out)
+    (o / "spectrum").mkdir(parents=True, exist_ok=True)
+    pas = result["pas"]
+    np.save(o / "pas.npy", pas)
+    for i, img in enumerate(to_uint8(pas)):
+        Image.fromarray(img, mode="L").save(o / "spectrum" / f"{i + 1:05d}.png")
+    pos = result["positions"]
+    (o / "positions.csv").write_text("x,y,z\n" + "".join(f"{x:.9g},{y:.9g},{z:.9g}\n" for x, y, z in pos))
+    write_json(o / "predict.json", {k: result[k] for k in ("run", "dataset", "task", "how")} | {"count": len(pos)})
+    return o
