@@ -173,6 +173,15 @@ class TrainData:
         y = q if self.task == "tx" else np.tile(np.asarray(self.source, np.float64), (len(idx), 1))
         return x, y, q
 
+    def positions_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(array centre x, transmitter y), each float64 [K, 3] metres, with the moving device at
+        ``q`` (float [K, 3] m, anywhere: positions the dataset does not hold) and the fixed device
+        where the dataset has it, as :meth:`positions`."""
+        q = np.asarray(q, np.float64).reshape(-1, 3)
+        if self.task == "tx":
+            return np.tile(np.asarray(self.view_pos[0], np.float64), (len(q), 1)), q
+        return q, np.tile(np.asarray(self.source, np.float64), (len(q), 1))
+
     def meshes(self, scene_xml: Path | None = None):
         """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, of
         ``scene_xml`` (default the dataset's scene), or None when there is none (NeRF2 folders)."""

@@ -95,13 +95,7 @@ def views_at(data, positions: np.ndarray) -> Views:
     moving RX puts the array there, the transmitter at the dataset's fixed source; moving TX the
     transmitter there, the array at the dataset's fixed position."""
     q = np.asarray(positions, np.float64).reshape(-1, 3)
-    k = len(q)
-    if data.task == "tx":
-        x = np.tile(np.asarray(data.view_pos[0], np.float64), (k, 1))
-        y = q
-    else:
-        x = q
-        y = np.tile(np.asarray(data.source, np.float64), (k, 1))
+    x, y = data.positions_at(q)
     return Views(antenna_pos=q, view_pos=x, transmitter=y, rx_to_world=data.rx_to_world,
                  frequency_hz=float(data.frequency_hz), task=data.task)
 

@@ -1,4 +1,5 @@
-"""rfmitsuba.data.views: TrainData reads the simulating tracer's depth from the dataset."""
+"""rfmitsuba.data.views: TrainData reads the simulating tracer's depth from the dataset, and places the
+fixed and moving devices for any position (positions_at)."""
 from __future__ import annotations
 
 import json
@@ -30,3 +31,24 @@ def test_max_depth_comes_from_the_dataset_solver(tmp_path):
         _with_solver(ds, {"max_depth": bad})
         with pytest.raises(DatasetError, match="solver.max_depth"):
             TrainData.open(ds)
+
+
+@pytest.mark.parametrize("task", ["rx", "tx"])
+def test_positions_at_agrees_with_positions(tmp_path, task):
+    """At the dataset's own positions, positions_at gives what positions gives: the moving device
+    moved, the fixed one where the dataset has it."""
+    import numpy as np
+    from stage1_data import make_dataset
+
+    from rfmitsuba.data.views import TrainData
+
+    d = TrainData.open(make_dataset(tmp_path / "ds", num_antennas=12, task=task))
+    idx = np.array([3, 0, 11])
+    x, y, q = d.positions(idx)
+    xa, ya = d.positions_at(q)
+    np.testing.assert_array_equal(xa, x)
+    np.testing.assert_array_equal(ya, y)
+    moved = q + [0.1, -0.2, 0.05]
+    xm, ym = d.positions_at(moved)
+    np.testing.assert_array_equal(xm if task == "rx" else ym, moved)
+    np.testing.assert_array_equal(ym if task == "rx" else xm, y if task == "rx" else x)
