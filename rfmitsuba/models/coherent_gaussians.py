@@ -68,8 +68,6 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``img_slope``      S*2           1           amp  (known room with ray-cast visibility only)
 ``mat_through``    G*2           1, rad      amp  (log-magnitude, phase per crossing of each of
                                                   the room's G radio materials; ray casts only)
-``mat_angle``      G*4           1, rad      amp  (their change with sin^2 and sin^4 of each
-                                                  crossing's angle of incidence; material_angle)
 ``sc_pos``         P*3           m           means
 ``sc_amp``         P*2           1           amp
 ``vis_center``     (S+P)*3       m           means
@@ -106,7 +104,7 @@ SCAN_SAMPLES = 1024
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp",
-             "mat_through": "amp", "mat_angle": "amp", "sc_pos": "means",
+             "mat_through": "amp", "sc_pos": "means",
              "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "cal": "amp", "pose": "means"}
 
 
@@ -154,10 +152,6 @@ class CoherentGaussianConfig:
         furniture order 2, depth limit, seed 0) it changed test SSIM by -0.000 (RX, 0.949) and
         -0.001 (TX, 0.939); without the depth limit it cost TX 0.021 (0.918 against 0.939).
     init_transmission: initial magnitude of one crossing's transmission (``mat_through``), in (0, 1].
-    material_angle: with ``material_through``, a crossing's log-transmission also changes with its
-        angle of incidence ``theta`` on the crossed surface: ``(rho_g + j phi_g) + (a_g + j b_g)
-        sin^2 theta + (c_g + j d_g) sin^4 theta`` (``mat_angle``), the first terms of a slab's
-        transmission, whose path inside and Fresnel coefficients change with the angle.
     depth_limit: a path whose reflections plus crossings exceed the simulating ray tracer's
         depth (:attr:`rfmitsuba.data.views.TrainData.max_depth`) is absent; no effect where the
         data name no tracer (measured data). Bedroom, room order 3, furniture order 2, seed 0:
@@ -191,7 +185,6 @@ class CoherentGaussianConfig:
     init_through: float = 0.0
     material_through: bool = False
     init_transmission: float = 0.5
-    material_angle: bool = False
     depth_limit: bool = True
     prune_unseen: bool = True
     incidence_slope: bool = True
@@ -497,8 +490,6 @@ class CoherentGaussianField(FlatParameterField):
                 if cfg.material_through:
                     G = len(self._vis.group_names)
                     params["mat_through"] = np.tile([np.log(cfg.init_transmission), 0.0], G)
-                    if cfg.material_angle:
-                        params["mat_angle"] = np.zeros(4 * G)
         self.params: dict = {}
         self.load_state_dict(params)
 
@@ -594,8 +585,6 @@ class CoherentGaussianField(FlatParameterField):
             out["img_through"] = out["img_slope"] = S * 2
             if self.cfg.material_through:
                 out["mat_through"] = 2 * len(self._vis.group_names)
-                if self.cfg.material_angle:
-                    out["mat_angle"] = 4 * len(self._vis.group_names)
         return out
 
     @property
@@ -633,8 +622,6 @@ class CoherentGaussianField(FlatParameterField):
             cfg = from_dict(CoherentGaussianConfig, meta["config"])
             if "mat_through" not in state and cfg.material_through:   # saved before material transmission
                 cfg = dataclasses.replace(cfg, material_through=False)
-            if "mat_angle" not in state and cfg.material_angle:
-                cfg = dataclasses.replace(cfg, material_angle=False)
             f = cls(state["geometry.A"], state["geometry.order"], np.zeros((P, 3)),
                     cfg=cfg, readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
@@ -681,9 +668,6 @@ class CoherentGaussianField(FlatParameterField):
                                for v in (tr.exists, tr.clear, tr.cos_incidence - 0.5))
             if self.cfg.material_through:
                 out["cross"] = B.Float(np.ascontiguousarray(tr.crossings, np.float32).ravel())
-                if self.cfg.material_angle:
-                    out["cross_sin"] = tuple(B.Float(np.ascontiguousarray(v, np.float32).ravel())
-                                             for v in (tr.crossing_sin2, tr.crossing_sin4))
         return out
 
     def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -776,13 +760,6 @@ class CoherentGaussianField(FlatParameterField):
                         n = dr.gather(B.Float, prep["cross"], lane * G + g)
                         lr = lr + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g, dr.width(lane)))
                         li = li + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g + 1, dr.width(lane)))
-                        if "cross_sin" in prep:   # the change with each crossing's angle of incidence
-                            ma = self.params["mat_angle"]
-                            for j, v in enumerate(prep["cross_sin"]):
-                                sv = dr.gather(B.Float, v, lane * G + g)
-                                lr = lr + sv * dr.gather(B.Float, ma, dr.full(B.UInt32, 4 * g + 2 * j, dr.width(lane)))
-                                li = li + sv * dr.gather(B.Float, ma, dr.full(B.UInt32, 4 * g + 2 * j + 1,
-                                                                               dr.width(lane)))
                     mag = dr.exp(lr)
                     Tr, Ti = mag * dr.cos(li), mag * dr.sin(li)
                     tr, ti = tr + ar * Tr - ai * Ti, ti + ar * Ti + ai * Tr

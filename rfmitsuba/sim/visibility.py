@@ -102,18 +102,13 @@ class PathTrace(NamedTuple):
     incoming leg and the plane's normal (1 at normal incidence; 1 for the direct path);
     crossings: float32 [B, S, G], the surfaces of each of the G material groups
     (:attr:`SpecularVisibility.group_names`) that the path's legs cross (0 where it is clear
-    or does not exist);
-    crossing_sin2 / crossing_sin4: float32 [B, S, G], the sums over those crossings of
-    ``sin^2`` / ``sin^4`` of the angle between the leg and the crossed surface's normal (a
-    slab's transmission changes with it).
+    or does not exist).
     """
 
     exists: np.ndarray
     clear: np.ndarray
     cos_incidence: np.ndarray
     crossings: np.ndarray
-    crossing_sin2: np.ndarray
-    crossing_sin4: np.ndarray
 
     def within_depth(self, order: np.ndarray, max_depth: int | None) -> "PathTrace":
         """The trace with every path whose reflections (``order``, int [S]) plus crossings exceed
@@ -122,9 +117,7 @@ class PathTrace(NamedTuple):
         if max_depth is None:
             return self
         deep = np.asarray(order)[None, :] + self.crossings.sum(-1) > max_depth
-        keep = lambda a: np.where(deep[..., None], 0.0, a).astype(np.float32)   # noqa: E731
-        return self._replace(exists=self.exists & ~deep, crossings=keep(self.crossings),
-                             crossing_sin2=keep(self.crossing_sin2), crossing_sin4=keep(self.crossing_sin4))
+        return self._replace(exists=self.exists & ~deep, crossings=np.where(deep[..., None], 0.0, self.crossings))
 
 
 class SpecularVisibility:
@@ -201,29 +194,22 @@ class SpecularVisibility:
         directions -> float64 [R] metres (inf where the ray leaves the scene)."""
         return self.hits(origin, direction)[0]
 
-    def hits(self, origin: np.ndarray, direction: np.ndarray, *, cosines: bool = False) -> tuple:
+    def hits(self, origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The first surface along each ray: (distance float64 [R] m, inf where the ray leaves the
-        scene; material group int64 [R], -1 there), and with ``cosines`` the ``|cos|`` of the angle
-        between the ray and the surface's normal (float64 [R], 1 where nothing is hit)."""
+        scene; material group int64 [R], -1 there)."""
         import drjit as dr
         import mitsuba as mi
 
         if len(origin) == 0:
-            return (np.zeros(0), np.zeros(0, np.int64)) + ((np.ones(0),) if cosines else ())
+            return np.zeros(0), np.zeros(0, np.int64)
         o = np.ascontiguousarray(np.asarray(origin, np.float32).T)
         d = np.ascontiguousarray(np.asarray(direction, np.float32).T)
-        ray = mi.Ray3f(mi.Point3f(o), mi.Vector3f(d))
-        pi = self.scene.ray_intersect_preliminary(ray)
+        pi = self.scene.ray_intersect_preliminary(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d)))
         t = np.asarray(pi.t.numpy(), np.float64)
         sid = np.asarray(dr.reinterpret_array(mi.UInt32, pi.shape).numpy(), np.int64)
         hit = np.isfinite(t)
         group = np.where(hit, self._group_of_id[np.clip(sid, 0, len(self._group_of_id) - 1)], -1)
-        out = (np.where(hit, t, np.inf), group)
-        if cosines:
-            n = np.asarray(pi.compute_surface_interaction(ray).n.numpy(), np.float64).reshape(3, -1).T
-            c = np.abs((n * np.asarray(direction, np.float64)).sum(-1))
-            out += (np.where(hit & np.isfinite(c), np.clip(c, 0.0, 1.0), 1.0),)
-        return out
+        return np.where(hit, t, np.inf), group
 
     def __call__(self, x: np.ndarray, y: np.ndarray, planes: np.ndarray, order: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -258,11 +244,13 @@ class SpecularVisibility:
         eps = 1e-3
         # legs: from just past the start towards the end; probes: the last ``probe`` metres before a face
         hp = np.minimum(self.probe, 0.5 * L)
-        t, _ = self.hits(np.concatenate([(a + eps * u)[active], (b - hp[..., None] * u)[ends_on_face]]),
+        t, g = self.hits(np.concatenate([(a + eps * u)[active], (b - hp[..., None] * u)[ends_on_face]]),
                          np.concatenate([u[active], u[ends_on_face]]))
         n_leg = int(active.sum())
         t_leg = np.full(active.shape, np.inf)
         t_leg[active] = eps + t[:n_leg]
+        g_leg = np.full(active.shape, -1, np.int64)
+        g_leg[active] = g[:n_leg]
         t_probe = np.full(active.shape, np.nan)
         t_probe[ends_on_face] = t[n_leg:]
         # A hit within ``flush`` of the plane a leg starts on is that plane's own face (a panel
@@ -283,48 +271,40 @@ class SpecularVisibility:
                 & ~(ends_on_face & (off(end_pl) <= self.flush))
             if not again.any():
                 break
-            t2, _ = self.hits((a + (t_leg + eps)[..., None] * u)[again], u[again])
+            t2, g2 = self.hits((a + (t_leg + eps)[..., None] * u)[again], u[again])
             t_leg[again] = t_leg[again] + eps + t2
+            g_leg[again] = g2
         near_end = ends_on_face & (off(end_pl) <= self.flush)
         blocked = active & (t_leg < L - self.tol) & ~near_end
         on_face = ~ends_on_face | (t_probe <= hp + self.tol)
         exists = valid & on_face.all(-1)
         clear = exists & ~blocked.any(-1)
-        crossings, sin2, sin4 = self._crossings(a, u, L, t_leg, blocked & (exists & ~clear)[..., None],
-                                                np.where(ends_on_face, self.flush, 0.0))
+        crossings = self._crossings(a, u, L, t_leg, g_leg, blocked & (exists & ~clear)[..., None],
+                                    np.where(ends_on_face, self.flush, 0.0))
         cos_in = np.abs(np.einsum("bsok,sok->bso", u, end_pl[..., :3]))       # incoming leg . the plane it ends on
         cos_in = np.where(ends_on_face, cos_in, 0.0).sum(-1) / np.maximum(order, 1)[None, :]
         cos_in = np.where(order[None, :] == 0, 1.0, cos_in)
-        return PathTrace(exists, clear, cos_in, crossings, sin2, sin4)
+        return PathTrace(exists, clear, cos_in, crossings)
 
-    def _crossings(self, a, u, L, t_leg, blocked, margin) -> tuple:
-        """Surfaces of each group crossed by the blocked legs, and the sums of ``sin^2`` and
-        ``sin^4`` of their angles of incidence: three float32 [B, S, G]. From each leg's first
-        blocking hit (distance ``t_leg``; cast again here for its material and normal), casts go
-        on past every hit until one reaches the leg's end less ``tol`` and ``margin`` (the face the
-        leg reflects off)."""
+    def _crossings(self, a, u, L, t_leg, g_leg, blocked, margin) -> np.ndarray:
+        """Surfaces of each group crossed by the blocked legs: float32 [B, S, G]. From each leg's
+        first blocking hit (distance ``t_leg``, group ``g_leg``), casts go on past every hit
+        until one reaches the leg's end less ``tol`` and ``margin`` (the face the leg reflects off)."""
         nb, S = blocked.shape[:2]
         G = len(self.group_names)
-        count, sin2, sin4 = (np.zeros((nb, S, G), np.float32) for _ in range(3))
+        out = np.zeros((nb, S, G), np.float32)
         bi, si, li = np.nonzero(blocked)
-        start = a[bi, si, li] + (t_leg[bi, si, li] - 1e-3)[:, None] * u[bi, si, li]
-        t, g, c = self.hits(start, u[bi, si, li], cosines=True)
-        t = t_leg[bi, si, li] - 1e-3 + t
+        t, g = t_leg[bi, si, li], g_leg[bi, si, li]
         end = L[bi, si, li] - self.tol - margin[bi, si, li]
         for _ in range(self.max_crossings):
             live = np.isfinite(t) & (t < end) & (g >= 0)
             if not live.any():
                 break
-            at = (bi[live], si[live], g[live])
-            s2 = 1.0 - c[live] ** 2
-            np.add.at(count, at, 1.0)
-            np.add.at(sin2, at, s2)
-            np.add.at(sin4, at, s2 * s2)
+            np.add.at(out, (bi[live], si[live], g[live]), 1.0)
             origin = a[bi[live], si[live], li[live]] + (t[live] + 1e-3)[:, None] * u[bi[live], si[live], li[live]]
-            t2, g2, c2 = self.hits(origin, u[bi[live], si[live], li[live]], cosines=True)
+            t2, g2 = self.hits(origin, u[bi[live], si[live], li[live]])
             t_new = np.full(len(t), np.inf)
             g_new = np.full(len(t), -1, np.int64)
-            c_new = np.ones(len(t))
-            t_new[live], g_new[live], c_new[live] = t[live] + 1e-3 + t2, g2, c2
-            t, g, c = t_new, g_new, c_new
-        return count, sin2, sin4
+            t_new[live], g_new[live] = t[live] + 1e-3 + t2, g2
+            t, g = t_new, g_new
+        return out

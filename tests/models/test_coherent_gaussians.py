@@ -278,7 +278,7 @@ def _room_field(max_depth=None, **cfg):
                               scene_xml=xml, init="room", max_depth=max_depth)
     f.params["img_offset"] = B.Float(maps.b.ravel().astype(np.float32))
     rng = np.random.default_rng(0)
-    for k in ("img_amp", "img_through", "img_slope", "mat_through", "mat_angle", "cal"):
+    for k in ("img_amp", "img_through", "img_slope", "mat_through", "cal"):
         if k not in f.params:
             continue
         a = np.asarray(f.params[k].numpy(), np.float64)
@@ -364,27 +364,6 @@ def test_material_transmission_of_blocked_paths():
     st = f.state_dict()
     st.pop("mat_through")
     assert CoherentGaussianField.from_state_dict(st).cfg.material_through is False
-
-
-def test_transmission_changes_with_the_angle_of_each_crossing():
-    """With ``material_angle`` the casts also sum sin^2 and sin^4 of each crossing's angle of
-    incidence (in [0, 1] per crossing, 0 where nothing is crossed); the gradient of the angle
-    terms matches finite differences; a field saved without them loads with the option off."""
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
-
-    f, views = _room_field(material_through=True, material_angle=True)
-    tr = f.path_trace(views.view_pos, views.transmitter)
-    blocked = tr.exists & ~tr.clear
-    assert np.all(tr.crossing_sin2[~blocked] == 0) and np.all(tr.crossing_sin4[~blocked] == 0)
-    assert np.all(tr.crossing_sin2 <= tr.crossings + 1e-6) and np.all(tr.crossing_sin4 <= tr.crossing_sin2 + 1e-6)
-    assert (tr.crossing_sin2[blocked] > 0).any()
-    assert f.parameters()["mat_angle"].shape == (4 * len(f._vis.group_names),)
-    r = fd_check(_channel_loss(f, views, seed=7), f.parameters(), "mat_angle", count=4, top=4, rel_eps=1e-2,
-                 min_scale=1.0, seed=8)
-    assert r.ok(5e-2, 3e-2), r.report()
-    st = f.state_dict()
-    st.pop("mat_angle")
-    assert CoherentGaussianField.from_state_dict(st).cfg.material_angle is False
 
 
 def test_paths_deeper_than_the_tracer_are_absent(tmp_path):
