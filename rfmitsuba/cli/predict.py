@@ -8,7 +8,7 @@ def register(sub) -> None:
     p.add_argument("run", help="run folder written by `rfmitsuba train`")
     p.add_argument("--positions", required=True,
                    help="the moving device's positions [m]: .npy [K, 3], or text with x y z per line "
-                        "(commas or spaces; a header row is skipped; a NeRF2 tx_pos.csv works)")
+                        "read as a NeRF2 tx_pos.csv (commas or spaces; a header row may name the columns)")
     p.add_argument("--out", required=True, help="new or empty folder for the prediction")
     p.add_argument("--anchored", action="store_true",
                    help="the neighbour-anchored prediction with the (k, alpha) `rfmitsuba eval` chose on validation")

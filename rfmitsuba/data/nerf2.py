@@ -123,8 +123,8 @@ def _read_gateway(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return pos, quat
 
 
-def _read_positions(path: Path) -> np.ndarray:
-    """Rows of ``tx_pos.csv``: float64 [N, 3] metres. A first row that is not numeric is a header;
+def read_positions(path: Path) -> np.ndarray:
+    """Rows of ``tx_pos.csv`` (or any x, y, z text file): float64 [N, 3] metres. A first row that is not numeric is a header;
     with a header naming x, y and z those columns are used, else the first three."""
     lines = [(n, ln.strip()) for n, ln in enumerate(_read_text(path).splitlines(), 1) if ln.strip()]
     if not lines:
@@ -262,7 +262,7 @@ class NerfDataset:
             raise DatasetError(f"{self.path}: frequency_hz must be a positive number, got {f_hz!r}")
         self.frequency_hz = float(f_hz)
         csv = self.path / "tx_pos.csv"
-        pos = _read_positions(csv)
+        pos = read_positions(csv)
         self.warnings = []
         if len(pos) < A:
             raise DatasetError(f"{csv}: {len(pos)} positions for {A} images in spectrum/ (one row per image)")

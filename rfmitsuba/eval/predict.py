@@ -23,7 +23,6 @@ an anchored prediction asked of a run that was never evaluated.
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -37,9 +36,9 @@ from .anchor import anchored
 
 
 def read_positions(path: str | Path) -> np.ndarray:
-    """Positions [m] from ``path``: a ``.npy`` array [K, 3], or text with three numbers per line
-    separated by commas, semicolons or white space (an optional header row, ``#`` comments, blank
-    lines and CRLF line ends are accepted; a NeRF2 ``tx_pos.csv`` reads as it is).
+    """Positions [m] from ``path``: a ``.npy`` array [K, 3], or text read as a NeRF2 ``tx_pos.csv``
+    (:func:`rfmitsuba.data.nerf2.read_positions`: x, y, z per line, separated by commas or white
+    space; a header row, which may name the x, y and z columns; blank lines and CRLF).
 
     Returns:
         float64 [K, 3], K >= 1, every value finite.
@@ -61,33 +60,9 @@ def read_positions(path: str | Path) -> np.ndarray:
         if len(bad):
             raise DatasetError(f"{p}: row {int(bad[0])} is not finite: {a[bad[0]].tolist()}")
         return a
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise DatasetError(f"{p}: not a text file of positions (UTF-8), nor a .npy array") from None
-    rows: list[list[float]] = []
-    first = True
-    for n, line in enumerate(text.splitlines(), start=1):
-        s = line.split("#", 1)[0].strip()
-        if not s:
-            continue
-        parts = [t for t in re.split(r"[,;\s]+", s) if t]
-        try:
-            vals = [float(t) for t in parts]
-        except ValueError:
-            if first:                                       # a header row (x,y,z)
-                first = False
-                continue
-            raise DatasetError(f"{p}:{n}: cannot read three numbers from {line.strip()!r}") from None
-        first = False
-        if len(vals) != 3:
-            raise DatasetError(f"{p}:{n}: expected 3 numbers (x, y, z in metres), got {len(vals)}")
-        if not np.isfinite(vals).all():
-            raise DatasetError(f"{p}:{n}: position is not finite: {line.strip()!r}")
-        rows.append(vals)
-    if not rows:
-        raise DatasetError(f"{p}: no positions")
-    return np.asarray(rows, np.float64)
+    from ..data.nerf2 import read_positions as read_text_positions
+
+    return read_text_positions(p)
 
 
 def views_at(data, positions: np.ndarray) -> Views:

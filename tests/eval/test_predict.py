@@ -15,10 +15,10 @@ def test_read_positions_accepts_published_layouts(tmp_path):
     from rfmitsuba.eval.predict import read_positions
 
     p = tmp_path / "tx_pos.csv"
-    p.write_bytes(b"x,y,z\r\n1.0,2.0,0.5\r\n\r\n3,4,5 # a comment\r\n")
+    p.write_bytes(b"x,y,z\r\n1.0,2.0,0.5\r\n\r\n3,4,5\r\n")
     np.testing.assert_array_equal(read_positions(p), [[1.0, 2.0, 0.5], [3.0, 4.0, 5.0]])
     q = tmp_path / "grid.txt"
-    q.write_text("# x y z\n0 0 1\n0.5\t0.25  1\n")
+    q.write_text("id z y x\n7 1 0 0\n8 1\t0.25  0.5\n")                  # a header naming the columns
     np.testing.assert_array_equal(read_positions(q), [[0, 0, 1], [0.5, 0.25, 1]])
     n = tmp_path / "pos.npy"
     np.save(n, np.array([[1.0, 1.0, 1.0]]))
@@ -26,10 +26,10 @@ def test_read_positions_accepts_published_layouts(tmp_path):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("x,y,z\n1,2\n", r"bad\.csv:2: expected 3 numbers"),
-    ("1,2,3\n4,five,6\n", r"bad\.csv:2: cannot read"),
+    ("x,y,z\n1,2\n", r"bad\.csv:2: expected numbers x,y,z"),
+    ("1,2,3\n4,five,6\n", r"bad\.csv:2: expected numbers x,y,z"),
     ("1,2,3\nnan,0,0\n", r"bad\.csv:2: position is not finite"),
-    ("x,y,z\n", "no positions"),
+    ("x,y,z\n", "a header row and no positions"),
 ])
 def test_read_positions_names_the_bad_line(tmp_path, text, match):
     from rfmitsuba.core.errors import DatasetError
@@ -47,6 +47,9 @@ def test_read_positions_refuses_bad_arrays(tmp_path):
 
     with pytest.raises(DatasetError, match="does not exist"):
         read_positions(tmp_path / "none.csv")
+    (tmp_path / "bin.csv").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(DatasetError, match="not a UTF-8 text file"):
+        read_positions(tmp_path / "bin.csv")
     np.save(tmp_path / "a.npy", np.zeros((4, 2)))
     with pytest.raises(DatasetError, match=r"shape \[K, 3\]"):
         read_positions(tmp_path / "a.npy")
