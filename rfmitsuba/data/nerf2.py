@@ -179,6 +179,22 @@ def _read_index(path: Path, count: int) -> np.ndarray:
     return np.sort(vals - 1)
 
 
+def write_spectra(folder: Path, pas: np.ndarray) -> None:
+    """``folder/spectrum/00001.png`` ...: each PAS of ``pas`` (float [K, 90, 360]) as an 8-bit
+    greyscale image (:func:`to_uint8`), numbered from 1 in order."""
+    from PIL import Image
+
+    (folder / "spectrum").mkdir(parents=True, exist_ok=True)
+    for i, img in enumerate(to_uint8(np.asarray(pas))):
+        Image.fromarray(img, mode="L").save(folder / "spectrum" / f"{i + 1:05d}.png")
+
+
+def write_positions(path: Path, pos: np.ndarray) -> None:
+    """``pos`` (float [K, 3] m) as a ``tx_pos.csv``: a header ``x,y,z`` and one row per image."""
+    pos = np.asarray(pos, np.float64).reshape(-1, 3)
+    path.write_text("x,y,z\n" + "".join(f"{x:.9g},{y:.9g},{z:.9g}\n" for x, y, z in pos))
+
+
 def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
     """Write one state of a dataset (:class:`rfmitsuba.data.store.Dataset` or a NeRF2 one) in NeRF2 format.
 
@@ -195,14 +211,8 @@ def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
         raise DatasetError(f"{out} is not empty; refusing to write a NeRF2 dataset into it")
     if not 0 <= int(state) < dataset.num_states:
         raise DatasetError(f"state {state} outside [0, {dataset.num_states})")
-    (out / "spectrum").mkdir(parents=True)
-    from PIL import Image
-
-    imgs = to_uint8(np.asarray(dataset.pas(state)))
-    for i, img in enumerate(imgs):
-        Image.fromarray(img, mode="L").save(out / "spectrum" / f"{i + 1:05d}.png")
-    pos = np.asarray(dataset.antenna_pos, np.float64)
-    (out / "tx_pos.csv").write_text("x,y,z\n" + "".join(f"{x:.9g},{y:.9g},{z:.9g}\n" for x, y, z in pos))
+    write_spectra(out, dataset.pas(state))
+    write_positions(out / "tx_pos.csv", dataset.antenna_pos)
     _write_gateway(out / "gateway_info.yml", dataset.fixed_pos, [0.0, 0.0, 0.0, 1.0])
     sp = dataset.split
     (out / "train_index.txt").write_text("".join(f"{i + 1:05d}\n" for i in sp.antenna_train))

@@ -111,7 +111,7 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
     q = np.asarray(positions, np.float64)
     if q.ndim != 2 or q.shape[1] != 3 or len(q) == 0 or not np.isfinite(q).all():
         raise ConfigError(f"positions must be a finite array [K, 3] with K >= 1, got shape {q.shape}")
-    cfg, data, renderer = load_run(rd)
+    _, data, renderer = load_run(rd)
     if check_room and data.scene_xml is not None:
         from ..sim.geometry import RoomGeometry
 
@@ -149,17 +149,13 @@ def new_folder(out: str | Path) -> Path:
 def write_prediction(out: str | Path, result: dict) -> Path:
     """Write :func:`predict_run`'s result as the folder of the module docstring. ``out`` must be new
     or empty (:func:`new_folder`)."""
-    from PIL import Image
-
-    from ..data.nerf2 import to_uint8
+    from ..data.nerf2 import write_positions, write_spectra
 
     o = new_folder(out)
-    (o / "spectrum").mkdir(parents=True, exist_ok=True)
-    pas = result["pas"]
-    np.save(o / "pas.npy", pas)
-    for i, img in enumerate(to_uint8(pas)):
-        Image.fromarray(img, mode="L").save(o / "spectrum" / f"{i + 1:05d}.png")
-    pos = result["positions"]
-    (o / "positions.csv").write_text("x,y,z\n" + "".join(f"{x:.9g},{y:.9g},{z:.9g}\n" for x, y, z in pos))
-    write_json(o / "predict.json", {k: result[k] for k in ("run", "dataset", "task", "how")} | {"count": len(pos)})
+    o.mkdir(parents=True, exist_ok=True)
+    np.save(o / "pas.npy", result["pas"])
+    write_spectra(o, result["pas"])
+    write_positions(o / "positions.csv", result["positions"])
+    write_json(o / "predict.json", {k: result[k] for k in ("run", "dataset", "task", "how")}
+               | {"count": len(result["positions"])})
     return o
