@@ -16,9 +16,10 @@ is cut at the azimuth opposite its centre; with a tilted footprint (non-zero
 ``b``) the image has a small step there. Gradients are those of this
 definition (the step itself has none).
 
-Layout: 16 lanes per 8x8 tile (one AVX-512 packet), each lane drawing four
-pixels of one column, so all lanes of a packet walk the same tile list and a
-Gaussian's seven parameters come with two 4-wide packet loads per step.
+Layout: one packet of lanes per 8x8 tile (:func:`tiles.lanes_per_tile`: 16
+lanes of four pixels of one column with AVX-512, 8 lanes of eight with AVX2),
+so all lanes of a packet walk the same tile list and a Gaussian's seven
+parameters come with two 4-wide packet loads per step.
 Tiles are visited in a scrambled order so that the two equal lane blocks
 Dr.Jit gives its threads hold a similar amount of work.
 
@@ -38,27 +39,26 @@ from __future__ import annotations
 import drjit as dr
 
 from ..core import backend as B
+from ..core.errors import ConfigError
 from . import tiles as _tiles
-from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_LANES, TILE_SIZE, TILE_W
+from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_LANE_CHOICES, TILE_SIZE, TILE_W
 
 #: Scatter mode of the backward pass (see module docstring).
 GRAD_MODE = dr.ReduceMode.Local
-#: Pixels drawn by one lane, and the row distance between them.
-SUB = TILE_SIZE // TILE_LANES
-SUB_STEP = TILE_LANES // TILE_W
-
 #: Primes for the tile scrambling (the first one not dividing the tile count is used).
 _STRIDES = (37, 41, 43)  # small: slot * stride stays far below 2^32
 
 
-def _lanes(views: int, height: int, width: int):
-    """Per lane: tile index, and per sub-pixel q < SUB: pixel row (Float), image
-    index (UInt32) and activity; plus the pixel column (Float) and 'any active'."""
+def _lanes(views: int, height: int, width: int, tile_lanes: int):
+    """Per lane (``tile_lanes`` per tile): tile index, and per sub-pixel q < TILE_SIZE /
+    tile_lanes: pixel row (Float), image index (UInt32) and activity; plus the pixel column
+    (Float) and 'any active'."""
+    sub, sub_step = TILE_SIZE // tile_lanes, tile_lanes // TILE_W  # pixels per lane, rows between them
     nty, ntx = _tiles.tile_grid(height, width)
     num_tiles = views * nty * ntx
-    lanes = dr.arange(B.UInt32, num_tiles * TILE_LANES)
-    slot = lanes // TILE_LANES
-    k = lanes - slot * TILE_LANES
+    lanes = dr.arange(B.UInt32, num_tiles * tile_lanes)
+    slot = lanes // tile_lanes
+    k = lanes - slot * tile_lanes
     # Tiles in a scrambled order (slot * stride mod T, a permutation), so that the
     # contiguous lane blocks Dr.Jit hands to its threads mix busy and idle tiles.
     stride = next((p for p in _STRIDES if num_tiles % p), 1)
@@ -71,8 +71,8 @@ def _lanes(views: int, height: int, width: int):
     lane_row = k // TILE_W
     col = tx * TILE_W + (k - lane_row * TILE_W)
     rows, pix, active = [], [], []
-    for q in range(SUB):
-        row = ty * TILE_H + lane_row + q * SUB_STEP
+    for q in range(sub):
+        row = ty * TILE_H + lane_row + q * sub_step
         rows.append(B.Float(row))
         active.append((row < height) & (col < width))
         pix.append(view * (height * width) + row * width + col)
@@ -114,15 +114,16 @@ def _alpha(par, px, py, width):
 
 
 class Rasterize(dr.CustomOp):
-    """``dr.custom(Rasterize, u, v, a, b, c, opacity, signal, lists, views, height, width)``
+    """``dr.custom(Rasterize, u, v, a, b, c, opacity, signal, lists, views, height, width, tile_lanes)``
     -> Float [B*H*W], images row-major (view, row, column)."""
 
-    def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width):
+    def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width, tile_lanes):
         self.params = (u, v, ca, cb, cc, op, sig)
         self.packed = _pack(self.params)
-        self.shape = (views, height, width)
+        self.shape = (views, height, width, tile_lanes)
         self.lists = lists
-        tile, rows, px, pix, active, any_active = _lanes(views, height, width)
+        tile, rows, px, pix, active, any_active = _lanes(views, height, width, tile_lanes)
+        sub = len(rows)
         start = dr.gather(B.UInt32, lists.offsets, tile)
         end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
 
@@ -130,21 +131,21 @@ class Rasterize(dr.CustomOp):
             par = _load(self.packed, dr.gather(B.UInt32, lists.entries, i))
             s = par[6]
             T, C = list(T), list(C)
-            for q in range(SUB):
+            for q in range(sub):
                 alpha = _alpha(par, px, rows[q], width)[0]
                 use = (alpha >= ALPHA_MIN) & active[q]
                 C[q] = dr.select(use, dr.fma(T[q] * alpha, s, C[q]), C[q])
                 T[q] = dr.select(use, T[q] * (1.0 - alpha), T[q])
             return i + 1, tuple(T), tuple(C)
 
-        one = tuple(B.Float(1.0) for _ in range(SUB))
-        zero = tuple(B.Float(0.0) for _ in range(SUB))
+        one = tuple(B.Float(1.0) for _ in range(sub))
+        zero = tuple(B.Float(0.0) for _ in range(sub))
         _, T, C = dr.while_loop((start, one, zero), lambda i, T, C: i < end, body,
                                 labels=("i", "T", "C"), label="splat_forward")
         self.T_final = T
         dr.eval(T, C)  # one kernel for the loop (each scatter below would otherwise re-run it)
         image = dr.zeros(B.Float, views * height * width)
-        for q in range(SUB):
+        for q in range(sub):
             dr.scatter(image, C[q], pix[q], active[q])
         dr.eval(image)
         return image
@@ -153,13 +154,14 @@ class Rasterize(dr.CustomOp):
         raise NotImplementedError("splat rendering supports reverse-mode differentiation only")
 
     def backward(self):
-        views, height, width = self.shape
+        views, height, width, tile_lanes = self.shape
         grad_img = self.grad_out()
         lists = self.lists
-        tile, rows, px, pix, active, any_active = _lanes(views, height, width)
+        tile, rows, px, pix, active, any_active = _lanes(views, height, width, tile_lanes)
+        sub = len(rows)
         start = dr.gather(B.UInt32, lists.offsets, tile)
         end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
-        gpix = [dr.gather(B.Float, grad_img, pix[q], active[q]) for q in range(SUB)]
+        gpix = [dr.gather(B.Float, grad_img, pix[q], active[q]) for q in range(sub)]
         m = dr.width(self.params[0])
         # Per-pair gradient slots: a slot is written by one tile (one packet) only,
         # so the packet-local reduction's single atomic never contends.
@@ -171,7 +173,7 @@ class Rasterize(dr.CustomOp):
             _, _, ca, cb, cc, _, s = par
             T, acc = list(T), list(acc)
             sums = [B.Float(0.0) for _ in range(7)]
-            for q in range(SUB):
+            for q in range(sub):
                 alpha, raw, gauss, du, dv = _alpha(par, px, rows[q], width)
                 use = (alpha >= ALPHA_MIN) & active[q]
                 inv_one_m = dr.rcp(1.0 - alpha)
@@ -191,7 +193,7 @@ class Rasterize(dr.CustomOp):
                 dr.scatter_reduce(dr.ReduceOp.Add, target, val, i, mode=GRAD_MODE)
             return i, tuple(T), tuple(acc)
 
-        zero = tuple(B.Float(0.0) for _ in range(SUB))
+        zero = tuple(B.Float(0.0) for _ in range(sub))
         dr.while_loop((end, tuple(self.T_final), zero), lambda i, T, acc: i > start, body,
                       labels=("i", "T", "acc"), label="splat_backward")
         dr.eval(pair_grads)
@@ -225,17 +227,26 @@ def _sum_pairs(pair_grads, lists, m):
     return out
 
 
-def rasterize(proj, *, views: int, height: int, width: int):
+def rasterize(proj, *, views: int, height: int, width: int, tile_lanes: int | None = None):
     """Composite projected Gaussians into images.
 
     Args:
         proj: :class:`rfmitsuba.splat.project.Projected`, fields of size B*N.
         views, height, width: B and the image size, pixels.
+        tile_lanes: lanes per 8x8 tile, one of ``TILE_LANE_CHOICES`` (default
+            :func:`tiles.lanes_per_tile`, one packet of the backend); the image and its
+            gradients do not depend on it (up to float32 summation order).
+
+    Raises:
+        ConfigError: ``tile_lanes`` is not one of ``TILE_LANE_CHOICES``.
 
     Returns:
         Float [B*H*W], row-major images, differentiable (reverse mode) in
         ``proj.u, v, conic_*, opacity, signal``.
     """
+    tile_lanes = _tiles.lanes_per_tile() if tile_lanes is None else tile_lanes
+    if tile_lanes not in TILE_LANE_CHOICES:
+        raise ConfigError(f"tile_lanes must be one of {TILE_LANE_CHOICES}, got {tile_lanes!r}")
     dr.eval(proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c, proj.cov_uu, proj.cov_vv,
             proj.opacity, proj.signal, proj.depth)  # one kernel for the whole projection
     n = dr.width(proj.u) // views
@@ -243,4 +254,4 @@ def rasterize(proj, *, views: int, height: int, width: int):
                                                     proj.opacity, proj.depth)),
                          views=views, n=n, height=height, width=width)
     return dr.custom(Rasterize, proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c,
-                     proj.opacity, proj.signal, lists, views, height, width)
+                     proj.opacity, proj.signal, lists, views, height, width, tile_lanes)

@@ -122,9 +122,12 @@ def gradient_check(scene, rx, h, w, rng):
     return errors
 
 
-def test_gradients_match_finite_differences(variant):
+@pytest.mark.parametrize("tile_lanes", ["8", "16"])
+def test_gradients_match_finite_differences(variant, tile_lanes, monkeypatch):
     # Reference derivatives: central differences of the float64 reference; the
     # AD gradient comes from the float32 kernel. Two views share the Gaussians.
+    # Both rasteriser layouts (8 lanes of 8 pixels per tile: AVX2; 16 of 4: AVX-512).
+    monkeypatch.setenv("RFMITSUBA_SPLAT_LANES", tile_lanes)
     rng = np.random.default_rng(3)
     scene = random_scene(rng, 16, box=((-2, -2, -1), (2, 2, 1.5)), scale=(0.15, 0.6))
     rx = np.array([[0.1, 0.2, 0.0], [0.4, -0.3, 0.3]])
