@@ -3,7 +3,7 @@
 
 Every pixel x every Gaussian, float64 NumPy, written from the definitions in the
 rfmitsuba.splat docstrings without tiles, lists or bounding boxes. Its constants are written
-again here on purpose (an independent twin); tests/splat/test_splat_render.py checks that they
+again here on purpose (an independent twin); tests/splat/test_render.py checks that they
 equal the kernels'. :func:`project_one` is the projection stage for one view, :func:`render` the
 whole image. The PyTorch baseline of the benchmark (:mod:`rfmitsuba.splat.torch_baseline`) is
 checked against it in tests/experiments/test_bench.py.

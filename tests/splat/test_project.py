@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from test_splat_render import to_jit
+from test_render import to_jit
 
 from rfmitsuba.core import backend as B
 from rfmitsuba.splat.project import DILATION, project

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
-from test_splat_render import random_scene, to_jit
+from test_render import random_scene, to_jit
 
 from rfmitsuba.core import backend as B
 from rfmitsuba.splat import reference as ref
