@@ -34,6 +34,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..splat.render import render
+from ..splat.tiles import lanes_per_tile
 from ..train import loss as ssim
 
 #: Gaussian counts of the full benchmark and of ``--quick``.
@@ -283,7 +284,8 @@ def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, to
             progress(n)
     return {"rows": rows, "compile": compile_times(compile_n), "torch": have_torch,
             "torch_note": "" if have_torch else ("skipped" if not torch else "missing"), "height": height,
-            "width": width, "views": views, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count()}
+            "width": width, "views": views, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count(),
+            "tile_lanes": lanes_per_tile()}
 
 
 def format_report(result: dict) -> str:
@@ -292,7 +294,8 @@ def format_report(result: dict) -> str:
     views = result.get("views", 1)
     what = f"one {h}x{w} PAS" if views == 1 else f"{views} PAS of {h}x{w} (one call)"
     lines = [f"splat benchmark: {what} per iteration, median of {result['repeats']} "
-             f"(cores {result['cores']}, load {' '.join(f'{x:.2f}' for x in result['load'])})",
+             f"(cores {result['cores']}, load {' '.join(f'{x:.2f}' for x in result['load'])}"
+             + (f", {result['tile_lanes']} rasteriser lanes per tile" if "tile_lanes" in result else "") + ")",
              f"{'N':>7} | {'Dr.Jit fwd':>10} {'bwd':>8} {'iter':>8} {'mem':>8} |"
              + (f" {'torch fwd':>10} {'bwd':>8} {'iter':>8} {'mem':>8} | {'speed-up fwd':>12} {'bwd':>6} {'iter':>6}"
                 if result["torch"] else "")]

@@ -29,6 +29,7 @@ def test_cli_quick_prints_table_and_json(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "Dr.Jit fwd" in text and "compile time of a first iteration" in text
     result = json.loads(out.read_text())
+    assert f"{result['tile_lanes']} rasteriser lanes per tile" in text and result["tile_lanes"] in (8, 16, 32, 64)
     row = result["rows"][0]
     assert row["n"] == bench.QUICK_SIZES[0]
     for key in ("forward_ms", "backward_ms", "iteration_ms", "peak_mib"):
