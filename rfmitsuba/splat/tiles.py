@@ -46,8 +46,10 @@ def lanes_per_tile() -> int:
     Each lane draws ``TILE_SIZE / lanes`` pixels of one column, ``lanes / TILE_W`` rows apart.
     The LLVM backend's packet is 16 lanes where the CPU has AVX-512 and 8 otherwise (AVX2;
     NEON's 4-lane packets also get 8, two packets per tile); CUDA keeps 16 (a warp draws two
-    tiles). Measured at 10 000 Gaussians on an AVX2 host (``rfmitsuba bench splat``): 8 lanes
-    take 15-35% less CPU per iteration than 16, mostly in the backward pass. The environment
+    tiles). Measured at 10 000 Gaussians on an AVX2 host (``rfmitsuba bench splat``, pairs run
+    back to back): on cores shared with other jobs (load 3.5-4.5) 8 lanes took 58-63 ms per
+    iteration against 72-80 ms (CPU 46-52 against 55-63 ms); on quiet cores (load 1.2-1.6) the two
+    were within the run-to-run noise (17-24 ms against 21-34 ms). The environment
     variable ``RFMITSUBA_SPLAT_LANES`` (one of :data:`TILE_LANE_CHOICES`) overrides the choice.
 
     Raises:
