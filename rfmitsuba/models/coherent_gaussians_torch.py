@@ -85,13 +85,41 @@ def channels(params: dict, field, views) -> tuple:
     vc = params["vis_center"].reshape(-1, 3)
     ext = torch.exp(params["vis_log_extent"])
     d2 = ((q[:, None, :] - vc[None]) ** 2).sum(-1)                                          # [B, K]
-    w = torch.exp(-0.5 * d2 / (ext * ext)[None])[:, None, :] / (spread[:, None, :] * L)      # [B, M, K]
+    win = torch.exp(-0.5 * d2 / (ext * ext)[None])                                          # [B, K]
+    if field.grid_cells:
+        win = win * _grid_factor(params, field, q)
+    w = win[:, None, :] / (spread[:, None, :] * L)                                          # [B, M, K]
     ar, ai = amp[:, 0], amp[:, 1]
     c, sn = torch.cos(phase), torch.sin(phase)
     hr = (w * (ar * c - ai * sn)).sum(-1)                                                  # [B, M]
     hi = (w * (ar * sn + ai * c)).sum(-1)
     cal = params["cal"].reshape(-1, 2)
     return hr * cal[:, 0] - hi * cal[:, 1], hr * cal[:, 1] + hi * cal[:, 0]
+
+
+def _grid_factor(params: dict, field, q):
+    """``2 sigmoid(v(q))`` of every source's visibility grid: tensor [B, K] (q: [B, 3] m, clamped into
+    the box; v trilinear in the cells, each source's cells x-major, then y, then z)."""
+    import torch
+
+    n = [int(c) for c in field.cfg.vis_grid]
+    box = params["vis_grid_box"].detach()
+    v = params["vis_grid"].reshape(-1, *n)                                                  # [K, nx, ny, nz]
+    t = ((q - box[:3]) / (box[3:] - box[:3])).clamp(0.0, 1.0) * torch.tensor([c - 1 for c in n], dtype=q.dtype)
+    c0 = torch.minimum(torch.floor(t).long(), torch.tensor([max(c - 2, 0) for c in n]))       # [B, 3]
+    fr = t - c0.to(q.dtype)
+    out = torch.zeros(len(q), v.shape[0], dtype=q.dtype)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                d = (dx, dy, dz)
+                if any(d[i] and n[i] < 2 for i in range(3)):
+                    continue
+                w = torch.ones(len(q), dtype=q.dtype)
+                for i in range(3):
+                    w = w * (fr[:, i] if d[i] else 1.0 - fr[:, i])
+                out = out + w[:, None] * v[:, c0[:, 0] + dx, c0[:, 1] + dy, c0[:, 2] + dz].T
+    return 2.0 * torch.sigmoid(out)
 
 
 def bartlett(h_re, h_im, *, frequency_hz: float, height: int = 90, width: int = 360, normalize: bool = True,

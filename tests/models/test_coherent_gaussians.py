@@ -7,6 +7,9 @@ spherical wavefront tends to the plane wave far away), the data scan, the state 
 training from a NeRF2 folder without a scene."""
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fd_helpers import fd_check
@@ -443,6 +446,11 @@ def test_known_room_keeps_only_images_seen_in_training():
     ex, _, _ = f.visibility(q, y)
     assert 1 < f.num_images < len(every) and f.order[0] == 0
     assert ex[:, 1:].any(0).all()
+    # a known room gets the default visibility grid over the training positions' box (5% padding)
+    assert f.cfg.vis_grid == (4, 4, 2) and f.grid_cells == 32 and "vis_grid_box" not in f.trainable()
+    pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
+    np.testing.assert_allclose(f.params["vis_grid_box"].numpy(), np.r_[q.min(0) - pad, q.max(0) + pad], rtol=1e-6)
+    assert len(f.params["vis_grid"].numpy()) == 32 * f.num_primitives
 
 
 def test_pose_schedule_decays_in_a_known_room_only():
@@ -454,3 +462,38 @@ def test_pose_schedule_decays_in_a_known_room_only():
     assert known.init == "room" and known.lr_group("pose") == "means"
     assert scanned.init != "room" and scanned.lr_group("pose") == "rotations"
     assert all(scanned.lr_group(k) == LR_GROUPS[k] for k in LR_GROUPS if k != "pose")
+
+
+def test_visibility_grid():
+    """vis_grid: each source's window times 2 sigmoid(trilinear cells over the box): 1 at the zero
+    start (the channels equal the grid-free field's), gradients match finite differences, the
+    config names a bad grid, and the grid travels with the state."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.base import load_field
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
+
+    A = np.stack([np.eye(3), np.diag([-1.0, 1.0, 1.0])])
+    sc = np.array([[1.0, 2.5, 2.0], [3.2, 0.4, 0.5]])
+    make = lambda grid: CoherentGaussianField(A, np.array([0, 1]), sc, cfg=CoherentGaussianConfig(  # noqa: E731
+        init_extent=1.5, vis_grid=grid), readout="amplitude", wavefront="plane", vis_center=np.array([2.0, 1.5, 1.0]),
+        frequency_hz=F)
+    views = _views()
+    f, plain = make((3, 2, 2)), make(None)
+    assert f.grid_cells == 12 and len(f.params["vis_grid"].numpy()) == 12 * 4 and plain.grid_cells == 0
+    for a, b in zip(f.channels(views), plain.channels(views)):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-5, atol=1e-7)
+    rng = np.random.default_rng(5)
+    f.params["vis_grid"] = B.Float(rng.normal(size=48).astype(np.float32))
+    f.params["vis_grid_box"] = B.Float(np.array([1.4, 1.2, 0.9, 2.2, 1.9, 1.3], np.float32))  # views partly outside
+    r = fd_check(_channel_loss(f, views, seed=2), f.parameters(), "vis_grid", count=4, top=3, rel_eps=1e-2,
+                 min_scale=1.0, seed=4)
+    assert len(r.index) >= 3 and r.ok(5e-2, 3e-2), r.report()
+    tmp = Path(tempfile.mkdtemp())
+    g = load_field(f.save(tmp / "f.npz"))
+    assert g.cfg.vis_grid == (3, 2, 2)
+    for a, b in zip(g.channels(views), f.channels(views)):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-6, atol=1e-8)
+    for bad in ((0, 2, 2), (2, 2), (-1, 1, 1)):
+        with pytest.raises(ConfigError, match="vis_grid"):
+            CoherentGaussianConfig(vis_grid=bad)
