@@ -112,7 +112,7 @@ SCAN_SAMPLES = 1024
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp",
              "mat_through": "amp", "sc_pos": "means",
              "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "vis_grid": "amp",
-             "vis_grid_box": "amp", "cal": "amp", "pose": "means"}
+             "cal": "amp", "pose": "means"}   # vis_grid_box is never trained: no group
 #: the visibility grid a known room gets by default (cells along x, y, z), CoherentGaussianConfig.vis_grid
 ROOM_VIS_GRID = (4, 4, 2)
 
