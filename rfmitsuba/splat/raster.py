@@ -39,9 +39,8 @@ from __future__ import annotations
 import drjit as dr
 
 from ..core import backend as B
-from ..core.errors import ConfigError
 from . import tiles as _tiles
-from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_LANE_CHOICES, TILE_SIZE, TILE_W
+from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_SIZE, TILE_W
 
 #: Scatter mode of the backward pass (see module docstring).
 GRAD_MODE = dr.ReduceMode.Local
@@ -244,9 +243,8 @@ def rasterize(proj, *, views: int, height: int, width: int, tile_lanes: int | No
         Float [B*H*W], row-major images, differentiable (reverse mode) in
         ``proj.u, v, conic_*, opacity, signal``.
     """
-    tile_lanes = _tiles.lanes_per_tile() if tile_lanes is None else tile_lanes
-    if tile_lanes not in TILE_LANE_CHOICES:
-        raise ConfigError(f"tile_lanes must be one of {TILE_LANE_CHOICES}, got {tile_lanes!r}")
+    tile_lanes = (_tiles.lanes_per_tile() if tile_lanes is None
+                  else _tiles.checked_lanes(tile_lanes, what="tile_lanes"))
     dr.eval(proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c, proj.cov_uu, proj.cov_vv,
             proj.opacity, proj.signal, proj.depth)  # one kernel for the whole projection
     n = dr.width(proj.u) // views

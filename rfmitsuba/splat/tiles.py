@@ -57,12 +57,17 @@ def lanes_per_tile() -> int:
     """
     env = os.environ.get("RFMITSUBA_SPLAT_LANES", "").strip()
     if env:
-        if not env.isdigit() or int(env) not in TILE_LANE_CHOICES:
-            raise ConfigError(f"RFMITSUBA_SPLAT_LANES must be one of {TILE_LANE_CHOICES}, got {env!r}")
-        return int(env)
+        return checked_lanes(int(env) if env.isdigit() else env, what="RFMITSUBA_SPLAT_LANES")
     if B.is_cuda():
         return 16
     return 16 if _cpu_has_avx512() else 8
+
+
+def checked_lanes(lanes, *, what: str) -> int:
+    """``lanes`` if it is one of :data:`TILE_LANE_CHOICES`, else ConfigError naming ``what``."""
+    if isinstance(lanes, bool) or lanes not in TILE_LANE_CHOICES:
+        raise ConfigError(f"{what} must be one of {TILE_LANE_CHOICES}, got {lanes!r}")
+    return int(lanes)
 
 
 @functools.cache

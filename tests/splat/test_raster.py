@@ -91,6 +91,9 @@ def test_lane_layout_errors(variant, monkeypatch):
     p = flat([5.0], [4.0], [1.0], [0.5], [1.0], [1.0])
     with pytest.raises(ValueError, match="tile_lanes must be one of"):
         rasterize(p, views=1, height=8, width=16, tile_lanes=12)
-    monkeypatch.setenv("RFMITSUBA_SPLAT_LANES", "4")
-    with pytest.raises(ValueError, match="RFMITSUBA_SPLAT_LANES must be one of"):
-        rasterize(p, views=1, height=8, width=16)
+    with pytest.raises(ValueError, match="tile_lanes must be one of"):
+        rasterize(p, views=1, height=8, width=16, tile_lanes=True)
+    for bad in ("4", "sixteen"):
+        monkeypatch.setenv("RFMITSUBA_SPLAT_LANES", bad)
+        with pytest.raises(ValueError, match=f"RFMITSUBA_SPLAT_LANES must be one of .*{bad}"):
+            rasterize(p, views=1, height=8, width=16)
