@@ -497,3 +497,28 @@ def test_visibility_grid():
     for bad in ((0, 2, 2), (2, 2), (-1, 1, 1)):
         with pytest.raises(ConfigError, match="vis_grid"):
             CoherentGaussianConfig(vis_grid=bad)
+
+
+def test_unknown_room_gets_the_default_visibility_grid():
+    """for_training from a data scan (no room): the same default grid as a known room, over the
+    training positions' box; (0, 0, 0) in the config turns it off."""
+    from types import SimpleNamespace
+
+    from rfmitsuba.core import config as C
+    from rfmitsuba.models.coherent_gaussians import DEFAULT_VIS_GRID, CoherentGaussianField
+    from rfmitsuba.train.config import TrainConfig
+
+    rng = np.random.default_rng(1)
+    q = np.c_[rng.uniform(1.0, 2.2, 10), rng.uniform(2.2, 2.8, 10), rng.uniform(1.0, 1.6, 10)]
+    y = np.tile([0.3, 0.3, 2.0], (10, 1))
+    data = SimpleNamespace(path="stub", train=np.arange(10), rx_to_world=None, frequency_hz=F, measured=False,
+                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
+                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
+    small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
+    f = CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
+    assert f.cfg.vis_grid == DEFAULT_VIS_GRID == (4, 4, 2) and f.grid_cells == 32
+    pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
+    np.testing.assert_allclose(f.params["vis_grid_box"].numpy(), np.r_[q.min(0) - pad, q.max(0) + pad], rtol=1e-6)
+    off = CoherentGaussianField.for_training(C.override(TrainConfig(), small + ["coherent_gaussians.vis_grid=[0,0,0]"]),
+                                             data, scene_xml=None)
+    assert off.grid_cells == 0 and "vis_grid" not in off.parameters()
