@@ -18,6 +18,11 @@ def test_auto_trains_each_candidate_keeps_the_best_and_resumes(tmp_path):
     folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=30, task="tx")), tmp_path / "n")
     cfg = tiny_cfg(model='"auto"', iterations=200, **{"coherent_gaussians.scatterers": 4})
     assert trial_config(cfg, "splat").iterations == 50 and trial_config(cfg, "splat").model == "splat"
+    from dataclasses import replace
+
+    from rfmitsuba.train.select import TRIAL_MAX
+    assert trial_config(replace(cfg, iterations=2000), "splat").iterations == 500  # a quarter
+    assert trial_config(replace(cfg, iterations=6000), "splat").iterations == TRIAL_MAX == 750  # capped
     out = tmp_path / "run"
     s = train(folder, out, cfg=cfg, quiet=True)
     choice = json.loads((out / "select" / "choice.json").read_text())
