@@ -419,11 +419,23 @@ def test_known_room_state_round_trip(tmp_path):
     assert "img_slope" in flat.parameters() and "img_slope" not in flat.trainable()
 
 
+def _stub_training_data(n: int, *, seed: int):
+    """A stand-in for TrainData that for_training reads: n moving-RX training positions q [m] in
+    the bedroom's free middle, the fixed TX y [m] in its corner, random PAS. Returns (data, q, y)."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(seed)
+    q = np.c_[rng.uniform(1.0, 2.2, n), rng.uniform(2.2, 2.8, n), rng.uniform(1.0, 1.6, n)]
+    y = np.tile([0.3, 0.3, 2.0], (n, 1))
+    data = SimpleNamespace(path="stub", train=np.arange(n), rx_to_world=None, frequency_hz=F, measured=False,
+                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
+                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
+    return data, q, y
+
+
 def test_known_room_keeps_only_images_seen_in_training():
     """for_training on a known room: the images whose path exists at no training position are
     left out (parsimony), the direct path always stays, and every kept image is seen somewhere."""
-    from types import SimpleNamespace
-
     from rfmitsuba.core import config as C
     from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
     from rfmitsuba.rf.images import scene_image_maps
@@ -432,12 +444,7 @@ def test_known_room_keeps_only_images_seen_in_training():
     from rfmitsuba.train.config import TrainConfig
 
     xml = scene_path("bedroom")
-    rng = np.random.default_rng(0)
-    q = np.c_[rng.uniform(1.0, 2.2, 12), rng.uniform(2.2, 2.8, 12), rng.uniform(1.0, 1.6, 12)]
-    y = np.tile([0.3, 0.3, 2.0], (12, 1))
-    data = SimpleNamespace(path="stub", train=np.arange(12), rx_to_world=None, frequency_hz=F, measured=False,
-                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
-                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
+    data, q, y = _stub_training_data(12, seed=0)
     cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.room_scatterers=0",
                                      "coherent_gaussians.room_order=1"])
     f = CoherentGaussianField.for_training(cfg, data, scene_xml=xml)
@@ -502,18 +509,11 @@ def test_visibility_grid():
 def test_unknown_room_gets_the_default_visibility_grid():
     """for_training from a data scan (no room): the same default grid as a known room, over the
     training positions' box; (0, 0, 0) in the config turns it off."""
-    from types import SimpleNamespace
-
     from rfmitsuba.core import config as C
     from rfmitsuba.models.coherent_gaussians import DEFAULT_VIS_GRID, CoherentGaussianField
     from rfmitsuba.train.config import TrainConfig
 
-    rng = np.random.default_rng(1)
-    q = np.c_[rng.uniform(1.0, 2.2, 10), rng.uniform(2.2, 2.8, 10), rng.uniform(1.0, 1.6, 10)]
-    y = np.tile([0.3, 0.3, 2.0], (10, 1))
-    data = SimpleNamespace(path="stub", train=np.arange(10), rx_to_world=None, frequency_hz=F, measured=False,
-                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
-                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
+    data, q, _ = _stub_training_data(10, seed=1)
     small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
     f = CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
     assert f.cfg.vis_grid == DEFAULT_VIS_GRID == (4, 4, 2) and f.grid_cells == 32
