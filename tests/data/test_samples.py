@@ -47,6 +47,18 @@ def test_noise_only_on_training_samples(synthetic_ds):
     assert np.array_equal(again.raw(again.train[:3]), noisy.raw(noisy.train[:3]))
 
 
+def test_noise_does_not_depend_on_the_batch(synthetic_ds):
+    """Noisy PAS are made a state at a time; each sample's noise is its own, however it is asked for."""
+    from rfmitsuba.data.samples import SampleData
+
+    together = SampleData.open_samples(synthetic_ds, states="all", noise_snr_db=5.0, noise_seed=2)
+    alone = SampleData.open_samples(synthetic_ds, states="all", noise_snr_db=5.0, noise_seed=2)
+    idx = together.train[:12]
+    batch = together.raw(idx)
+    single = np.stack([alone.raw(idx[i:i + 1])[0] for i in range(len(idx))[::-1]])[::-1]
+    np.testing.assert_allclose(batch, single, rtol=1e-5, atol=1e-7 * float(np.abs(batch).max()))
+
+
 def test_noise_level():
     from rfmitsuba.data.samples import add_noise_channels
 
