@@ -468,6 +468,8 @@ class Trainer:
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
                    "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
                    "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+        if getattr(field, "init_report", None):   # what the field decided at its start (e.g. a frame fit)
+            summary["init"] = field.init_report
         _write_json(fd / "summary.json", summary)
         return summary
 
