@@ -527,8 +527,10 @@ def test_unknown_room_gets_the_default_visibility_grid():
 def test_frame_search_starts_the_pose_at_the_corrected_frame():
     """A measured folder whose stated gateway frame is 30 degrees off: with the frame search the
     initial field's line of sight draws the data's PAS (the pose starts at the correction, the
-    run summary's report says so); without it, it does not."""
+    run summary's report says so); without it, it does not. By default ("auto" = "report" for a
+    measured folder) the fit is reported and the frame left as stated."""
     import sys
+    import warnings
     from types import SimpleNamespace
 
     from rfmitsuba.core import config as C
@@ -547,16 +549,34 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
                            pas=lambda idx, d=1: pas[idx] if d == 2 else None)
     views = Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=stated, frequency_hz=F920, task="tx")
     corr = {}
-    for mode in ("auto", "off"):
+    for mode in ("apply", "off"):
         cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
                                          "coherent_gaussians.scatterers=0", f'coherent_gaussians.frame_search="{mode}"'])
-        f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
         img = np.asarray(render([f], views, height=45, width=180))
         a = img.reshape(len(x), -1) - img.reshape(len(x), -1).mean(1, keepdims=True)
         b = pas.reshape(len(x), -1) - pas.reshape(len(x), -1).mean(1, keepdims=True)
         corr[mode] = float(np.mean((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)))
-        if mode == "auto":
+        if mode == "apply":
             assert f.init_report["frame_fit"]["applied"] and 25 < f.init_report["frame_fit"]["angle_deg"] < 35
+            assert any("gateway orientation" in str(w.message) for w in caught)
         else:
             assert f.init_report == {} and not np.asarray(f.params["pose"].numpy()).any()
-    assert corr["auto"] > 0.99 > 0.9 > corr["off"]
+    assert corr["apply"] > 0.99 > 0.9 > corr["off"]
+    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
+                                     "coherent_gaussians.scatterers=0"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
+    rep = f.init_report["frame_fit"]
+    assert not rep["applied"] and rep["score"] - rep["stated_score"] > 0.05 and not np.asarray(f.params["pose"].numpy()).any()
+    assert any("frame_search = 'apply'" in str(w.message) for w in caught)
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig
+
+    with pytest.raises(ConfigError, match="frame_search"):
+        CoherentGaussianConfig(frame_search="on")
+    with pytest.raises(ConfigError, match="frame_min_gain"):
+        CoherentGaussianConfig(frame_min_gain=float("nan"))
