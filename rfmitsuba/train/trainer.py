@@ -326,13 +326,21 @@ class Trainer:
             stop_at: stop after this many steps as if interrupted (no final files; the latest
                 checkpoint stays), for tests of resuming.
         """
+        import drjit as dr
+
         created = not self.run_dir.exists()
+        B.ensure()
+        threads = dr.thread_count()
+        if self.cfg.threads:
+            dr.set_thread_count(self.cfg.threads)
         try:
             return self._run(stop_at=stop_at)
         except BaseException:
             if created and self.run_dir.is_dir() and not (self.run_dir / "checkpoint").is_dir():
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
+        finally:
+            dr.set_thread_count(threads)
 
     def _run(self, *, stop_at: int | None = None) -> dict:
         import drjit as dr

@@ -94,6 +94,33 @@ def test_killed_run_resumes_to_the_same_result(tiny_ds, tmp_path):
     np.testing.assert_allclose([x["loss"] for x in ra], [x["loss"] for x in rb], rtol=1e-3)
 
 
+def test_one_thread_makes_a_run_bit_reproducible(tiny_ds, tmp_path):
+    """threads = 1: two runs of one configuration give bit-identical fields and losses, and the
+    Dr.Jit thread count is restored afterwards; a negative count is refused by name."""
+    import dataclasses
+
+    import drjit as dr
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer
+
+    data = TrainData.open(tiny_ds)
+    cfg = dataclasses.replace(tiny_cfg(), threads=1)
+    before = dr.thread_count()
+    for name in ("a", "b"):
+        Trainer(cfg, data, tmp_path / name, quiet=True).run()
+        assert dr.thread_count() == before
+    with np.load(tmp_path / "a" / "final" / "field.npz") as za, np.load(tmp_path / "b" / "final" / "field.npz") as zb:
+        assert sorted(za.files) == sorted(zb.files)
+        for k in za.files:
+            np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
+    assert [x["loss"] for x in _rows(tmp_path / "a")] == [x["loss"] for x in _rows(tmp_path / "b")]
+    with pytest.raises(ConfigError, match="threads"):
+        TrainConfig(threads=-1)
+
+
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
     from rfmitsuba.core.errors import RunError
     from rfmitsuba.data.views import TrainData
