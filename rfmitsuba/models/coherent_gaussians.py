@@ -183,7 +183,7 @@ class CoherentGaussianConfig:
         degrees off: 0.943 +- 0.003 applied against 0.943 +- 0.005 not; 45 degrees off: 0.941 +-
         0.010 against 0.947 +- 0.004 (IDW-3 0.951). The fit lands 6 degrees from the truth on that
         data (other paths pull the apparent line of sight), and the field alone copes with a
-        stated frame 25-45 degrees off within about 0.01 of a right one (0.947 +- 0.008, two runs).
+        stated frame 25-45 degrees off as well as a right one (0.948 +- 0.009).
     frame_min_gain: smallest gain in line-of-sight correlation that applies a correction [1].
     vis_grid: cells (x, y, z) of each source's visibility grid over the training positions' box
         (the module docstring); None: (4, 4, 2); (0, 0, 0): none. Known room (bedroom, room order
