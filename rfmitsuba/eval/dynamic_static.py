@@ -41,7 +41,8 @@ def test_sets(data: SampleData) -> dict:
             "static_test": np.flatnonzero(a_test & st0), "static_train": np.flatnonzero(a_train & st0)}
 
 
-def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) -> dict:
+def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
+             noise_snr_db: float | None = None, noise_seed: int = 0) -> dict:
     """Both evaluations of ``model`` on ``dataset`` (metric protocol (docs/conventions.md), full 90 x 360).
 
     Returns:
@@ -50,9 +51,16 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
         (mean, median, p10, min, n), "beats_nearest_neighbour": bool}; with ``keep`` also the
         per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
         evaluation on the PAS the person changes most (:func:`_affected`).
+
+        With ``noise_snr_db`` (a model trained on noisy data, :mod:`rfmitsuba.data.samples`, noise
+        seed ``noise_seed``) each part also has "floors_noisy_training": the three floors computed
+        from the same noisy training PAS the model saw ({"nearest_neighbour", "idw3", "mean_image"}
+        stats dicts), against the same clean test PAS; the plain floors stay the clean ones.
     """
 
     data = SampleData.open_samples(dataset, states="all")
+    noisy = (None if noise_snr_db is None else
+             SampleData.open_samples(dataset, states="all", noise_snr_db=noise_snr_db, noise_seed=noise_seed))
     sets = test_sets(data)
     out = {"num_gaussians": model.num_primitives}
     t_render, n_render = 0.0, 0
@@ -77,6 +85,11 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False) 
                "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
                "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
                "test_samples": int(len(test)), "train_samples": int(len(train))}
+        if noisy is not None:   # the floors a lookup in the same noisy training data reaches
+            fn = floors(noisy.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test],
+                        train_human=data.human_pos[train] if use_human else None,
+                        test_human=data.human_pos[test] if use_human else None)
+            res["floors_noisy_training"] = {k: stats(fn[k]) for k in ("nearest_neighbour", "idw3", "mean_image")}
         if keep:
             res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
                         "nn": data.pas(train)[fl["nearest_index"]]})

@@ -357,13 +357,15 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     if (jd / "DONE").is_file():
         metrics = json.loads((jd / "metrics.json").read_text())
         if reevaluate:
-            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset)
+            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
+                                       noise_snr_db=noise_snr_db, noise_seed=seed)
             _write_json(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                       train_antennas=train_antennas, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
-    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset)
+    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
+                  noise_snr_db=noise_snr_db, noise_seed=seed)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     _write_json(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")

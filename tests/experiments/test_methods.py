@@ -87,6 +87,33 @@ def test_affected_subset_matches_a_direct_count(trained, synthetic_ds):
     assert a["model"]["mean"] > bg["affected"]["model"]["mean"], (a["model"], bg["affected"]["model"])
 
 
+def test_noisy_training_floors(trained, synthetic_ds):
+    """With the training noise named, each part also has the floors looked up in the same noisy
+    training PAS: the nearest neighbour's equals a direct lookup in the noisy data, it is below
+    the clean floor at 0 dB, and the plain floors stay the clean ones."""
+    from rfmitsuba.core.ssim import ssim_images
+    from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.eval import dynamic_static
+    from rfmitsuba.eval.metrics import floors
+    from rfmitsuba.experiments import methods
+
+    model = methods.load_model("baseline", trained / "baseline")
+    clean = dynamic_static.evaluate(model, synthetic_ds)
+    ev = dynamic_static.evaluate(model, synthetic_ds, noise_snr_db=0.0, noise_seed=3)
+    assert "floors_noisy_training" not in clean["static"]
+    for part in ("dynamic", "static"):
+        assert ev[part]["nearest_neighbour"] == clean[part]["nearest_neighbour"]
+        assert ev[part]["model"] == clean[part]["model"]
+        noisy = ev[part]["floors_noisy_training"]
+        assert noisy["nearest_neighbour"]["mean"] < clean[part]["nearest_neighbour"]["mean"]
+    data = SampleData.open_samples(synthetic_ds, states="all", noise_snr_db=0.0, noise_seed=3)
+    sets = dynamic_static.test_sets(data)
+    test, train = sets["static_test"], sets["static_train"]
+    fl = floors(data.pas(train), data.antenna_pos[train], data.pas(test), data.antenna_pos[test])
+    assert ev["static"]["floors_noisy_training"]["nearest_neighbour"]["mean"] == pytest.approx(
+        float(ssim_images(data.pas(train)[fl["nearest_index"]], data.pas(test)).mean()))
+
+
 def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
     from rfmitsuba.data.samples import SampleData
     from rfmitsuba.experiments import methods
