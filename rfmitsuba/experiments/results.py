@@ -81,6 +81,7 @@ DYN_IDW = "eval.dynamic.idw3.mean"
 #: floors from the noisy training PAS a noise-table job trained on (evaluate(noise_snr_db=...))
 DYN_NN_NOISY = "eval.dynamic.floors_noisy_training.nearest_neighbour.mean"
 DYN_IDW_NOISY = "eval.dynamic.floors_noisy_training.idw3.mean"
+STAT_NN_NOISY = "eval.static.floors_noisy_training.nearest_neighbour.mean"
 STAT_NN = "eval.static.nearest_neighbour.mean"
 STAT_MI = "eval.static.mean_image.mean"
 AFF = "eval.affected.model.mean"
