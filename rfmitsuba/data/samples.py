@@ -204,7 +204,7 @@ class SampleData(TrainData):
         cached yet, in one beamformer product (one PAS at a time cost 45 ms, mostly the steering
         matrix; 600 at once 0.4 ms each). The noise of each (state, antenna) comes from its own
         seeded generator, so it does not depend on which samples are asked for together."""
-        todo = sorted({int(a) for a in antennas} - {a for (s, a) in self._noisy if s == state})
+        todo = sorted({int(a) for a in antennas if (state, int(a)) not in self._noisy})
         if not todo:
             return
         snr = float(self.noise_snr_db)
