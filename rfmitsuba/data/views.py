@@ -65,6 +65,25 @@ def _max_depth(meta: dict, root: Path) -> int | None:
     return d
 
 
+#: Sionna RT's shortest path segment [m] (``sionna.rt.constants.MIN_SEGMENT_LENGTH`` of the
+#: Sionna RT 1.x/2.x the datasets were made with): its image method drops a path with two vertices
+#: (ends, reflections, surface crossings) this close or closer. tests/data check it against the
+#: installed Sionna.
+SIONNA_MIN_SEGMENT_M = 1e-2
+
+
+def _min_segment(meta: dict, root: Path) -> float | None:
+    """The simulating ray tracer's shortest path segment [m] (meta "solver": {"min_segment_m"},
+    else Sionna RT's where a solver is recorded), or None (no tracer made the data)."""
+    solver = meta.get("solver")
+    if not isinstance(solver, dict):
+        return None
+    v = solver.get("min_segment_m", SIONNA_MIN_SEGMENT_M)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v >= 0):
+        raise DatasetError(f"{root}: solver.min_segment_m must be a finite length >= 0 [m], got {v!r}")
+    return float(v)
+
+
 @dataclass
 class TrainData:
     """What a run trains and is evaluated on.
@@ -99,6 +118,9 @@ class TrainData:
     #: most interactions (reflections and surface crossings) per path of the ray tracer that
     #: simulated the data (meta "solver": {"max_depth"}), None when no tracer made it (measured data)
     max_depth: int | None = None
+    #: the shortest segment between two vertices of a path that the simulating ray tracer keeps [m]
+    #: (Sionna RT: 1 cm), None when no tracer made the data
+    min_segment: float | None = None
 
     @classmethod
     def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
@@ -141,7 +163,7 @@ class TrainData:
                    scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
                    frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
                    readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)),
-                   max_depth=_max_depth(meta, path))
+                   max_depth=_max_depth(meta, path), min_segment=_min_segment(meta, path))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))
         if shp != (len(ap), *PAS_SHAPE):

@@ -53,8 +53,10 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   so where the data were simulated with at most ``D`` interactions per path (the dataset's
   ``solver.max_depth``), a path with more reflections plus crossings than ``D`` does not
   exist (Sionna's default D = 3: the direct path through a wardrobe, two crossings, exists; a
-  double reflection through it does not). Images whose path exists at no training position
-  are left out;
+  double reflection through it does not). A tracer also drops a path with a segment shorter
+  than its threshold (Sionna RT: 1 cm, ``segment_limit``): a direct path that cuts 6 mm
+  through a wardrobe's corner does not exist in such data. Images whose path exists at no
+  training position are left out;
 * **unknown room**: from the training PAS alone (:func:`scan`): matching pursuit on arrival
   directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
@@ -170,6 +172,13 @@ class CoherentGaussianConfig:
         depth (:attr:`rfmitsuba.data.views.TrainData.max_depth`) is absent; no effect where the
         data name no tracer (measured data). Bedroom, room order 3, furniture order 2, seed 0:
         RX 0.947 -> 0.949 with 332 -> 275 Gaussians, TX 0.939 -> 0.940 with 322 -> 268.
+    segment_limit: a path with two vertices (ends, reflection points, crossed surfaces) no
+        farther apart than the simulating ray tracer's shortest segment
+        (:attr:`rfmitsuba.data.views.TrainData.min_segment`, Sionna RT: 1 cm) is absent, as the
+        tracer drops it; no effect where the data name no tracer. In the bedroom's moving-TX
+        data the direct path cuts 6-7 mm through the wardrobe's corner at 2 of 900 positions
+        (both in the test split, the model's two worst there) and Sionna has no direct path
+        there; 13 mm and more, it has one (139 positions).
     prune_unseen: leave out the images whose ray-cast path exists at no training position.
     incidence_slope: learn ``img_slope`` (False: it stays 0).
     frame_search: check the stated array frame against the line of sight before the data scan
@@ -218,6 +227,7 @@ class CoherentGaussianConfig:
     material_through: bool = False
     init_transmission: float = 0.5
     depth_limit: bool = True
+    segment_limit: bool = True
     prune_unseen: bool = True
     incidence_slope: bool = True
     vis_grid: tuple[int, int, int] | None = None
@@ -470,6 +480,8 @@ class CoherentGaussianField(FlatParameterField):
             ``img_slope`` are learned.
         max_depth: most reflections plus crossings of a path in the data (their ray tracer's
             depth; None: no limit), applied with ``cfg.depth_limit``.
+        min_segment: the simulating ray tracer's shortest path segment [m] (None: no limit),
+            applied with ``cfg.segment_limit``.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -481,7 +493,7 @@ class CoherentGaussianField(FlatParameterField):
                  readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,
                  name: str = "bg", params: dict | None = None, scatterer_scale: float = 1.0,
                  init: str | None = None, planes: np.ndarray | None = None, scene_xml: str | Path | None = None,
-                 max_depth: int | None = None):
+                 max_depth: int | None = None, min_segment: float | None = None):
         B.ensure()
         self.A = np.asarray(A, np.float64).reshape(-1, 3, 3)
         self.order = np.asarray(order, np.int64).reshape(-1)
@@ -510,6 +522,8 @@ class CoherentGaussianField(FlatParameterField):
         self.planes = self.scene_xml = self._vis = None
         #: most reflections plus crossings of a path (None: no limit); see CoherentGaussianConfig.depth_limit
         self.max_depth = None if max_depth is None or not cfg.depth_limit else int(max_depth)
+        #: shortest segment of a path [m] (None: no limit); see CoherentGaussianConfig.segment_limit
+        self.min_segment = None if min_segment is None or not cfg.segment_limit else float(min_segment)
         if planes is not None and scene_xml is not None and cfg.ray_visibility:
             from ..sim.visibility import SpecularVisibility
 
@@ -574,6 +588,7 @@ class CoherentGaussianField(FlatParameterField):
         idx = np.asarray(data.train, np.int64)
         x, y, q = data.positions(idx)
         depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
+        min_seg = getattr(data, "min_segment", None) if c.segment_limit else None   # and its shortest segment
         # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many
         # states, e.g. 720 positions x 30 walk states, would otherwise load 2.8 GB of PAS)
         scan_idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), SCAN_SAMPLES)).astype(np.int64))]
@@ -591,7 +606,7 @@ class CoherentGaussianField(FlatParameterField):
 
                 xy = np.unique(np.concatenate([x, y], axis=1), axis=0)      # each geometry once
                 tr = SpecularVisibility.from_xml(scene_xml).trace(xy[:, :3], xy[:, 3:], maps.planes, maps.order)
-                seen = tr.within_depth(maps.order, depth).exists.any(0)
+                seen = tr.within_depth(maps.order, depth).without_short_segments(min_seg).exists.any(0)
                 seen[maps.order == 0] = True
                 maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
                                  label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
@@ -634,7 +649,7 @@ class CoherentGaussianField(FlatParameterField):
         f = cls(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
                 frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
                 planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
-                max_depth=depth)
+                max_depth=depth, min_segment=min_seg)
         f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
         f.init_report = report
         if report.get("frame_fit", {}).get("applied"):
@@ -691,7 +706,8 @@ class CoherentGaussianField(FlatParameterField):
             "scene_xml": self.scene_xml,
             "format": FORMAT, "config": to_dict(self.cfg), "readout": self.readout, "wavefront": self.wavefront,
             "frequency_hz": self.frequency_hz, "seed": self.seed, "name": self.name, "frozen": self.frozen,
-            "scatterer_scale": self.scatterer_scale, "init": self.init, "max_depth": self.max_depth}))
+            "scatterer_scale": self.scatterer_scale, "init": self.init, "max_depth": self.max_depth,
+            "min_segment": self.min_segment}))
         return out
 
     @classmethod
@@ -710,7 +726,7 @@ class CoherentGaussianField(FlatParameterField):
                     seed=meta["seed"], name=meta.get("name", "bg"), params=state,
                     scatterer_scale=meta.get("scatterer_scale", 1.0), init=meta.get("init"),
                     planes=state.get("geometry.planes"), scene_xml=meta.get("scene_xml"),
-                    max_depth=meta.get("max_depth"))
+                    max_depth=meta.get("max_depth"), min_segment=meta.get("min_segment"))
         except KeyError as e:
             raise RunError(f"CoherentGaussianField state lacks {e}") from None
         if meta.get("frozen"):
@@ -765,7 +781,8 @@ class CoherentGaussianField(FlatParameterField):
     def path_trace(self, x: np.ndarray, y: np.ndarray):
         """The :class:`~rfmitsuba.sim.visibility.PathTrace` of every image path for array centres
         ``x`` and transmitters ``y`` (float [B, 3] m; known room with ray casts only), blocked
-        paths deeper than :attr:`max_depth` marked absent. Views already cast are remembered
+        paths deeper than :attr:`max_depth` or with a segment within :attr:`min_segment` marked
+        absent. Views already cast are remembered
         (training revisits the same positions)."""
         from ..sim.visibility import PathTrace
 
@@ -782,7 +799,7 @@ class CoherentGaussianField(FlatParameterField):
             for j, k in enumerate(missing):
                 self._vis_cache[k] = tuple(a[j] for a in tr)
         tr = PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
-        return tr.within_depth(self.order, self.max_depth)
+        return tr.within_depth(self.order, self.max_depth).without_short_segments(self.min_segment)
 
     def _lanes(self, prep: dict, K: int) -> dict:
         """Per (view, element, source) lanes ``(b * 16 + m) * K + k`` of ``K`` sources: source ``k``,

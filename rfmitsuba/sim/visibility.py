@@ -27,7 +27,10 @@ also reports its **crossings**: how many surfaces of each material group its leg
 their ends (casts continue past each hit, at most ``max_crossings`` per leg). A tracer counts
 each crossing as an interaction, so a path with more reflections plus crossings than its depth
 does not exist in its data; the coherent Gaussian field can also attenuate a blocked path by one
-learned transmission per crossing of each material.
+learned transmission per crossing of each material. A tracer also drops a path with a segment
+shorter than its threshold between two vertices (Sionna RT: 1 cm), such as a direct path that
+cuts a few millimetres through the corner of a wardrobe: the trace reports each path's
+``shortest_segment``.
 
 Positions are metres; the receiver is the array centre (Sionna's synthetic array traces from
 there too). All rays in one call; the scene is built once from the room's meshes
@@ -102,13 +105,17 @@ class PathTrace(NamedTuple):
     incoming leg and the plane's normal (1 at normal incidence; 1 for the direct path);
     crossings: float32 [B, S, G], the surfaces of each of the G material groups
     (:attr:`SpecularVisibility.group_names`) that the path's legs cross (0 where it is clear
-    or does not exist).
+    or does not exist);
+    shortest_segment: float64, the shortest distance between consecutive vertices of the path
+    [m]: its ends, its reflection points and every surface it crosses (so a path that cuts the
+    corner of a box 6 mm deep has a 6 mm segment); inf where it does not exist.
     """
 
     exists: np.ndarray
     clear: np.ndarray
     cos_incidence: np.ndarray
     crossings: np.ndarray
+    shortest_segment: np.ndarray
 
     def within_depth(self, order: np.ndarray, max_depth: int | None) -> "PathTrace":
         """The trace with every path whose reflections (``order``, int [S]) plus crossings exceed
@@ -117,7 +124,23 @@ class PathTrace(NamedTuple):
         if max_depth is None:
             return self
         deep = np.asarray(order)[None, :] + self.crossings.sum(-1) > max_depth
-        return self._replace(exists=self.exists & ~deep, crossings=np.where(deep[..., None], 0.0, self.crossings))
+        return self._absent(deep)
+
+    def without_short_segments(self, min_segment: float | None) -> "PathTrace":
+        """The trace with every path that has a segment not longer than ``min_segment`` [m]
+        marked absent (None: unchanged). A ray tracer drops such paths: Sionna RT's image method
+        keeps an interaction only if the segment to it is longer than its ``MIN_SEGMENT_LENGTH``
+        (1 cm), so a direct path that cuts 6 mm through a wardrobe's corner is not in its data,
+        while one that crosses 13 mm of it is."""
+        if min_segment is None:
+            return self
+        return self._absent(self.shortest_segment <= float(min_segment))
+
+    def _absent(self, gone: np.ndarray) -> "PathTrace":
+        """The trace with the paths where ``gone`` (bool [B, S]) is True marked absent."""
+        return self._replace(exists=self.exists & ~gone, clear=self.clear & ~gone,
+                             crossings=np.where(gone[..., None], 0.0, self.crossings),
+                             shortest_segment=np.where(gone, np.inf, self.shortest_segment))
 
 
 class SpecularVisibility:
@@ -279,32 +302,44 @@ class SpecularVisibility:
         on_face = ~ends_on_face | (t_probe <= hp + self.tol)
         exists = valid & on_face.all(-1)
         clear = exists & ~blocked.any(-1)
-        crossings = self._crossings(a, u, L, t_leg, g_leg, blocked & (exists & ~clear)[..., None],
-                                    np.where(ends_on_face, self.flush, 0.0))
+        crossings, gap = self._crossings(a, u, L, t_leg, g_leg, blocked & (exists & ~clear)[..., None],
+                                         np.where(ends_on_face, self.flush, 0.0))
+        # a clear leg is one segment; a blocked one is cut into several by what it crosses
+        shortest = np.where(active, L, np.inf).min(-1)
+        shortest = np.where(exists, np.minimum(shortest, gap), np.inf)
         cos_in = np.abs(np.einsum("bsok,sok->bso", u, end_pl[..., :3]))       # incoming leg . the plane it ends on
         cos_in = np.where(ends_on_face, cos_in, 0.0).sum(-1) / np.maximum(order, 1)[None, :]
         cos_in = np.where(order[None, :] == 0, 1.0, cos_in)
-        return PathTrace(exists, clear, cos_in, crossings)
+        return PathTrace(exists, clear, cos_in, crossings, shortest)
 
-    def _crossings(self, a, u, L, t_leg, g_leg, blocked, margin) -> np.ndarray:
-        """Surfaces of each group crossed by the blocked legs: float32 [B, S, G]. From each leg's
-        first blocking hit (distance ``t_leg``, group ``g_leg``), casts go on past every hit
-        until one reaches the leg's end less ``tol`` and ``margin`` (the face the leg reflects off)."""
+    def _crossings(self, a, u, L, t_leg, g_leg, blocked, margin) -> tuple[np.ndarray, np.ndarray]:
+        """Surfaces of each group crossed by the blocked legs: float32 [B, S, G], and the shortest
+        segment between consecutive vertices of those legs (the leg's ends and the surfaces it
+        crosses): float64 [B, S] m, inf where no leg is blocked. From each leg's first blocking
+        hit (distance ``t_leg``, group ``g_leg``), casts go on past every hit until one reaches
+        the leg's end less ``tol`` and ``margin`` (the face the leg reflects off)."""
         nb, S = blocked.shape[:2]
         G = len(self.group_names)
         out = np.zeros((nb, S, G), np.float32)
+        gap = np.full((nb, S), np.inf)
         bi, si, li = np.nonzero(blocked)
         t, g = t_leg[bi, si, li], g_leg[bi, si, li]
         end = L[bi, si, li] - self.tol - margin[bi, si, li]
+        prev = np.zeros(len(t))                                  # the last vertex along each leg [m]
+        shortest = np.full(len(t), np.inf)
         for _ in range(self.max_crossings):
             live = np.isfinite(t) & (t < end) & (g >= 0)
             if not live.any():
                 break
             np.add.at(out, (bi[live], si[live], g[live]), 1.0)
+            shortest[live] = np.minimum(shortest[live], t[live] - prev[live])
+            prev[live] = t[live]
             origin = a[bi[live], si[live], li[live]] + (t[live] + 1e-3)[:, None] * u[bi[live], si[live], li[live]]
             t2, g2 = self.hits(origin, u[bi[live], si[live], li[live]])
             t_new = np.full(len(t), np.inf)
             g_new = np.full(len(t), -1, np.int64)
             t_new[live], g_new[live] = t[live] + 1e-3 + t2, g2
             t, g = t_new, g_new
-        return out
+        shortest = np.minimum(shortest, L[bi, si, li] - prev)   # from the last surface to the leg's end
+        np.minimum.at(gap, (bi, si), shortest)
+        return out, gap

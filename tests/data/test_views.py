@@ -33,6 +33,37 @@ def test_max_depth_comes_from_the_dataset_solver(tmp_path):
             TrainData.open(ds)
 
 
+def test_min_segment_comes_from_the_dataset_solver(tmp_path):
+    """A dataset made by a tracer gets Sionna RT's shortest segment unless it states its own;
+    one made by none (measured data) gets no limit; a bad value is named."""
+    from stage1_data import make_dataset
+
+    from rfmitsuba.core.errors import DatasetError
+    from rfmitsuba.data.views import SIONNA_MIN_SEGMENT_M, TrainData
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=12)
+    _with_solver(ds, {"max_depth": 3})
+    assert TrainData.open(ds).min_segment == SIONNA_MIN_SEGMENT_M == 0.01
+    _with_solver(ds, {"max_depth": 3, "min_segment_m": 0.002})
+    assert TrainData.open(ds).min_segment == 0.002
+    _with_solver(ds, None)
+    assert TrainData.open(ds).min_segment is None
+    for bad in ("1", -0.01, float("nan"), True):
+        _with_solver(ds, {"max_depth": 3, "min_segment_m": bad})
+        with pytest.raises(DatasetError, match="solver.min_segment_m"):
+            TrainData.open(ds)
+
+
+def test_sionna_min_segment_is_the_installed_sionnas():
+    """The constant the datasets are read with is the one the installed Sionna RT drops paths by."""
+    pytest.importorskip("sionna.rt")
+    from sionna.rt.constants import MIN_SEGMENT_LENGTH
+
+    from rfmitsuba.data.views import SIONNA_MIN_SEGMENT_M
+
+    assert SIONNA_MIN_SEGMENT_M == pytest.approx(float(MIN_SEGMENT_LENGTH))
+
+
 @pytest.mark.parametrize("task", ["rx", "tx"])
 def test_positions_at_agrees_with_positions(tmp_path, task):
     """At the dataset's own positions, positions_at gives what positions gives: the moving device

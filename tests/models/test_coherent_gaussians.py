@@ -262,7 +262,7 @@ def test_training_step_kernels_compile_once(variant):
     assert all(k["cache_hit"] for k in jit), [k.get("operation_count") for k in jit if not k["cache_hit"]]
 
 
-def _room_field(max_depth=None, **cfg):
+def _room_field(max_depth=None, min_segment=None, **cfg):
     """A known-room field in the built-in bedroom (room order 1 and furniture faces, ray-cast
     visibility), its parameters perturbed as in :func:`_field`, and 6 moving-RX views."""
     from rfmitsuba.core import backend as B
@@ -278,7 +278,7 @@ def _room_field(max_depth=None, **cfg):
     c = CoherentGaussianConfig(init_extent=3.0, init_through=0.3, **cfg)
     f = CoherentGaussianField(maps.A, maps.order, np.zeros((0, 3)), cfg=c, readout="amplitude", wavefront="plane",
                               vis_center=np.array([2.0, 1.7, 1.0]), frequency_hz=F, planes=maps.planes,
-                              scene_xml=xml, init="room", max_depth=max_depth)
+                              scene_xml=xml, init="room", max_depth=max_depth, min_segment=min_segment)
     f.params["img_offset"] = B.Float(maps.b.ravel().astype(np.float32))
     rng = np.random.default_rng(0)
     for k in ("img_amp", "img_through", "img_slope", "mat_through", "cal"):
@@ -389,6 +389,35 @@ def test_paths_deeper_than_the_tracer_are_absent(tmp_path):
     np.testing.assert_array_equal(t3.exists, raw.exists & ~deep)
     assert _room_field(max_depth=1, depth_limit=False)[0].max_depth is None
     assert load_field(d3.save(tmp_path / "f.npz")).max_depth == 3
+
+
+def test_paths_with_a_segment_shorter_than_the_tracers_are_absent(tmp_path):
+    """The bedroom's direct paths from the corner (0.3, 0.3, 2.0) to positions 659 and 870 of a
+    900-position moving-TX dataset cut through the corner of the wardrobe (the
+    box [0.01, 0.61] x [0.9, 2.1] x [0, 2.1] m; chords by the slab method: 7.4 mm and 5.9 mm), the
+    one to position 838 crosses 1.2 m of it: with Sionna RT's 1 cm shortest segment the first two are absent (Sionna
+    traced no direct path at 659 and 870), the third stays blocked; without a limit (measured
+    data) or with ``segment_limit = false`` all three exist; the limit travels with the state."""
+    from rfmitsuba.models.base import Views, load_field
+
+    q = np.array([[1.00091, 1.66908, 1.00383], [1.83874, 3.30400, 1.53262], [0.18255, 2.81388, 1.49865]])
+    y = np.tile([0.3, 0.3, 2.0], (len(q), 1))
+    lo, hi = np.array([0.01, 0.9, 0.0]), np.array([0.61, 2.1, 2.1])
+    d = q - y
+    t0, t1 = (lo - y) / d, (hi - y) / d
+    chord = (np.maximum(t0, t1).min(1) - np.minimum(t0, t1).max(1)) * np.linalg.norm(d, axis=1)
+    views = Views(antenna_pos=q, view_pos=q, transmitter=y, rx_to_world=None, frequency_hz=F, task="rx")
+    raw = _room_field()[0].path_trace(views.view_pos, views.transmitter)
+    assert raw.exists[:, 0].all() and not raw.clear[:, 0].any()
+    np.testing.assert_allclose(raw.shortest_segment[:2, 0], chord[:2], atol=2e-4)
+    np.testing.assert_allclose(chord, [0.0074, 0.0059, 1.22], atol=5e-3)
+    assert raw.shortest_segment[2, 0] > 0.5                     # its other segments are shorter still
+    lim = _room_field(min_segment=0.01)[0]
+    tr = lim.path_trace(views.view_pos, views.transmitter)
+    np.testing.assert_array_equal(tr.exists[:, 0], [False, False, True])
+    np.testing.assert_array_equal(tr.exists[:, 1:], raw.exists[:, 1:] & (raw.shortest_segment[:, 1:] > 0.01))
+    assert _room_field(min_segment=0.01, segment_limit=False)[0].min_segment is None
+    assert load_field(lim.save(tmp_path / "f.npz")).min_segment == 0.01
 
 
 def test_known_room_state_round_trip(tmp_path):

@@ -162,3 +162,27 @@ def test_crossings_count_the_surfaces_of_each_material_group():
     assert _vis(wood).trace(x, y, m.planes, m.order).crossings.shape == (1, 2, 2)   # one group per mesh
     with pytest.raises(ConfigError, match="one group per mesh"):
         SpecularVisibility([ROOM, wood], groups=["concrete"])
+
+
+def test_shortest_segment_and_the_tracers_threshold():
+    """Between (0.5, 1.5, 1) and (3.5, 1.5, 1) stand a 6 mm and a 20 mm pane: the direct path's
+    shortest segment is the thin pane's 6 mm (closed form), and a tracer that drops segments of
+    1 cm or less (Sionna RT) has no direct path there; the floor bounce passes under both
+    (shortest segment: its legs, 1.80 m). With only the 20 mm pane the direct path stays. A path
+    that does not exist has an infinite shortest segment."""
+    def pane(t, at_x):
+        return trimesh.creation.box(extents=(t, 0.6, 0.6), transform=trimesh.transformations.translation_matrix((at_x, 1.5, 1.0)))
+
+    m = _planes(Plane((0.0, 0.0, 1.0), 0.0, "floor"))
+    x, y = np.array([[3.5, 1.5, 1.0]]), np.array([[0.5, 1.5, 1.0]])
+    tr = _vis(pane(0.006, 1.5), pane(0.02, 2.5)).trace(x, y, m.planes, m.order)
+    np.testing.assert_allclose(tr.shortest_segment[0], [0.006, np.hypot(1.5, 1.0)], atol=2e-4)
+    kept = tr.without_short_segments(0.01)
+    assert not kept.exists[0, 0] and not kept.clear[0, 0] and kept.exists[0, 1] and kept.clear[0, 1]
+    assert np.all(kept.crossings[0, 0] == 0) and np.isinf(kept.shortest_segment[0, 0])
+    assert tr.without_short_segments(None) is tr
+    thick = _vis(pane(0.02, 2.5)).trace(x, y, m.planes, m.order)
+    np.testing.assert_allclose(thick.shortest_segment[0, 0], 0.02, atol=2e-4)
+    assert thick.without_short_segments(0.01).exists[0, 0]
+    below = _vis().trace(np.array([[3.5, 1.5, -1.0]]), y, m.planes, m.order)   # receiver under the floor
+    assert not below.exists[0, 1] and np.isinf(below.shortest_segment[0, 1])
