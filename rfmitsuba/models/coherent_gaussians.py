@@ -178,7 +178,8 @@ class CoherentGaussianConfig:
         tracer drops it; no effect where the data name no tracer. In the bedroom's moving-TX
         data the direct path cuts 6-7 mm through the wardrobe's corner at 2 of 900 positions
         (both in the test split, the model's two worst there) and Sionna has no direct path
-        there; 13 mm and more, it has one (139 positions).
+        there; 13 mm and more, it has one (139 positions). Room order 3, furniture order 2, grid,
+        3000 steps, 3 seeds: TX 0.946 -> 0.953, RX 0.952 -> 0.958.
     prune_unseen: leave out the images whose ray-cast path exists at no training position.
     incidence_slope: learn ``img_slope`` (False: it stays 0).
     frame_search: check the stated array frame against the line of sight before the data scan
