@@ -1,10 +1,13 @@
 """Atomic file writes: write a temporary file beside the target, then rename it over the target.
 
-A reader (or a resumed run) sees either the old file or the new one, never half of one.
+A reader (or a resumed run) sees either the old file or the new one, never half of one. The
+temporary name carries the process id, so two processes (Dask workers) writing the same file
+never write into one temporary file; the last rename wins.
 """
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +15,7 @@ from typing import Any
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically; returns the path."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     tmp.write_text(text)
     tmp.replace(path)
     return path
@@ -41,7 +44,7 @@ def write_npz(path: str | Path, arrays: dict) -> Path:
     import numpy as np
 
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
     np.savez(tmp, **arrays)
     tmp.replace(path)
     return path

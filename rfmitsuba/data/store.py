@@ -246,6 +246,26 @@ class Dataset:
         except (OSError, ValueError, EOFError) as e:
             raise DatasetError(f"chunk {f.parent}: {fname} unreadable ({e})") from None
 
+    def fingerprint(self) -> str:
+        """A hex digest that changes when the dataset's content does: sha256 over ``meta.json``,
+        ``split.json``, ``antenna_pos.npy`` and every chunk's ``chunk.json`` (which holds the
+        sha256 of its arrays). Reads a few kilobytes per state, not the arrays; results derived
+        from the data alone (the evaluation floors) are cached under it.
+
+        Raises:
+            DatasetError: a chunk without ``chunk.json``.
+        """
+        h = hashlib.sha256()
+        for f in (self.path / "meta.json", self.path / "split.json", self.path / "antenna_pos.npy"):
+            h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+        for s in range(self.num_states):
+            f = self.path / "chunks" / chunk_name(s) / "chunk.json"
+            try:
+                h.update(f.read_bytes() + b"\0")
+            except OSError as e:
+                raise DatasetError(f"chunk {f.parent}: chunk.json unreadable ({e})") from None
+        return h.hexdigest()
+
     def verify(self) -> list[int]:
         """Full check (sha256) of every chunk; returns the states whose chunk is bad or missing."""
         bad = []

@@ -23,7 +23,9 @@ import numpy as np
 from ..core.errors import RunError
 from ..core.ssim import ssim_images
 from ..data.samples import SampleData
+from ..data.store import open_dataset
 from ..rf.bartlett_ref import normalize as minmax
+from . import floor_cache
 from .metrics import floors, stats
 
 
@@ -42,7 +44,8 @@ def test_sets(data: SampleData) -> dict:
 
 
 def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
-             noise_snr_db: float | None = None, noise_seed: int = 0) -> dict:
+             noise_snr_db: float | None = None, noise_seed: int = 0,
+             floors_cache: str | Path | None = None) -> dict:
     """Both evaluations of ``model`` on ``dataset`` (metric protocol (docs/conventions.md), full 90 x 360).
 
     Returns:
@@ -56,9 +59,14 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         seed ``noise_seed``) each part also has "floors_noisy_training": the three floors computed
         from the same noisy training PAS the model saw ({"nearest_neighbour", "idw3", "mean_image"}
         stats dicts), against the same clean test PAS; the plain floors stay the clean ones.
+
+        ``floors_cache``: a folder where the per-image floors are kept
+        (:mod:`rfmitsuba.eval.floor_cache`, keyed by the dataset's fingerprint, the part and the
+        noise), so every model evaluated on the same dataset reuses them; None computes them.
     """
 
     data = SampleData.open_samples(dataset, states="all")
+    fp = open_dataset(dataset, check=False).fingerprint() if floors_cache is not None else ""
     noisy = (None if noise_snr_db is None else
              SampleData.open_samples(dataset, states="all", noise_snr_db=noise_snr_db, noise_seed=noise_seed))
     sets = test_sets(data)
@@ -78,24 +86,30 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         if not np.isfinite(pred).all():
             raise RunError(f"the model renders non-finite values ({part} evaluation of {dataset})")
         s_model = ssim_images(pred, gt)
-        fl = floors(data.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test],
-                    train_human=data.human_pos[train] if use_human else None,
-                    test_human=data.human_pos[test] if use_human else None)
+        human = {"train_human": data.human_pos[train] if use_human else None,
+                 "test_human": data.human_pos[test] if use_human else None}
+        fl = floor_cache.cached(
+            floors_cache, {"floors": part, "dataset": fp},
+            lambda: floors(data.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+            length=len(test))
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
                "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
                "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
                "test_samples": int(len(test)), "train_samples": int(len(train))}
         if noisy is not None:   # the floors a lookup in the same noisy training data reaches
-            fn = floors(noisy.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test],
-                        train_human=data.human_pos[train] if use_human else None,
-                        test_human=data.human_pos[test] if use_human else None)
+            fn = floor_cache.cached(
+                floors_cache, {"floors_noisy_training": part, "dataset": fp, "snr_db": float(noise_snr_db),
+                               "noise_seed": int(noise_seed)},
+                lambda: floors(noisy.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+                length=len(test))
             res["floors_noisy_training"] = {k: stats(fn[k]) for k in ("nearest_neighbour", "idw3", "mean_image")}
         if keep:
             res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
                         "nn": data.pas(train)[fl["nearest_index"]]})
         out[part] = res
         if use_human:
-            out["affected"] = _affected(data, test, gt, s_model, fl["nearest_neighbour"])
+            out["affected"] = _affected(data, test, gt, s_model, fl["nearest_neighbour"],
+                                        floors_cache=floors_cache, fingerprint=fp)
     out["render_ms_per_pas"] = 1000 * t_render / max(n_render, 1)
     return out
 
@@ -105,13 +119,15 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
 AFFECTED_SSIM = 0.9
 
 
-def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.ndarray, s_nn: np.ndarray) -> dict | None:
+def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.ndarray, s_nn: np.ndarray, *,
+              floors_cache: str | Path | None = None, fingerprint: str = "") -> dict | None:
     """The dynamic evaluation restricted to the test PAS the person changes most.
 
     Args:
         data: samples opened with states="all"; test: int [K] dynamic test sample indices;
         gt: float [K, H, W] their ground truth; s_model / s_nn: float [K] per-PAS SSIM of the model
-        and of the nearest-neighbour floor.
+        and of the nearest-neighbour floor; floors_cache, fingerprint: as :func:`evaluate` (the
+        empty room's SSIM is cached with the floors).
 
     Returns:
         None when no test PAS is affected (SSIM against the empty room < :data:`AFFECTED_SSIM`
@@ -124,7 +140,8 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
     ref = np.array([empty.get(int(a), -1) for a in data.antennas[test]])
     if (ref < 0).any():
         return None
-    s_empty = ssim_images(data.pas(ref), gt)
+    s_empty = floor_cache.cached(floors_cache, {"empty_room": "dynamic", "dataset": fingerprint},
+                                 lambda: {"ssim": ssim_images(data.pas(ref), gt)}, length=len(test))["ssim"]
     mask = s_empty < AFFECTED_SSIM
     if not mask.any():
         return None

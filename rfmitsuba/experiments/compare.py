@@ -34,7 +34,7 @@ from ..eval.metrics import mean_std
 from ..train.config import config_diff
 from .curves import speed_accuracy
 from .methods import METHODS, MethodConfig, get_method, prior_kwargs
-from .methods import run_job
+from .methods import FLOORS_FOLDER, run_job
 from .sizes import TrainSize, method_config
 
 
@@ -84,6 +84,7 @@ def compare_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodCo
         compare_job(prior, seed, dataset, out, mcfg, quiet=quiet)
     return run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
                    record={"method": method, "seed": seed}, reevaluate=reevaluate, quiet=quiet,
+                   floors_cache=out / FLOORS_FOLDER,
                    **prior_kwargs(method, out / f"seed{seed}" / prior if prior else None))
 
 

@@ -250,6 +250,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         ours_dir: Stage 3 ("refined") starts from this finished Ours job folder (default: trains
             its own ``out/ours_job``).
         quiet: no progress bars.
+        floors_cache: folder of the evaluation floors shared by the jobs of one experiment
+            (:mod:`rfmitsuba.eval.floor_cache`); None computes them for this job.
 
     Returns:
         {"train_time_s": total training wall time (Stage 1 included for Ours), "steps": total
@@ -330,10 +332,15 @@ def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
     return FieldSet([bg, hf], octaves=octaves)
 
 
+#: the folder of an experiment (``compare``, ``reproduce``) where :func:`run_job`'s evaluations keep
+#: the floors they share (:mod:`rfmitsuba.eval.floor_cache`)
+FLOORS_FOLDER = "floors"
+
+
 def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
             noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
             ours_dir: str | Path | None = None, reevaluate: bool = False, quiet: bool = True,
-            eval_dataset: str | Path | None = None) -> dict:
+            eval_dataset: str | Path | None = None, floors_cache: str | Path | None = None) -> dict:
     """Train method ``name`` into ``job_dir``, evaluate it (on ``eval_dataset``, default
     ``dataset``), and mark the job done; or return the metrics of a job done before.
 
@@ -348,6 +355,8 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
         reevaluate: a finished job is evaluated again (its training kept, ``metrics.json``
             rewritten), for when the evaluation changed.
         quiet: no progress bars.
+        floors_cache: folder of the evaluation floors shared by the jobs of one experiment
+            (:mod:`rfmitsuba.eval.floor_cache`); None computes them for this job.
 
     Returns:
         ``record`` plus {"train": :func:`train_method`'s summary, "eval": :func:`evaluate`'s
@@ -358,14 +367,14 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
         metrics = json.loads((jd / "metrics.json").read_text())
         if reevaluate:
             metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
-                                       noise_snr_db=noise_snr_db, noise_seed=seed)
+                                       noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
             _write_json(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                       train_antennas=train_antennas, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
     ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
-                  noise_snr_db=noise_snr_db, noise_seed=seed)
+                  noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     _write_json(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")

@@ -32,7 +32,7 @@ from ..core.errors import PlacementError, RfmError, RunError
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
-from .methods import config_dict, prior_kwargs, run_job
+from .methods import FLOORS_FOLDER, config_dict, prior_kwargs, run_job
 from .paper_tables import all_jobs
 from .report import write_report
 from .sizes import DatasetSpec, ExperimentConfig, method_config
@@ -145,6 +145,7 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
     return run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
                    record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
                    reevaluate=reevaluate, quiet=quiet, **prior_kwargs(job.method, prior and prior.folder(out)),
+                   floors_cache=Path(out) / FLOORS_FOLDER,
                    eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
 

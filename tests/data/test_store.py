@@ -216,3 +216,24 @@ def test_place_antennas_rejects_impossible_requests(variant):
                          walk_positions=np.zeros((0, 3)), body_radius=0.3, body_height=1.8)
     with pytest.raises(PlacementError, match="not finite|outside"):
         g.check_points(np.array([[np.nan, 1, 1]]), what="antenna")
+
+
+def test_fingerprint_follows_the_content_not_the_location(tmp_path):
+    tiny(tmp_path / "d")
+    fp = D.open_dataset(tmp_path / "d").fingerprint()
+    assert fp == D.open_dataset(tmp_path / "d").fingerprint() and len(fp) == 64
+    shutil.copytree(tmp_path / "d", tmp_path / "moved")
+    assert D.open_dataset(tmp_path / "moved").fingerprint() == fp  # where it lies is not what it holds
+    ds = D.open_dataset(tmp_path / "moved")
+    pas = np.array(ds.pas(2))
+    pas[0, 0, 0] += 1.0
+    D.write_chunk(tmp_path / "moved", 2, pas=pas)  # one value of one state changed
+    assert D.open_dataset(tmp_path / "moved").fingerprint() != fp
+    _, pas, hp = tiny(tmp_path / "again")
+    ap = D.open_dataset(tmp_path / "again").antenna_pos
+    D.write_dataset(tmp_path / "other_split", pas=pas, antenna_pos=ap, human_pos=hp, seed=5)  # same arrays
+    assert not np.array_equal(D.open_dataset(tmp_path / "other_split").split.antenna_test, ds.split.antenna_test)
+    assert D.open_dataset(tmp_path / "other_split").fingerprint() != fp
+    (tmp_path / "d" / "chunks" / "00001" / "chunk.json").unlink()
+    with pytest.raises(DatasetError, match="00001: chunk.json"):
+        D.open_dataset(tmp_path / "d", check=False).fingerprint()
