@@ -126,10 +126,13 @@ class Session:
         variant = backend.variant()  # the workers use the variant of the submitting process
         run_id = uuid.uuid4().hex[:8]
         futures: dict[str, Any] = {}
-        for t in tasks:
+        for i, t in enumerate(tasks):
             deps = [futures[d] for d in t.after]
+            # priority: free workers take tasks in list order (by default Dask picks among ready
+            # tasks in no order the caller set, so jobs of different datasets would interleave)
             futures[t.name] = self.client.submit(_run_in_worker, variant, t.fn, t.args, t.kwargs, *deps,
-                                                 key=f"rfm-{run_id}-{t.name}", pure=False)
+                                                 key=f"rfm-{run_id}-{t.name}", pure=False,
+                                                 priority=len(tasks) - i)
         name_of = {f.key: n for n, f in futures.items()}
         after = {t.name: t.after for t in tasks}
         results: dict[str, Any] = {}

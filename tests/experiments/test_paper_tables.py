@@ -83,3 +83,21 @@ def test_material_order_is_judged_pair_by_pair_on_the_seeds(spread, verdicts):
     assert claims.rows[1].startswith("| A tissue perturber is easier than metal for Ours")
     for row, verdict in zip(claims.rows, verdicts):
         assert row.endswith(f"{verdict} |"), row
+
+
+def test_all_jobs_once_grouped_by_dataset_with_each_prior_first():
+    from rfmitsuba.experiments.paper_tables import all_jobs, table_jobs
+
+    cfg = size_config("full")
+    jobs = all_jobs(cfg)
+    names = [f"{j.dataset.key}/{j.key}" for j in jobs]
+    assert len(names) == len(set(names))
+    wanted = {f"{j.dataset.key}/{j.key}" for t in table_jobs(cfg).values() for j in t}
+    assert wanted <= set(names)
+    keys = [j.dataset.key for j in jobs]
+    runs = [k for i, k in enumerate(keys) if i == 0 or keys[i - 1] != k]
+    assert len(runs) == len(set(runs)) > 3  # each dataset's jobs in one run
+    pos = {n: i for i, n in enumerate(names)}
+    for j, n in zip(jobs, names):
+        if j.prior_job() is not None:
+            assert pos[f"{j.dataset.key}/{j.prior_job().key}"] < pos[n]
