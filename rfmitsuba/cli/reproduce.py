@@ -17,6 +17,11 @@ def register(sub) -> None:
     p.add_argument("--reevaluate", action="store_true",
                    help="evaluate finished jobs again (after the evaluation changed); training is kept")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--plan", action="store_true",
+                   help="run nothing: print the datasets and jobs still to do per table, with their wall time "
+                        "estimated from finished jobs (rfmitsuba.experiments.plan); writes nothing")
+    p.add_argument("--plan-from", action="append", default=[], metavar="DIR",
+                   help="with --plan: also time the estimates by the finished jobs of this reproduction folder")
     cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
@@ -40,6 +45,15 @@ def run(args) -> int:
     from ..experiments.reproduce import reproduce
 
     cfg = build_config(args)
+    if args.plan:
+        from ..experiments.plan import format_plan, plan
+
+        print(format_plan(plan(args.out, cfg, data_dir=args.data, reference=args.plan_from)))
+        return 0
+    if args.plan_from:
+        from ..core.errors import ConfigError
+
+        raise ConfigError("--plan-from goes with --plan")
     path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet,
                      cluster=cluster.from_cli(args))
     print(f"report: {path}")

@@ -104,7 +104,9 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
 SHARED_KEYS = ("size", "source", "data", "train")
 
 
-def _check_experiment(out: Path, cfg: ExperimentConfig) -> None:
+def check_experiment(out: Path, cfg: ExperimentConfig) -> None:
+    """RunError unless ``out`` is new, or an experiment folder of the same size, source, data and
+    train (:data:`SHARED_KEYS`); reads only."""
 
     f = out / "experiment.toml"
     if f.is_file():
@@ -179,7 +181,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 
     out = Path(out)
     cluster = cluster or ClusterConfig()
-    _check_experiment(out, cfg)
+    check_experiment(out, cfg)
     out.mkdir(parents=True, exist_ok=True)
     C.save(cfg, out / "experiment.toml")        # the latest selection of jobs (the shared keys are checked)
     data_dir = Path(data_dir) if data_dir else out / "data"

@@ -48,7 +48,7 @@ def test_other_configuration_is_refused(tiny_reproduction):
     """Another size, data or training configuration is refused by name and changes nothing; other
     seeds, rooms or tables only choose jobs and are accepted."""
     from rfmitsuba.core import config as C
-    from rfmitsuba.experiments.reproduce import _check_experiment, reproduce
+    from rfmitsuba.experiments.reproduce import check_experiment, reproduce
 
     out, cfg, _, _ = tiny_reproduction
     before = (out / "experiment.toml").read_text()
@@ -57,7 +57,7 @@ def test_other_configuration_is_refused(tiny_reproduction):
     with pytest.raises(RunError, match="train.stage2_iterations"):
         reproduce(out, C.override(cfg, ["train.stage2_iterations=31"]), quiet=True)
     assert (out / "experiment.toml").read_text() == before
-    _check_experiment(out, C.override(cfg, ["seeds=[0, 1, 7]", 'tables=["main"]']))
+    check_experiment(out, C.override(cfg, ["seeds=[0, 1, 7]", 'tables=["main"]']))
 
 
 def test_job_folder_of_another_job_is_refused(tiny_reproduction, tmp_path):
