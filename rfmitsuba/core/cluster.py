@@ -128,8 +128,8 @@ class Session:
         futures: dict[str, Any] = {}
         for i, t in enumerate(tasks):
             deps = [futures[d] for d in t.after]
-            # priority: free workers take tasks in list order (by default Dask picks among ready
-            # tasks in no order the caller set, so jobs of different datasets would interleave)
+            # priority in list order: the caller lists related jobs (one dataset's) together, and
+            # free workers should take them together (Dask does not promise an order otherwise)
             futures[t.name] = self.client.submit(_run_in_worker, variant, t.fn, t.args, t.kwargs, *deps,
                                                  key=f"rfm-{run_id}-{t.name}", pure=False,
                                                  priority=len(tasks) - i)

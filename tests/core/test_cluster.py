@@ -15,14 +15,6 @@ import pytest
 from rfmitsuba.core.cluster import ClusterConfig, JobsFailed, Task, run_tasks
 from rfmitsuba.core.errors import ConfigError
 
-def _start_time(hold_s: float) -> float:
-    import time
-
-    t = time.time()
-    time.sleep(hold_s)
-    return t
-
-
 @pytest.fixture(scope="module")
 def scheduler():
     """The address of a LocalCluster of 2 single-thread worker processes (module-wide)."""
@@ -74,14 +66,6 @@ def test_cluster_names_failed_jobs_and_keeps_the_others(scheduler, tmp_path):
     # results come back in the order of the tasks, whatever order they finish in
     out = run_tasks([Task(f"t{i}", math.sqrt, (float(i * i),)) for i in range(5)], cluster=scheduler, quiet=True)
     assert list(out.items()) == [(f"t{i}", float(i)) for i in range(5)]
-
-
-def test_free_workers_start_tasks_in_list_order(scheduler):
-    """Dask alone picks among ready tasks in an order of its own; reproduce lists one dataset's
-    jobs in a row so that they share the page cache."""
-    starts = run_tasks([Task(f"o{i}", _start_time, (0.3,)) for i in range(8)], cluster=scheduler, quiet=True)
-    order = sorted(starts, key=starts.get)
-    assert set(order[:2]) == {"o0", "o1"} and order[2:] == [f"o{i}" for i in range(2, 8)]
 
 
 def test_generate_on_cluster_is_bit_identical(quick_dataset, scheduler, tmp_path):
