@@ -5,17 +5,20 @@
     OUT/experiment.toml     the configuration; a later run into OUT must keep its size, source,
                             data and train (else RunError) and may add seeds, rooms, tables, ...
     OUT/data/<dataset>/     generated datasets (unless --data points elsewhere)
-    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>]/
-        job.toml            what the job is (checked on resume)
+    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>][_on_<dataset>]/
+        job.json            what the job is (checked on resume)
         train/ | stage2/    Trainer run folders (resumable from their checkpoints)
         metrics.json        both evaluations, written atomically, then
         DONE                the done-marker: finished jobs are skipped
+    OUT/floors/             the evaluation floors, once per dataset (rfmitsuba.eval.floor_cache)
     OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
 
 Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
 Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
-first stage, as in the paper). Tables (:data:`TABLES`): main, two_stage, perturbation,
-material, large_room, positions, noise. Sizes (:data:`SIZES`): ``tiny`` (synthetic data,
+first stage, as in the paper). Tables (:data:`rfmitsuba.experiments.paper_tables.TABLES`):
+main, two_stage, perturbation, material, large_room, positions, noise, rx_count,
+third_stage; one dataset's jobs run in a row. :mod:`rfmitsuba.experiments.plan` says what is
+left and how long it should take, before anything runs. Sizes (:data:`SIZES`): ``tiny`` (synthetic data,
 no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 cores) and
 ``full`` (the paper's 900 positions x 35 walk positions).
 """
