@@ -29,6 +29,7 @@ from ..core import config as C
 from ..core.atomic import write_json, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import ConfigError, RunError
+from ..core.folder_lock import LOCK_NAME, folder_lock
 from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
@@ -70,7 +71,7 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
         if info.get("dataset") and Path(info["dataset"]).resolve() != dataset.resolve():
             raise RunError(f"output folder {out} compares on dataset {info['dataset']}, not {dataset} "
                            "(nothing was changed)")
-    elif out.is_dir() and any(out.iterdir()):
+    elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
         raise RunError(f"{out} is not empty and holds no compare.toml: not a comparison folder (nothing was changed)")
 
 
@@ -98,7 +99,8 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     here, one after another; on Dask, Ours waits for the Baseline of its seed).
 
     Raises:
-        RunError: ``out`` holds another configuration or dataset; DatasetError: a dataset
+        RunError: ``out`` holds another configuration or dataset, or another process is running a
+        comparison into it (:mod:`rfmitsuba.core.folder_lock`); DatasetError: a dataset
         without human-present states (the methods need them); JobsFailed (a RunError): on a
         cluster, jobs failed (each named; the others are done and kept).
     """
@@ -107,7 +109,13 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     cluster = cluster or ClusterConfig()
     dataset, out = Path(dataset), Path(out)
     _check_folder(out, cfg, dataset)
-    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out, what="compare"):   # a second compare into out stops here, naming this one
+        return _compare(dataset, out, cfg, quiet=quiet, progress=progress, reevaluate=reevaluate, cluster=cluster)
+
+
+def _compare(dataset: Path, out: Path, cfg: CompareConfig, *, quiet: bool, progress: bool, reevaluate: bool,
+             cluster: ClusterConfig) -> Path:
+    """:func:`compare` once its folder is checked and locked."""
     C.save(cfg, out / "compare.toml")
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
 

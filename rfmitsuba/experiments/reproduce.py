@@ -32,6 +32,7 @@ from ..core import config as C
 from ..core.atomic import numpy_default, write_json
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import PlacementError, RfmError, RunError
+from ..core.folder_lock import folder_lock
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
@@ -177,7 +178,8 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
         path of ``report.md``.
 
     Raises:
-        RunError: ``out`` holds another configuration (the differing key is named);
+        RunError: ``out`` holds another configuration (the differing key is named), or another
+        process is running a reproduction into it (:mod:`rfmitsuba.core.folder_lock`);
         JobsFailed (a RunError): on a cluster, datasets or jobs failed (each named; the
         others are done and kept).
     """
@@ -185,7 +187,14 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     out = Path(out)
     cluster = cluster or ClusterConfig()
     check_experiment(out, cfg)
-    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out, what="reproduce"):   # a second reproduce into out stops here, naming this one
+        return _reproduce(out, cfg, data_dir=data_dir, stop_after=stop_after, reevaluate=reevaluate, quiet=quiet,
+                          cluster=cluster)
+
+
+def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reevaluate: bool, quiet: bool,
+               cluster: ClusterConfig) -> Path:
+    """:func:`reproduce` once its folder is checked and locked."""
     C.save(cfg, out / "experiment.toml")        # the latest selection of jobs (the shared keys are checked)
     data_dir = Path(data_dir) if data_dir else out / "data"
     # workers elsewhere resolve relative paths against their own folder
