@@ -250,8 +250,6 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         ours_dir: Stage 3 ("refined") starts from this finished Ours job folder (default: trains
             its own ``out/ours_job``).
         quiet: no progress bars.
-        floors_cache: folder of the evaluation floors shared by the jobs of one experiment
-            (:mod:`rfmitsuba.eval.floor_cache`); None computes them for this job.
 
     Returns:
         {"train_time_s": total training wall time (Stage 1 included for Ours), "steps": total

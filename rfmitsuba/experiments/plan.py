@@ -32,7 +32,12 @@ from .sizes import ExperimentConfig
 
 def job_kind(job: Job) -> str:
     """The job's key without its seed: what makes two jobs take about the same time."""
-    return re.sub(r"_s\d+", "", job.key, count=1)
+    return _without_seed(job.key)
+
+
+def _without_seed(key: str) -> str:
+    """A job key (:attr:`Job.key`, also its folder's name) without its ``_s<seed>`` part."""
+    return re.sub(r"_s\d+", "", key, count=1)
 
 
 def measured_times(folders: list[Path]) -> dict[str, list[float]]:
@@ -47,7 +52,7 @@ def measured_times(folders: list[Path]) -> dict[str, list[float]]:
                 method = str(metrics["job"]["method"])
             except (OSError, ValueError, KeyError, TypeError):
                 continue  # a job without readable metrics is not a measurement
-            kind = re.sub(r"_s\d+", "", done.parent.name, count=1)
+            kind = _without_seed(done.parent.name)
             times.setdefault(kind, []).append(wall)
             times.setdefault(f"method:{method}", []).append(wall)
     return times
