@@ -126,8 +126,8 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
     tables = [table(t, all_jobs(dataclasses.replace(cfg, tables=[t]))) for t in cfg.tables]
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
-    datasets = [(s.key, str(dataset_path(s, cfg, data_dir)), _complete(dataset_path(s, cfg, data_dir)))
-                for s in specs]
+    paths = {s.key: dataset_path(s, cfg, data_dir) for s in specs}
+    datasets = [(k, str(path), _complete(path)) for k, path in paths.items()]
     measured = sum(len(v) for k, v in times.items() if k.startswith("method:"))
     return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources])
 
