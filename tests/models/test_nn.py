@@ -130,6 +130,60 @@ def test_em_network_gradient_matches_finite_differences(variant):
         assert abs(fd - grad[j]) < 2e-3 + 2e-2 * abs(fd), (j, fd, grad[j])
 
 
+@pytest.mark.parametrize("pairs", [False, True])
+def test_host_products_match_cooperative_vectors(variant, pairs):
+    """The LLVM backend's host matrix products (``_HostMLP``) give the cooperative-vector
+    network's outputs and every gradient: weights, per-item and per-view inputs."""
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import MLP
+
+    if B.is_cuda():
+        pytest.skip("the host products run on the LLVM backend only")
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(37, 6)).astype(np.float32)
+    y = rng.normal(size=(3, 6)).astype(np.float32)
+    results = []
+    for host in (True, False):
+        m = MLP(6, 3, width=16, layers=2, seed=7, host=host)
+        assert (m._host_layers is not None) == host
+        # random weights (not m.weights.numpy(): reading a packed buffer before replacing it
+        # leaves Dr.Jit 1.5's cooperative-vector views without their gradient link)
+        w = B.Float(np.random.default_rng(6).normal(0, 0.3, m.num_parameters).astype(np.float32))
+        dr.enable_grad(w)
+        m.set_weights(w)
+        xs, ys = [B.Float(x[:, k]) for k in range(6)], [B.Float(y[:, k]) for k in range(6)]
+        for v in xs + ys:
+            dr.enable_grad(v)
+        out = m.pairs(xs, ys) if pairs else m(xs)
+        g = dr.gather(B.Float, out[0], B.UInt32([0, 3, 5, 5, 30]))   # a scatter in the backward
+        dr.backward(dr.sum(dr.square(g)) + dr.sum(out[1] * 0.5) - dr.sum(out[2] * out[0]))
+        results.append([np.stack([o.numpy() for o in out]), dr.grad(w).numpy(),
+                        np.stack([dr.grad(v).numpy() for v in xs])]
+                       + ([np.stack([dr.grad(v).numpy() for v in ys])] if pairs else []))
+    assert results[0][0].shape == (3, 37 * 3 if pairs else 37)
+    for a, b in zip(*results):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4 * float(np.abs(b).max()))
+
+
+def test_mlp_pairs_are_view_major(variant):
+    """``MLP.pairs`` row ``b * N + i`` is the network on ``act(x_i + y_b)``."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.nn import MLP
+
+    m = MLP(4, 2, width=8, layers=1, seed=1)
+    rng = np.random.default_rng(5)
+    x, y = rng.normal(size=(5, 4)).astype(np.float32), rng.normal(size=(2, 4)).astype(np.float32)
+    out = np.stack([o.numpy() for o in m.pairs([B.Float(x[:, k]) for k in range(4)],
+                                               [B.Float(y[:, k]) for k in range(4)])], 1)
+    h = (y[:, None, :] + x[None]).reshape(-1, 4)
+    h = np.where(h > 0, h, 0.01 * h)
+    np.testing.assert_allclose(out, _mlp_numpy(m.weights.numpy(), [4, 8, 2], h), rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="4 inputs per item and per view"):
+        m.pairs([B.Float(x[:, 0])], [B.Float(y[:, 0])])
+
+
 def test_hashgrid_network_runs_and_has_parameters(variant):
     from rfmitsuba.core import backend as B
     from rfmitsuba.models.nn import EMNetwork, NetConfig
