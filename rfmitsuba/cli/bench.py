@@ -24,12 +24,14 @@ def register(sub) -> None:
     p.add_argument("--views", type=int, default=1, help="PAS per call (a batch of receiver positions)")
     p.add_argument("--no-torch", action="store_true", help="skip the PyTorch comparison")
     p.add_argument("--dataset", type=Path, default=None,
-                   help="field: dataset of the Stage-1 timing (default: a NeRF2-like folder made once in the cache)")
+                   help="dataset of the Stage-1 timings (default: a NeRF2-like folder made once in the cache)")
     p.add_argument("--stage1-model", default="coherent_gaussians",
                    help="field: model of the Stage-1 timing (default coherent_gaussians)")
     p.add_argument("--stage1-config", type=Path, default=None,
                    help="field: training TOML of the Stage-1 timing instead of --stage1-model's defaults")
-    p.add_argument("--no-stage1", action="store_true", help="field: skip the Stage-1 timing")
+    p.add_argument("--no-stage1", action="store_true",
+                   help="skip the Stage-1 timings (field: steps/s of the coherent field; splat: one splat step "
+                        "with the networks' products on the host and as cooperative vectors)")
     p.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     p.set_defaults(func=run)
 
@@ -84,4 +86,13 @@ def _splat(args, *, default_sizes: tuple | None) -> dict:
                            torch=not args.no_torch, progress=lambda n: pb.update(1),
                            compile_n=300 if args.quick else 2000, views=args.views)
     print(bench.format_report(result))
+    if not args.no_stage1:
+        dataset = None
+        if args.dataset is not None:
+            if not args.dataset.exists():
+                raise ConfigError(f"--dataset {args.dataset} does not exist")
+            dataset = str(args.dataset)
+        result["stage1_step"] = bench.measure_stage1_step(gaussians=2000 if args.quick else 10_000,
+                                                          steps=14 if args.quick else 40, dataset=dataset)
+        print(bench.format_stage1_step(result["stage1_step"]))
     return result

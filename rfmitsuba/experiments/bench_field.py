@@ -13,7 +13,7 @@ shared cores; every timing ends with ``dr.sync_thread()``):
 - ``bartlett``: the Bartlett op alone (16 channels -> normalised PAS), forward and forward +
   backward, Dr.Jit against NumPy (BLAS complex matrix products for both passes);
 - ``stage1``: steps per second of a real Stage-1 training (:class:`~rfmitsuba.train.trainer.Trainer`,
-  batch 8, full resolution) on a dataset: the given one, or a NeRF2-like folder
+  the configuration's batch, full resolution) on a dataset: the given one, or a NeRF2-like folder
   (:func:`rfmitsuba.sim.nerf2like.make_nerf2like`) made once in the cache folder.
 
 The benchmark field: the direct path plus ``images`` reflections across the six walls of a
@@ -230,16 +230,19 @@ def default_dataset() -> Path:
 
 
 def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_gaussians", steps: int = 60,
-                   config: str | Path | None = None) -> dict:
-    """Steps per second of a Stage-1 training (batch 8, full resolution, no validation in the timed
-    span): the trainer's own training clock between its log rows at step 10 and at ``steps``,
-    so initialisation and the first steps' compilation are not counted."""
-    from ..core.config import load
+                   config: str | Path | None = None, overrides: list[str] | None = None) -> dict:
+    """Steps per second of a Stage-1 training (the configuration's batch, full resolution, no
+    validation in the timed span): the trainer's own training clock between its log rows at
+    step 10 and at ``steps``, so initialisation and the first steps' compilation are not
+    counted. ``overrides``: ``key=value`` items applied to the training configuration."""
+    from ..core.config import load, override
     from ..train.config import TrainConfig
     from ..train.trainer import train
 
     ds = Path(dataset) if dataset is not None else default_dataset()
     cfg = load(TrainConfig, config) if config else TrainConfig(model=model)
+    if overrides:
+        cfg = override(cfg, list(overrides))
     cfg.iterations, cfg.log_every, cfg.val_every, cfg.checkpoint_every = steps, 10, 10**9, 10**9
     cfg.time_limit_s = 0.0
     with tempfile.TemporaryDirectory() as tmp:
@@ -252,7 +255,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     last = rows[-1]
     rate = (last["step"] - first["step"]) / max(last["time_s"] - first["time_s"], 1e-9)
     return {"dataset": str(ds), "model": summary.get("model", cfg.model), "sources": summary.get("num_gaussians"),
-            "steps": steps, "steps_per_s": rate, "step_ms": 1e3 / rate, "wall_s": total}
+            "batch": cfg.batch_views, "steps": steps, "steps_per_s": rate, "step_ms": 1e3 / rate, "wall_s": total}
 
 
 # ------------------------------------------------------------------------------ report
@@ -308,6 +311,6 @@ def format_report(r: dict) -> str:
                          f"{par['grad_max_rel']:.1e} |")
     s = r.get("stage1")
     if s:
-        lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch 8, 90x360 | "
+        lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch {s.get('batch', 8)}, 90x360 | "
                      f"{s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on `{s['dataset']}` |")
     return "\n".join(lines)

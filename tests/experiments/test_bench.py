@@ -23,10 +23,16 @@ def test_torch_baseline_matches_reference():
     assert np.abs(np.where(amb[0], 0, img.detach().numpy() - expected[0])).max() < 1e-4
 
 
-def test_cli_quick_prints_table_and_json(tmp_path, capsys):
+def test_cli_quick_prints_table_and_json(tmp_path, capsys, quick_dataset):
     out = tmp_path / "bench.json"
-    assert main(["bench", "splat", "--quick", "--json", str(out)]) == 0
+    assert main(["bench", "splat", "--quick", "--dataset", str(quick_dataset.path), "--json", str(out)]) == 0
     text = capsys.readouterr().out
+    # the Stage-1 splat step, both ways of running the networks' products, with their ratio
+    step = json.loads(out.read_text())["stage1_step"]
+    assert step["gaussians"] == 2000 and step["batch"] == 4
+    for side in ("host", "coop_vec"):
+        assert step[side]["model"] == "splat" and step[side]["batch"] == 4 and step[side]["step_ms"] > 0
+    assert "Stage-1 splat step, 2000 Gaussians, batch 4" in text and "as cooperative vectors" in text
     assert "Dr.Jit fwd" in text and "compile time of a first iteration" in text
     result = json.loads(out.read_text())
     assert f"{result['tile_lanes']} rasteriser lanes per tile" in text and result["tile_lanes"] in (8, 16, 32, 64)
