@@ -195,6 +195,13 @@ class CoherentGaussianConfig:
         data (other paths pull the apparent line of sight), and the field alone copes with a
         stated frame 25-45 degrees off as well as a right one (0.948 +- 0.009).
     frame_min_gain: smallest gain in line-of-sight correlation that applies a correction [1].
+    room_box: an unknown room whose dimensions are known (a tape measure, a floor plan, no
+        XML): its box ``(x0, y0, z0, x1, y1, z1)`` [m] in the data's frame. Its six walls join
+        the planes the data scan finds, before their images are composed (``image_order``).
+        The scan alone misses walls next to the fixed device, whose images arrive within the
+        array's beam of the direct path. Bedroom, moving RX, seed 0, 3000 steps at batch 8:
+        0.776 without, 0.878 with the true box, 0.867 with every wall 6-8 cm off, 0.837 with the
+        four walls alone (NN 0.710, IDW-3 0.760). Every training position must lie inside it.
     vis_grid: cells (x, y, z) of each source's visibility grid over the training positions' box
         (the module docstring); None: (4, 4, 2); (0, 0, 0): none. Known room (bedroom, room order
         3, furniture order 2, 3 seeds): RX 0.949 -> 0.952, TX 0.941 -> 0.946. Unknown room (3
@@ -234,6 +241,7 @@ class CoherentGaussianConfig:
     vis_grid: tuple[int, int, int] | None = None
     frame_search: Literal["auto", "report", "apply", "off"] = "auto"
     frame_min_gain: float = 0.01
+    room_box: tuple[float, float, float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.frame_search not in ("auto", "report", "apply", "off"):
@@ -262,6 +270,11 @@ class CoherentGaussianConfig:
             if len(g) != 3 or not all(isinstance(n, int) and n >= 0 for n in g) or (0 in g and any(g)):
                 raise ConfigError(f"CoherentGaussianConfig.vis_grid must be None or 3 cells (x, y, z), all >= 1 "
                                   f"or all 0, got {self.vis_grid!r}")
+        if self.room_box is not None:
+            box = np.asarray(self.room_box, np.float64)
+            if box.shape != (6,) or not np.isfinite(box).all() or not (box[:3] < box[3:]).all():
+                raise ConfigError(f"CoherentGaussianConfig.room_box must be 6 finite numbers (x0, y0, z0, x1, y1, "
+                                  f"z1) [m] with x0 < x1, y0 < y1, z0 < z1, got {self.room_box!r}")
         if self.furniture_planes not in ("faces", "box"):
             raise ConfigError(f"CoherentGaussianConfig.furniture_planes must be 'faces' or 'box', got "
                               f"{self.furniture_planes!r}")
@@ -402,6 +415,33 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
     else:
         out["points"], out["point_score"] = np.zeros((0, 3)), np.zeros(0)
     return out
+
+
+def room_box_planes(box, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The six walls of a known room box as reflections ``y -> A y + b``.
+
+    Args:
+        box: (x0, y0, z0, x1, y1, z1) [m]; positions: float [N, 3] every known position [m]
+            (the moving device's, the array's, the transmitter's), which must lie inside it.
+    Returns:
+        (A float64 [6, 3, 3], b float64 [6, 3] [m]): x0, x1, y0, y1, z0, z1.
+    Raises:
+        ConfigError: a position outside the box (named, with its coordinates).
+    """
+    box = np.asarray(box, np.float64).reshape(6)
+    pts = np.asarray(positions, np.float64).reshape(-1, 3)
+    outside = ~((pts >= box[:3]) & (pts <= box[3:])).all(axis=1)
+    if outside.any():
+        i = int(np.argmax(outside))
+        raise ConfigError(f"coherent_gaussians.room_box {box.tolist()}: position {i} at "
+                          f"{np.round(pts[i], 3).tolist()} m lies outside the room "
+                          f"({int(outside.sum())} of {len(pts)} positions do)")
+    A = np.repeat(np.eye(3)[None], 6, 0)
+    b = np.zeros((6, 3))
+    for k, (axis, offset) in enumerate([(0, box[0]), (0, box[3]), (1, box[1]), (1, box[4]), (2, box[2]), (2, box[5])]):
+        A[k, axis, axis] = -1.0
+        b[k, axis] = 2.0 * offset
+    return A, b
 
 
 def compose_images(A: np.ndarray, b: np.ndarray, *, max_order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -581,6 +621,10 @@ class CoherentGaussianField(FlatParameterField):
         init = c.init if c.init != "auto" else ("room" if scene_xml is not None else "data")
         if c.vis_grid is None:
             c = dataclasses.replace(c, vis_grid=DEFAULT_VIS_GRID)
+        if init == "room" and c.room_box is not None:
+            raise ConfigError(f"coherent_gaussians.room_box describes an unknown room, but dataset {data.path} is "
+                              f"trained from its scene's XML (init 'room'); set coherent_gaussians.init=data to "
+                              f"train it as an unknown room with that box")
         if init == "room" and scene_xml is None:
             raise ConfigError(f"coherent_gaussians.init = 'room' but dataset {data.path} names no scene")
         measured = bool(getattr(data, "measured", False))
@@ -636,7 +680,11 @@ class CoherentGaussianField(FlatParameterField):
                      step=c.scan_step, margin=c.scan_margin, rx_to_world=frame,
                      radius_deg=c.room_scan_radius_deg if init == "room" else c.scan_radius_deg)
         if init != "room":
-            A, b0, order = compose_images(found["A"], found["b"], max_order=c.image_order)
+            planes_A, planes_b = found["A"], found["b"]
+            if c.room_box is not None:
+                box_A, box_b = room_box_planes(c.room_box, np.concatenate([x, y, q]))
+                planes_A, planes_b = np.concatenate([planes_A, box_A]), np.concatenate([planes_b, box_b])
+            A, b0, order = compose_images(planes_A, planes_b, max_order=c.image_order)
         sc = found["points"]
         # a scatterer's spreading is |y-p||p-x| against the direct path's |y-x|: start it at
         # ``scatterer_gain`` of the direct path at the median view

@@ -609,3 +609,51 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
         CoherentGaussianConfig(frame_search="on")
     with pytest.raises(ConfigError, match="frame_min_gain"):
         CoherentGaussianConfig(frame_min_gain=float("nan"))
+
+
+def test_room_box_walls_join_the_scanned_planes():
+    """An unknown room with known dimensions (``room_box``): the six walls' images, and their
+    double reflections, join the scan's; a position outside the box, a malformed box, and a box
+    beside a known room's XML are errors that name the problem."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField, room_box_planes
+    from rfmitsuba.scenes import path as scene_path
+    from rfmitsuba.train.config import TrainConfig
+
+    box = [0.0, 0.0, 0.0, 4.4, 3.5, 2.8]
+    A, b = room_box_planes(box, np.array([[1.0, 1.0, 1.0]]))
+    y = np.array([0.3, 0.4, 2.0])
+    mirrored = {tuple(np.round(a @ y + c, 6)) for a, c in zip(A, b)}
+    assert mirrored == {(-0.3, 0.4, 2.0), (8.5, 0.4, 2.0), (0.3, -0.4, 2.0), (0.3, 6.6, 2.0), (0.3, 0.4, -2.0),
+                        (0.3, 0.4, 3.6)}
+    with pytest.raises(ConfigError, match=r"position 1 at \[5.0, 1.0, 1.0\] m lies outside the room"):
+        room_box_planes(box, np.array([[1.0, 1.0, 1.0], [5.0, 1.0, 1.0]]))
+
+    data, q, ty = _stub_training_data(10, seed=2)
+    small = ['model="coherent_gaussians"', "coherent_gaussians.images=0", "coherent_gaussians.scatterers=0",
+             'coherent_gaussians.init="data"']
+    plain = CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
+    boxed = CoherentGaussianField.for_training(
+        C.override(TrainConfig(), small + [f"coherent_gaussians.room_box={box}"]), data, scene_xml=None)
+    assert plain.num_images == 1                          # the direct path alone
+    # + the 6 walls, + their double reflections: 12 pairs of perpendicular walls (which commute, so
+    # one image each) and 2 orders of each of the 3 pairs of parallel walls
+    assert boxed.num_images == 1 + 6 + 12 + 6
+    offsets = boxed.params["img_offset"].numpy().reshape(-1, 3)
+    images = {tuple(np.round(a @ ty[0] + c, 6)) for a, c in zip(boxed.A, offsets)}
+    assert (-0.3, 0.3, 2.0) in images and (0.3, 0.3, 3.6) in images and (-0.3, -0.3, 2.0) in images
+
+    with pytest.raises(ConfigError, match="lies outside the room"):
+        CoherentGaussianField.for_training(
+            C.override(TrainConfig(), small + ["coherent_gaussians.room_box=[0, 0, 0, 1.5, 3.5, 2.8]"]), data,
+            scene_xml=None)
+    with pytest.raises(ConfigError, match="room_box: .* matches none of"):
+        C.override(TrainConfig(), small + ["coherent_gaussians.room_box=[0, 0, 0, 4.4, 3.5]"])
+    for bad in ("[1, 0, 0, 0.5, 3.5, 2.8]", "[0, 0, 0, 4.4, 3.5, nan]"):
+        with pytest.raises(ConfigError, match="room_box must be 6 finite numbers"):
+            C.override(TrainConfig(), small + [f"coherent_gaussians.room_box={bad}"])
+    with pytest.raises(ConfigError, match="set coherent_gaussians.init=data"):
+        CoherentGaussianField.for_training(
+            C.override(TrainConfig(), small[:-1] + [f"coherent_gaussians.room_box={box}"]), data,
+            scene_xml=scene_path("bedroom"))
