@@ -22,6 +22,9 @@ def register(sub) -> None:
                         "estimated from finished jobs (rfmitsuba.experiments.plan); writes nothing")
     p.add_argument("--plan-from", action="append", default=[], metavar="DIR",
                    help="with --plan: also time the estimates by the finished jobs of this reproduction folder")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: write OUT/report.md from the jobs finished so far (the others show as '-'); "
+                        "safe beside a running reproduction")
     cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
@@ -54,6 +57,12 @@ def run(args) -> int:
         from ..core.errors import ConfigError
 
         raise ConfigError("--plan-from goes with --plan")
+    if args.report_only:
+        from ..experiments.reproduce import report_finished
+
+        path, done, total = report_finished(args.out, cfg)
+        print(f"report of {done} of {total} jobs finished: {path}")
+        return 0
     path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet,
                      cluster=cluster.from_cli(args))
     print(f"report: {path}")

@@ -70,10 +70,12 @@ def table_wall_times(cfg, results: dict) -> list[str]:
     return L
 
 
-def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
+def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_total: int | None = None) -> Path:
     """Write ``out/report.md`` (+ ``speed_accuracy.png``): the header, each configured table's
     section (:data:`rfmitsuba.experiments.paper_tables.TABLES`), speed against accuracy, where
-    methods break and the verdicts on the paper's claims; returns the report path."""
+    methods break and the verdicts on the paper's claims; returns the report path.
+    ``wall_s``: this run's wall time [s], or None for a report of the jobs finished so far
+    (``reproduce --report-only``; ``jobs_total`` then names how many the configuration has)."""
     out = Path(out)
     L: list[str] = []
     claims = Claims()
@@ -87,8 +89,12 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float) -> Path:
           f"Size **{cfg.size}** (data source {cfg.source}: {cfg.data.positions} antenna positions x "
           f"(1 + {cfg.data.human_positions}) states per dataset), seeds {seeds}; every figure of ours is "
           "mean ± sample std over the seeds. Written "
-          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; this run took {wall_s:.0f} s wall time "
-          f"(jobs finished earlier and skipped are not included) on {platform.machine()} with "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+          + (f"this run took {wall_s:.0f} s wall time (jobs finished earlier and skipped are not included)"
+             if wall_s is not None else
+             f"from the {len(results)} of {jobs_total} jobs finished so far (`reproduce --report-only`; "
+             "the others show as \"-\")")
+          + f" on {platform.machine()} with "
           f"{__import__('os').cpu_count()} cores, load average {load} at the end (the cores are shared).", "",
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
           f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "

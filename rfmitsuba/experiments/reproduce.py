@@ -155,6 +155,32 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
                    eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
 
+def report_finished(out: str | Path, cfg: ExperimentConfig) -> tuple[Path, int, int]:
+    """Write ``out/report.md`` from the jobs finished so far, without training or generating
+    anything: tables show a job not yet done as "-". Safe beside a running ``reproduce`` into
+    ``out`` (it reads only finished jobs' ``metrics.json``; that run rewrites the report at its
+    end).
+
+    Returns:
+        (report path, jobs finished, jobs in the configuration).
+    Raises:
+        RunError: ``out`` holds another configuration (the differing key is named) or no
+        experiment at all.
+    """
+    out = Path(out)
+    if not (out / "experiment.toml").is_file():
+        raise RunError(f"{out} holds no reproduction (no experiment.toml): nothing to report")
+    check_experiment(out, cfg)
+    jobs = all_jobs(cfg)
+    results = {}
+    for j in jobs:
+        jd = j.folder(out)
+        if (jd / "DONE").is_file() and (jd / "metrics.json").is_file():
+            results[f"{j.dataset.key}/{j.key}"] = json.loads((jd / "metrics.json").read_text())
+    path = write_report(out, cfg, results, wall_s=None, jobs_total=len(jobs))
+    return path, len(results), len(jobs)
+
+
 class Stopped(RunError):
     """Raised by :func:`reproduce` after ``stop_after`` jobs (a simulated kill, for tests)."""
 

@@ -120,3 +120,34 @@ def test_reevaluate_rewrites_metrics_without_training(tiny_reproduction, tmp_pat
     assert "affected" in new["eval"] and new["train"] == good["train"]
     assert new["eval"]["dynamic"]["model"]["mean"] == pytest.approx(good["eval"]["dynamic"]["model"]["mean"], abs=1e-3)
     assert all(p.stat().st_mtime_ns == t for p, t in runs.items())
+
+
+def test_report_only_writes_the_finished_jobs(tiny_reproduction, tmp_path, capsys):
+    """`reproduce --report-only` writes the report from the finished jobs alone: unfinished ones
+    show as "-", nothing is trained, generated or marked done; a folder without a reproduction
+    is named."""
+    import shutil
+
+    from rfmitsuba.cli import main
+    from rfmitsuba.experiments.reproduce import all_jobs, report_finished
+
+    src, cfg, _, _ = tiny_reproduction
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    (out / "report.md").unlink()
+    pending = sorted(out.glob("jobs/*/*/DONE"))[:3]
+    for marker in pending:
+        marker.unlink()
+    stamps = {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/metrics.json")}
+    total = len(all_jobs(cfg))
+    path, done, jobs = report_finished(out, cfg)
+    assert (done, jobs) == (total - 3, total)
+    text = path.read_text()
+    assert f"from the {total - 3} of {total} jobs finished so far" in text and "| - |" in text
+    assert "Main table" in text and "Paper claims" in text
+    assert {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/metrics.json")} == stamps
+    assert not any(m.exists() for m in pending)
+    assert main(["reproduce", "--out", str(out), "--size", "tiny", "--report-only"]) == 0
+    assert f"report of {total - 3} of {total} jobs finished" in capsys.readouterr().out
+    with pytest.raises(RunError, match="holds no reproduction"):
+        report_finished(tmp_path / "empty", cfg)
