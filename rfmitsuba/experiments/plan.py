@@ -8,7 +8,10 @@ on the same machine). A job's *kind* is its method and variant without the seed
 (:func:`job_kind`: ``baseline``, ``baseline_n180``, ``ours_snr10``,
 ``baseline_n1800_on_bedroom_rx_tissue``); where no job of that kind was measured, the median
 of the same method stands in, and where no job of the method was either, the job is counted as
-not estimated. Dataset generation is listed, not estimated.
+not estimated. A dataset still to generate is estimated from the generation rate (seconds per
+PAS, ``timing.json``) of complete datasets in the data folder and in the reference folders'
+``data/``: the same scene and task, else the same scene, else the same task, else any; states
+already written are not counted again (:func:`generation_rates`).
 
 Nothing is written: a plan of a folder that does not exist creates none.
 """
@@ -58,6 +61,50 @@ def measured_times(folders: list[Path]) -> dict[str, list[float]]:
     return times
 
 
+def generation_rates(folders: list[Path]) -> dict[str, list[float]]:
+    """Seconds per PAS of the datasets generated in ``folders`` (each a folder of datasets), from
+    each dataset's ``timing.json`` (every generation session: its states and wall time) and
+    ``meta.json`` (scene, task, positions); keyed ``scene/task``, ``scene``, ``task:<task>``
+    and ``any``. A dataset without readable timing is not a measurement."""
+    rates: dict[str, list[float]] = {}
+    for folder in folders:
+        for timing in sorted(Path(folder).glob("*/timing.json")):
+            try:
+                sessions = json.loads(timing.read_text())
+                meta = json.loads((timing.parent / "meta.json").read_text())
+                positions = int(meta["num_antenna_positions"])
+                states = sum(int(t["states"]) for t in sessions)
+                seconds = sum(float(t["total_s"]) for t in sessions)
+                scene, task = str(meta["generate"]["scene"]), str(meta["task"])
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+            if states <= 0 or positions <= 0 or seconds <= 0:
+                continue
+            rate = seconds / (states * positions)
+            for key in (f"{scene}/{task}", scene, f"task:{task}", "any"):
+                rates.setdefault(key, []).append(rate)
+    return rates
+
+
+def _states_written(path: Path) -> int:
+    """States of a partial dataset already on disk (their chunks are kept when it resumes)."""
+    return sum(1 for _ in Path(path).glob("chunks/*/chunk.json"))
+
+
+@dataclass
+class DatasetPlan:
+    """One dataset the jobs need: where, whether complete, and for one still to generate its
+    PAS left and estimated seconds (None: no generation rate measured)."""
+
+    key: str
+    path: str
+    complete: bool
+    pas_left: int = 0
+    estimate_s: float | None = None
+    #: which generated datasets timed it: "scene/task", "scene", "task:<task>" or "any" (None: none)
+    timed_by: str | None = None
+
+
 @dataclass
 class TablePlan:
     """One table: its jobs, those done, those to run, their estimated wall time [s] and how
@@ -73,12 +120,12 @@ class TablePlan:
 
 @dataclass
 class Plan:
-    """The plan of a reproduction (see the module docstring); ``datasets``: (key, path,
-    complete) of every dataset the jobs need; ``total``: the jobs of all tables once."""
+    """The plan of a reproduction (see the module docstring); ``datasets``: every dataset the
+    jobs need (:class:`DatasetPlan`); ``total``: the jobs of all tables once."""
 
     tables: list[TablePlan]
     total: TablePlan
-    datasets: list[tuple[str, str, bool]]
+    datasets: list[DatasetPlan]
     measured_jobs: int
     sources: list[str] = dc_field(default_factory=list)
 
@@ -126,22 +173,45 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
     tables = [table(t, all_jobs(dataclasses.replace(cfg, tables=[t]))) for t in cfg.tables]
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
-    paths = {s.key: dataset_path(s, cfg, data_dir) for s in specs}
-    datasets = [(k, str(path), _complete(path)) for k, path in paths.items()]
+    rates = generation_rates([data_dir] + [Path(r) / "data" for r in reference])
+    datasets = []
+    for spec in specs:
+        path = dataset_path(spec, cfg, data_dir)
+        if _complete(path):
+            datasets.append(DatasetPlan(spec.key, str(path), True))
+            continue
+        positions, states = ((spec.static_positions, 1) if spec.static_positions
+                             else (cfg.data.positions, 1 + cfg.data.human_positions))
+        left = max(states - _states_written(path), 0) * positions
+        by = next((k for k in (f"{spec.scene}/{spec.task}", spec.scene, f"task:{spec.task}", "any") if rates.get(k)),
+                  None)
+        datasets.append(DatasetPlan(spec.key, str(path), False, left,
+                                    None if by is None else statistics.median(rates[by]) * left, by))
     measured = sum(len(v) for k, v in times.items() if k.startswith("method:"))
     return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources])
 
 
 def format_plan(p: Plan) -> str:
     """The plan as Markdown (what ``reproduce --plan`` prints)."""
-    missing = [(k, path) for k, path, ok in p.datasets if not ok]
-    L = [f"Datasets: {len(p.datasets)} needed, {len(p.datasets) - len(missing)} complete"
-         + (f", {len(missing)} to generate (not estimated): " + ", ".join(k for k, _ in missing) if missing else ""),
-         "", "| table | jobs | done | to run | estimated wall time (h) | not estimated |", "|---|---|---|---|---|---|"]
+    missing = [d for d in p.datasets if not d.complete]
+    L = [f"Datasets: {len(p.datasets)} needed, {len(p.datasets) - len(missing)} complete, {len(missing)} to generate"]
+    if missing:
+        known = [d.estimate_s for d in missing if d.estimate_s is not None]
+        L += ["", "| dataset to generate | PAS left | estimated wall time (h) | timed by datasets of |", "|---|---|---|---|"]
+        L += [f"| {d.key} | {d.pas_left} | {'not estimated' if d.estimate_s is None else f'{d.estimate_s / 3600:.2f}'} "
+              f"| {d.timed_by or '-'} |" for d in missing]
+        L += [f"| **all** | {sum(d.pas_left for d in missing)} | {sum(known) / 3600:.2f}"
+              + (f" ({len(missing) - len(known)} not estimated)" if len(known) < len(missing) else "") + " | |"]
+    L += ["", "| table | jobs | done | to run | estimated wall time (h) | not estimated |", "|---|---|---|---|---|---|"]
     for t in p.tables + [p.total]:
         name = f"**{t.table}**" if t is p.total else t.table
         L.append(f"| {name} | {t.jobs} | {t.done} | {t.to_run} | {t.estimate_s / 3600:.2f} | {t.unestimated} |")
     L += ["", f"Estimates: the median wall time of finished jobs of the same kind (else the same method), "
           f"{p.measured_jobs} jobs measured in {', '.join(p.sources)}; a job shared by tables counts in each, "
-          "the total once; one job at a time."]
+          "the total once; one job at a time. Datasets: seconds per PAS of the datasets already generated "
+          "(same scene and task, else scene, else task, else any)."]
+    total_s = p.total.estimate_s + sum(d.estimate_s or 0.0 for d in missing)
+    L += ["", f"Estimated total: {total_s / 3600:.2f} h (datasets + jobs)"
+          + (" plus what is not estimated" if p.total.unestimated or any(d.estimate_s is None for d in missing)
+             else "") + "."]
     return "\n".join(L)

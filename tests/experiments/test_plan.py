@@ -25,7 +25,7 @@ def test_a_finished_run_has_nothing_left(tiny_reproduction):
     out, cfg, _, _ = tiny_reproduction
     p = P.plan(out, cfg)
     assert p.total.jobs == p.total.done == len(all_jobs(cfg)) and p.total.to_run == 0 and p.total.estimate_s == 0
-    assert all(ok for _, _, ok in p.datasets) and p.measured_jobs == len(all_jobs(cfg))
+    assert all(d.complete for d in p.datasets) and p.measured_jobs == len(all_jobs(cfg))
     text = P.format_plan(p)
     assert f"| **all** | {p.total.jobs} | {p.total.jobs} | 0 | 0.00 | 0 |" in text
 
@@ -47,7 +47,8 @@ def test_new_seeds_are_timed_by_the_finished_jobs_of_their_kind(tiny_reproductio
     # without any finished job nothing is estimated, and missing datasets are named
     r = P.plan(fresh, cfg)
     assert r.total.unestimated == r.total.to_run and r.total.estimate_s == 0
-    assert not any(ok for _, _, ok in r.datasets) and "to generate (not estimated)" in P.format_plan(r)
+    assert not any(d.complete for d in r.datasets) and all(d.estimate_s is None for d in r.datasets)
+    assert "| not estimated |" in P.format_plan(r) and "plus what is not estimated" in P.format_plan(r)
     assert not fresh.exists()
 
 
@@ -68,3 +69,44 @@ def test_cli_plan_prints_and_writes_nothing(tiny_reproduction, tmp_path, capsys)
     assert "| **all** |" in text and "estimated wall time (h)" in text and not fresh.exists()
     assert main(["reproduce", "--size", "tiny", "--out", str(fresh), "--plan-from", str(out)]) != 0
     assert "--plan-from goes with --plan" in capsys.readouterr().err and not fresh.exists()
+
+
+def test_datasets_to_generate_are_timed_by_those_generated(tmp_path):
+    """A missing dataset is estimated by the seconds per PAS of generated datasets (same scene and
+    task first, else any), counting only the states a partial dataset has not written yet."""
+    import json
+
+    from rfmitsuba.experiments.reproduce import dataset_path
+    from rfmitsuba.experiments.sizes import size_config
+
+    cfg = size_config("tiny")
+    data = tmp_path / "data"
+
+    def generated(name, scene, task, positions, sessions):
+        d = data / name
+        d.mkdir(parents=True)
+        (d / "meta.json").write_text(json.dumps({"num_antenna_positions": positions, "task": task,
+                                                 "generate": {"scene": scene}}))
+        (d / "timing.json").write_text(json.dumps(sessions))
+
+    specs = list(dict.fromkeys(j.dataset for j in all_jobs(cfg)))
+    spec = specs[0]
+    generated("same", spec.scene, spec.task, 100, [{"states": 1, "total_s": 5.0},     # 0.1 s per PAS,
+                                                   {"states": 1, "total_s": 15.0}])   # two sessions
+    generated("other", "elsewhere", "tx", 10, [{"states": 1, "total_s": 100.0}])      # 10 s per PAS
+    generated("broken", spec.scene, spec.task, 10, [{"oops": 1}])            # not a measurement
+    rates = P.generation_rates([data])
+    assert rates[f"{spec.scene}/{spec.task}"] == [pytest.approx(0.1)] and len(rates["any"]) == 2
+    # one state of this spec's dataset is already on disk: it is not counted again
+    path = dataset_path(spec, cfg, data)
+    (path / "chunks" / "00000").mkdir(parents=True)
+    (path / "chunks" / "00000" / "chunk.json").write_text("{}")
+    p = P.plan(tmp_path / "out", cfg, data_dir=data)
+    d = next(d for d in p.datasets if d.key == spec.key)
+    states = 1 if spec.static_positions else 1 + cfg.data.human_positions
+    positions = spec.static_positions or cfg.data.positions
+    assert not d.complete and d.pas_left == (states - 1) * positions
+    assert d.estimate_s == pytest.approx(0.1 * d.pas_left) and d.timed_by == f"{spec.scene}/{spec.task}"
+    text = P.format_plan(p)
+    assert f"| {spec.key} | {d.pas_left} | " in text and "Estimated total:" in text
+    assert not (tmp_path / "out").exists()
