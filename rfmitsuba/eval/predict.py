@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_json
-from ..core.errors import ConfigError, DatasetError, RunError
+from ..core.errors import ConfigError, DatasetError, PlacementError, RunError
 from ..models.base import FieldSet, Views
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
@@ -92,6 +92,23 @@ def render_at(renderer: FieldSet, data, positions: np.ndarray, *, batch: int = 8
     return out
 
 
+def _check_room_box(renderer: FieldSet, q: np.ndarray) -> None:
+    """An unknown room trained with its dimensions (``coherent_gaussians.room_box``): refuse a
+    position outside that box, naming it (PlacementError)."""
+    for f in renderer.fields:
+        box = getattr(getattr(f, "cfg", None), "room_box", None)
+        if box is None:
+            continue
+        box = np.asarray(box, np.float64)
+        outside = ~((q >= box[:3]) & (q <= box[3:])).all(axis=1)
+        if outside.any():
+            i = int(np.argmax(outside))
+            more = f" ({int(outside.sum()) - 1} more position(s) are outside too)" if outside.sum() > 1 else ""
+            raise PlacementError(f"position {i} at ({', '.join(f'{v:.3f}' for v in q[i])}) is outside the room box "
+                                 f"{box.tolist()} m the run was trained with (coherent_gaussians.room_box){more}")
+        return
+
+
 def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = False, batch: int = 8,
                 check_room: bool = True) -> dict:
     """Render a finished run at ``positions`` (float [K, 3] m, the moving device).
@@ -99,7 +116,8 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
     Args:
         anchor: the neighbour-anchored prediction with the ``(k, alpha)`` that ``rfmitsuba eval``
             chose (RUN/eval/metrics.json); where it chose the field alone, the field's PAS.
-        check_room: in a known room, refuse positions outside it or inside its furniture.
+        check_room: in a known room, refuse positions outside it or inside its furniture; in an
+            unknown room trained with ``coherent_gaussians.room_box``, positions outside that box.
     Returns:
         {"pas": float32 [K, 90, 360] in [0, 1], "positions": float64 [K, 3], "how": "field" or
         "anchored k=.. alpha=..", "run", "dataset", "task"}.
@@ -116,6 +134,8 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
         from ..sim.geometry import RoomGeometry
 
         RoomGeometry.from_xml(data.scene_xml).check_points(q, what="position")
+    elif check_room:
+        _check_room_box(renderer, q)
     how = "field"
     choice = None
     if anchor:

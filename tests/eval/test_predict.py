@@ -146,3 +146,21 @@ def test_anchored_prediction_and_room_check(tmp_path):
                     data.antenna_pos[tr], q, k=ch["k"], alpha=ch["alpha"])
     np.testing.assert_allclose(res["pas"], want, atol=1e-5)
     assert res["how"].startswith("anchored k=")
+
+
+def test_room_box_of_an_unknown_room_refuses_positions_outside_it():
+    """A run of an unknown room trained with ``coherent_gaussians.room_box``: predict refuses a
+    position outside that box, naming it; inside it, or without a box, nothing is refused."""
+    from types import SimpleNamespace
+
+    from rfmitsuba.core.errors import PlacementError
+    from rfmitsuba.eval.predict import _check_room_box
+
+    boxed = SimpleNamespace(fields=[SimpleNamespace(cfg=SimpleNamespace(room_box=(0.0, 0.0, 0.0, 4.4, 3.5, 2.8)))])
+    inside = np.array([[1.0, 1.0, 1.0], [4.4, 3.5, 0.0]])
+    _check_room_box(boxed, inside)
+    _check_room_box(SimpleNamespace(fields=[SimpleNamespace(cfg=SimpleNamespace(room_box=None))]),
+                    np.array([[9.0, 9.0, 9.0]]))
+    with pytest.raises(PlacementError, match=r"position 1 at \(5.000, 1.000, 1.000\) is outside the room box "
+                                             r"\[0.0, 0.0, 0.0, 4.4, 3.5, 2.8\] m .* \(1 more position"):
+        _check_room_box(boxed, np.array([[1.0, 1.0, 1.0], [5.0, 1.0, 1.0], [1.0, 1.0, -0.1]]))
