@@ -183,8 +183,8 @@ class _HostMLP:
     (64 -> 64 -> 3 on 40 000 (view, Gaussian) pairs) that took 166-208 ms of a 580-660 ms
     step. Here a weight's gradient is one product ``dZ^T A`` over all rows.
 
-    With ``pair_inputs`` (the EM network's head) the rows are the (view, Gaussian) pairs,
-    ``act(x_i + y_b)`` for inputs ``x`` [N] and ``y`` [B], view-major (``b * N + i``): the
+    With per-view inputs ``ys`` (:meth:`MLP.pairs`, the EM network's head) the rows are the
+    (view, item) pairs, ``act(x_i + y_b)`` for ``xs`` [N] and ``ys`` [B], view-major (``b * N + i``): the
     expansion and its backward (sums over views and over Gaussians) run here too, so no gather
     or atomic scatter is left in the Dr.Jit graph. A ``dr.CustomOp`` on (inputs, packed
     weights): the rest of the AD graph is unchanged.
