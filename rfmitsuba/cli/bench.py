@@ -92,7 +92,9 @@ def _splat(args, *, default_sizes: tuple | None) -> dict:
             if not args.dataset.exists():
                 raise ConfigError(f"--dataset {args.dataset} does not exist")
             dataset = str(args.dataset)
-        result["stage1_step"] = bench.measure_stage1_step(gaussians=2000 if args.quick else 10_000,
-                                                          steps=14 if args.quick else 40, dataset=dataset)
-        print(bench.format_stage1_step(result["stage1_step"]))
+        from ..experiments import bench_field
+
+        result["stage1_step"] = bench_field.measure_stage1_step(gaussians=2000 if args.quick else 10_000,
+                                                                steps=14 if args.quick else 40, dataset=dataset)
+        print(bench_field.format_stage1_step(result["stage1_step"]))
     return result

@@ -288,37 +288,6 @@ def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, to
             "tile_lanes": lanes_per_tile()}
 
 
-def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 40,
-                        dataset: str | None = None) -> dict:
-    """A Stage-1 step of the splat field as the trainer runs it (``gaussians`` Gaussians from a
-    random start, the EM network, ``batch`` views at full resolution; issue 13's target is 60 ms
-    at batch 4 and 10 000), with the networks' products on the host's BLAS (the LLVM default)
-    and as cooperative vectors, in one run.
-
-    Returns:
-        {"gaussians", "batch", "steps", "host": {...}, "coop_vec": {...}} with each side's
-        ``step_ms`` (:func:`rfmitsuba.experiments.bench_field.measure_stage1`).
-    """
-    from .bench_field import measure_stage1
-
-    common = ["field.init='random'", f"field.num_gaussians={int(gaussians)}", f"batch_views={int(batch)}",
-              "downsample=1"]
-    out = {"gaussians": int(gaussians), "batch": int(batch), "steps": int(steps)}
-    for key, host in (("host", True), ("coop_vec", False)):
-        out[key] = measure_stage1(dataset, model="splat", steps=steps,
-                                  overrides=common + [f"field.net.host_products={'true' if host else 'false'}"])
-    return out
-
-
-def format_stage1_step(r: dict) -> str:
-    """One line per side of :func:`measure_stage1_step`, and their ratio."""
-    h, c = r["host"], r["coop_vec"]
-    return (f"Stage-1 splat step, {r['gaussians']} Gaussians, batch {r['batch']}, 90x360, EM network "
-            f"(steps 10-{r['steps']}): products on the host's BLAS {h['step_ms']:.1f} ms, as cooperative "
-            f"vectors {c['step_ms']:.1f} ms, ratio {c['step_ms'] / max(h['step_ms'], 1e-9):.2f}x "
-            f"(target 60 ms at batch 4, 10 000 Gaussians)")
-
-
 def format_report(result: dict) -> str:
     """Plain-text table of :func:`run`'s result."""
     h, w = result["height"], result["width"]

@@ -1,10 +1,11 @@
 """Small Dr.Jit neural networks: encodings, packed MLPs and the EM-feature network.
 
-Everything here is part of one Dr.Jit AD graph with the splatting kernels. On CUDA the MLPs
-run as cooperative vectors (``drjit.nn``); on the LLVM backend their matrix products run on the
-host's BLAS inside a custom AD op (:class:`_HostMLP`), because the cooperative-vector backward
-there adds weight gradients atomically (a Stage-1 splat step at batch 4 and 10 000 Gaussians:
-354 -> 194 ms of kernel time, plus about 70 ms of host products).
+Everything here is part of one Dr.Jit AD graph with the splatting kernels. The MLPs run as
+cooperative vectors (``drjit.nn``); on the LLVM backend the EM network's matrix products run on
+the host's BLAS inside a custom AD op instead (:class:`_HostMLP`, :attr:`NetConfig.host_products`),
+because the cooperative-vector backward there adds weight gradients atomically (a Stage-1 splat
+step at batch 4 and 10 000 Gaussians: 354 -> 194 ms of kernel time, plus about 70 ms of host
+products).
 
 The EM-feature network of a Gaussian field maps (Gaussian position, antenna
 position[, extra inputs such as a human position]) to each Gaussian's signal and
@@ -281,15 +282,18 @@ class MLP:
     The single parameter is :attr:`weights` (``Float`` [num_parameters]); assign a new
     value with :meth:`set_weights` (e.g. the optimizer's copy) before evaluating.
 
-    On the LLVM backend (``host=True``, the default) the products run on the host's BLAS
+    With ``host=True`` on the LLVM backend the products run on the host's BLAS
     (:class:`_HostMLP`, a custom AD op: weight gradients as one product instead of atomic
-    adds); on CUDA, or with ``host=False``, as Dr.Jit cooperative vectors. Both give the same
-    values and gradients (tests/models/test_nn.py).
+    adds); otherwise (the default, and always on CUDA) as Dr.Jit cooperative vectors. Both give
+    the same values and gradients (tests/models/test_nn.py). The host pays off for the splat
+    field's EM network (40 000 rows per call; :attr:`NetConfig.host_products`), not for small
+    networks called often: the coherent model's gain network trained its test run in 52-57 s on
+    the host against 34 s as cooperative vectors.
     """
 
     def __init__(self, n_in: int, n_out: int, *, width: int, layers: int, seed: int,
                  out_bias: list[float] | None = None, input_layer: bool = True, zero_output: bool = False,
-                 host: bool = True):
+                 host: bool = False):
         import drjit as dr
         import drjit.nn as nn
 
