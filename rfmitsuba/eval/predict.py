@@ -30,6 +30,7 @@ import numpy as np
 from ..core.atomic import write_json
 from ..core.errors import ConfigError, DatasetError, PlacementError, RunError
 from ..models.base import FieldSet, Views
+from ..models.coherent_gaussians import outside_room_box
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
 from .anchor import anchored
@@ -100,7 +101,7 @@ def _check_room_box(renderer: FieldSet, q: np.ndarray) -> None:
         if box is None:
             continue
         box = np.asarray(box, np.float64)
-        outside = ~((q >= box[:3]) & (q <= box[3:])).all(axis=1)
+        outside = outside_room_box(box, q)
         if outside.any():
             i = int(np.argmax(outside))
             more = f" ({int(outside.sum()) - 1} more position(s) are outside too)" if outside.sum() > 1 else ""

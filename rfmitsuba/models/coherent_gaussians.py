@@ -417,6 +417,14 @@ def scan(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, images: int, scattere
     return out
 
 
+def outside_room_box(box, positions: np.ndarray) -> np.ndarray:
+    """Which ``positions`` (float [N, 3] m) lie outside the box ``(x0, y0, z0, x1, y1, z1)`` [m]
+    (its faces count as inside): bool [N]."""
+    box = np.asarray(box, np.float64).reshape(6)
+    pts = np.asarray(positions, np.float64).reshape(-1, 3)
+    return ~((pts >= box[:3]) & (pts <= box[3:])).all(axis=1)
+
+
 def room_box_planes(box, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The six walls of a known room box as reflections ``y -> A y + b``.
 
@@ -430,7 +438,7 @@ def room_box_planes(box, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     """
     box = np.asarray(box, np.float64).reshape(6)
     pts = np.asarray(positions, np.float64).reshape(-1, 3)
-    outside = ~((pts >= box[:3]) & (pts <= box[3:])).all(axis=1)
+    outside = outside_room_box(box, pts)
     if outside.any():
         i = int(np.argmax(outside))
         raise ConfigError(f"coherent_gaussians.room_box {box.tolist()}: position {i} at "

@@ -611,6 +611,18 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
         CoherentGaussianConfig(frame_min_gain=float("nan"))
 
 
+def test_outside_room_box_counts_faces_inside():
+    """The one "outside the box" test that training (``room_box_planes``) and ``predict`` share:
+    a point on a face is inside; a millimetre past any of the six faces is outside."""
+    from rfmitsuba.models.coherent_gaussians import outside_room_box
+
+    box = [0.0, 0.0, 0.0, 4.4, 3.5, 2.8]
+    inside = np.array([[0.0, 0.0, 0.0], [4.4, 3.5, 2.8], [2.0, 1.0, 1.5]])
+    assert not outside_room_box(box, inside).any()
+    past = np.array([[-1e-3, 1, 1], [4.401, 1, 1], [1, -1e-3, 1], [1, 3.501, 1], [1, 1, -1e-3], [1, 1, 2.801]])
+    assert outside_room_box(box, past).all()
+
+
 def test_room_box_walls_join_the_scanned_planes():
     """An unknown room with known dimensions (``room_box``): the six walls' images, and their
     double reflections, join the scan's; a position outside the box, a malformed box, and a box
