@@ -214,7 +214,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     mcfg = MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
                         human=SplatPersonConfig(num_gaussians=t.human_gaussians))
     if t.model == "coherent":
-        # the learning rates of the README's bedroom figures (network 3e-3 -> 3e-4; Stage 2 slower)
+        # the learning rates of the bedroom figures of docs/measurements.md (network 3e-3 -> 3e-4; Stage 2 slower)
         s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4
         mcfg.stage2_optim = dataclasses.replace(s1.optim, lr_amp=3e-3, lr_amp_final=3e-4, lr_means=3e-3,
                                                 lr_means_final=3e-4)
