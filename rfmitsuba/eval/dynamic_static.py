@@ -6,6 +6,12 @@
 * **static** - the background alone (person fields off; End-to-End with the "no person"
   input) at unseen antenna positions, against the empty room; nearest neighbour over the
   antenna position among the empty-room training samples.
+* **fit** (in the static part) - the background at a subset of its own training positions
+  (:data:`FIT_POSITIONS` of them, evenly spaced), against the empty room: test against fit
+  is the model's generalisation gap (how much it overfits).
+* **by distance** (in each part) - mean SSIM of the model and the neighbour floors per quartile
+  of the distance to the fixed device and to the nearest training position
+  (:func:`rfmitsuba.eval.breakdown.breakdown`): where the model breaks.
 * **affected** - the dynamic evaluation restricted to the test PAS the person changes most
   (SSIM against the empty room's PAS at the same antenna below :data:`AFFECTED_SSIM`), with
   the empty room's own PAS as a third reference (the best any background-only model scores).
@@ -26,7 +32,11 @@ from ..data.samples import SampleData
 from ..data.store import open_dataset
 from ..rf.bartlett_ref import normalize as minmax
 from . import floor_cache
+from .breakdown import breakdown, fixed_device
 from .metrics import floors, stats
+
+#: Training positions of the static part's fit (evenly spaced over the training samples).
+FIT_POSITIONS = 180
 
 
 def test_sets(data: SampleData) -> dict:
@@ -50,8 +60,11 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
 
     Returns:
         {"dynamic": part, "static": part, "affected": dict or None, "render_ms_per_pas": float,
-        "num_gaussians": int}, each part {"model", "nearest_neighbour", "mean_image": stats dicts
-        (mean, median, p10, min, n), "beats_nearest_neighbour": bool}; with ``keep`` also the
+        "num_gaussians": int}, each part {"model", "nearest_neighbour", "idw3", "mean_image": stats
+        dicts (mean, median, p10, min, n), "beats_nearest_neighbour": bool, "by_distance":
+        :func:`~rfmitsuba.eval.breakdown.breakdown` of the model, nearest-neighbour and IDW-3 SSIM};
+        the static part also "fit": stats of the model at :data:`FIT_POSITIONS` of its training
+        positions (render time not counted in "render_ms_per_pas"); with ``keep`` also the
         per-image arrays (``*_ssim``) and images (``pred``, ``gt``). "affected" is the dynamic
         evaluation on the PAS the person changes most (:func:`_affected`).
 
@@ -70,6 +83,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
     noisy = (None if noise_snr_db is None else
              SampleData.open_samples(dataset, states="all", noise_snr_db=noise_snr_db, noise_seed=noise_seed))
     sets = test_sets(data)
+    fixed = fixed_device(data)
     out = {"num_gaussians": model.num_primitives}
     t_render, n_render = 0.0, 0
     for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
@@ -95,7 +109,13 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
                "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
                "beats_nearest_neighbour": bool(s_model.mean() > fl["nearest_neighbour"].mean()),
-               "test_samples": int(len(test)), "train_samples": int(len(train))}
+               "test_samples": int(len(test)), "train_samples": int(len(train)),
+               "by_distance": breakdown(data.antenna_pos[test], data.antenna_pos[train], fixed,
+                                        {"model": s_model, "nearest_neighbour": fl["nearest_neighbour"],
+                                         "idw3": fl["idw3"]})}
+        if not use_human:   # the background at its own training positions: the generalisation gap
+            fit = train[np.unique(np.linspace(0, len(train) - 1, min(FIT_POSITIONS, len(train))).astype(np.int64))]
+            res["fit"] = stats(ssim_images(minmax(model.render(data, fit, batch=batch)), data.pas(fit)))
         if noisy is not None:   # the floors a lookup in the same noisy training data reaches
             fn = floor_cache.cached(
                 floors_cache, {"floors_noisy_training": part, "dataset": fp, "snr_db": float(noise_snr_db),

@@ -1,5 +1,6 @@
 """Figures of an evaluation: the PAS grid (ground truth, prediction, nearest neighbour from
-worst to best), the SSIM CDF, and validation SSIM against training wall time.
+worst to best), the SSIM CDF, validation SSIM against training wall time, and the map of where
+the model breaks (per test position, seen from above).
 """
 from __future__ import annotations
 
@@ -52,4 +53,31 @@ def plot_time(path: Path, log_file: Path, *, final: tuple | None = None) -> None
     if final and final[0] is not None:
         ax.plot([final[0]], [final[1]], "r*", ms=10, label="test mean SSIM")
     plots.label(ax, xlabel="training wall time (s)", ylabel="mean SSIM", legend_fontsize=8)
+    plots.save(fig, path, dpi=110)
+
+
+def plot_map(path: Path, test_pos: np.ndarray, train_pos: np.ndarray, s_model: np.ndarray, s_floor: np.ndarray, *,
+             fixed: np.ndarray | None = None) -> None:
+    """Two top views (x, y [m]) of the test positions: the model's SSIM, and its margin over the best
+    neighbour floor (``s_model - s_floor``, red where the floor wins); training positions grey,
+    the fixed device a star.
+
+    Args:
+        test_pos: float [K, 3] m; train_pos: float [M, 3] m; s_model, s_floor: float [K];
+        fixed: float [3] m or None.
+    """
+    margin = np.asarray(s_model) - np.asarray(s_floor)
+    lim = max(float(np.abs(margin).max()), 1e-3)
+    fig, axes = plots.subplots(1, 2, figsize=(11, 4.4), squeeze=False)
+    for ax, values, title, kw in (
+            (axes[0, 0], s_model, "model SSIM", {"cmap": "viridis", "vmin": float(np.min(s_model)), "vmax": 1.0}),
+            (axes[0, 1], margin, "model minus best neighbour floor", {"cmap": "RdBu", "vmin": -lim, "vmax": lim})):
+        ax.scatter(train_pos[:, 0], train_pos[:, 1], s=2, c="0.8", label="training positions")
+        sc = ax.scatter(test_pos[:, 0], test_pos[:, 1], s=14, c=values, edgecolors="none", **kw)
+        if fixed is not None:
+            ax.plot([fixed[0]], [fixed[1]], "k*", ms=12, label="fixed device")
+        fig.colorbar(sc, ax=ax, shrink=0.85)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(title, fontsize=9)
+        plots.label(ax, xlabel="x (m)", ylabel="y (m)", legend_fontsize=7)
     plots.save(fig, path, dpi=110)

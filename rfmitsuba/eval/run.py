@@ -3,8 +3,12 @@
 
 :func:`evaluate_run` writes ``RUN/eval/``: ``summary.md``, ``metrics.json``, ``ssim.npz``
 (per-image SSIM of model and floors) and the plots ``grid.png`` (ground truth, prediction,
-nearest neighbour at test positions from worst to best), ``ssim_cdf.png`` and
-``ssim_vs_time.png`` (validation SSIM during training against wall time).
+nearest neighbour at test positions from worst to best), ``ssim_cdf.png``,
+``ssim_vs_time.png`` (validation SSIM during training against wall time) and ``ssim_map.png``
+(where the model breaks: per test position, its SSIM and its margin over the best neighbour
+floor, seen from above). The metrics also hold the model's fit at its own training positions
+(the generalisation gap) and its SSIM by distance to the fixed device and to the nearest
+training position (:mod:`rfmitsuba.eval.breakdown`).
 """
 from __future__ import annotations
 
@@ -20,7 +24,9 @@ from ..core.ssim import ssim_images
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
 from .anchor import anchored, choose
-from .figures import plot_cdf, plot_grid, plot_time
+from .breakdown import breakdown, fixed_device
+from .dynamic_static import FIT_POSITIONS
+from .figures import plot_cdf, plot_grid, plot_map, plot_time
 from .metrics import best_floor, floors, stats
 
 
@@ -55,6 +61,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     val_idx = np.asarray(split.get("val", []), np.int64)
     fit_idx = np.asarray(split.get("fit", []), np.int64)
     anchor = None
+    field_train = None
     if len(val_idx) and len(fit_idx):
         field_train = minmax(renderer.render(data, train_idx, batch=batch))
         at = {int(i): n for n, i in enumerate(train_idx)}
@@ -65,11 +72,17 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
             anchored(minmax(pred), field_train, gt_train, pos[train_idx], pos[test_idx], k=choice["k"],
                      alpha=choice["alpha"]), gt_test)
         anchor = {**choice, "test": stats(anchored_ssim)}
+    # the model at (up to FIT_POSITIONS, evenly spaced) of its own training positions
+    rows = np.unique(np.linspace(0, len(train_idx) - 1, min(FIT_POSITIONS, len(train_idx))).astype(np.int64))
+    fit_pred = field_train[rows] if field_train is not None else minmax(
+        renderer.render(data, train_idx[rows], batch=batch))
+    fit_ssim = ssim_images(fit_pred, gt_train[rows])
+    fixed = fixed_device(data)
     summary = json.loads((rd / "final" / "summary.json").read_text())
     metrics = {
         "run": str(rd), "dataset": str(data.path), "task": data.task, "test_positions": int(len(test_idx)),
         "train_positions": int(len(train_idx)),
-        "model": stats(model_ssim), "nearest_neighbour": stats(fl["nearest_neighbour"]),
+        "model": stats(model_ssim), "fit": stats(fit_ssim), "nearest_neighbour": stats(fl["nearest_neighbour"]),
         "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
         "beats_nearest_neighbour": bool(model_ssim.mean() > fl["nearest_neighbour"].mean()),
         "split": cfg.split,
@@ -78,6 +91,9 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
         "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),
+        "by_distance": breakdown(pos[test_idx], pos[train_idx], fixed,
+                                 {"model": model_ssim, "nearest_neighbour": fl["nearest_neighbour"],
+                                  "idw3": fl["idw3"]}),
     }
     best, best_stats = best_floor(metrics)
     metrics["best_floor"] = best
@@ -98,6 +114,8 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     plot_cdf(out / "ssim_cdf.png", {"model": model_ssim, "nearest neighbour": fl["nearest_neighbour"],
                                     "IDW-3": fl["idw3"], "mean image": fl["mean_image"]})
     plot_time(out / "ssim_vs_time.png", rd / "log.jsonl", final=(metrics["train_time_s"], metrics["model"]["mean"]))
+    plot_map(out / "ssim_map.png", pos[test_idx], pos[train_idx], model_ssim,
+             np.maximum(fl["nearest_neighbour"], fl["idw3"]), fixed=fixed)
     return metrics
 
 
@@ -125,6 +143,11 @@ def summary_markdown(m: dict) -> str:
         "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
     ]
     lines += [f"| {name} | {s['mean']:.4f} | {s['median']:.4f} | {s['p10']:.4f} | {s['min']:.4f} |" for name, s in rows]
+    if m.get("fit"):
+        f = m["fit"]
+        lines += ["", f"At {f['n']} of its own training positions the model scores {f['mean']:.4f} mean SSIM "
+                  f"(test {m['model']['mean']:.4f}: a generalisation gap of {f['mean'] - m['model']['mean']:+.4f})."]
+    lines += _breakdown_lines(m.get("by_distance"))
     if a:
         lines += ["", "The neighbour-anchored prediction (`rfmitsuba.eval.anchor`) adds the model's change from the "
                   "nearest training positions to their measured spectra; it or the model alone, and its (k, alpha), "
@@ -140,5 +163,24 @@ def summary_markdown(m: dict) -> str:
               f"({m['render_ms_per_image']:.1f} ms per image); machine: {m['cpu_count']} cores, "
               f"1-minute load average {m['load_average_1min']:.1f} at evaluation (shared machines time slower)", "",
               "Plots: `grid.png` (ground truth / prediction / nearest neighbour), `ssim_cdf.png`, "
-              "`ssim_vs_time.png`.", ""]
+              "`ssim_vs_time.png`, `ssim_map.png` (per test position: SSIM and margin over the best neighbour "
+              "floor, from above).", ""]
     return "\n".join(lines)
+
+
+def _breakdown_lines(b: dict | None) -> list[str]:
+    """Markdown table of :func:`rfmitsuba.eval.breakdown.breakdown`: mean SSIM of the model, nearest
+    neighbour and IDW-3 per quartile of each distance."""
+    if not b:
+        return []
+    out = ["", "Where the model breaks: mean SSIM per quartile of a distance (model / nearest neighbour / IDW-3).", "",
+           "| distance | quartile (m) | images | model | nearest neighbour | IDW-3 |", "|---|---|---|---|---|---|"]
+    names = {"to_fixed_device": "to the fixed device", "to_nearest_training": "to the nearest training position"}
+    for key, name in names.items():
+        part = b.get(key)
+        if not part:
+            continue
+        for i, (lo, hi) in enumerate(zip(part["edges"][:-1], part["edges"][1:])):
+            out.append(f"| {name} | {lo:.3f}–{hi:.3f} | {part['count'][i]} | {part['model'][i]:.4f} | "
+                       f"{part['nearest_neighbour'][i]:.4f} | {part['idw3'][i]:.4f} |")
+    return out

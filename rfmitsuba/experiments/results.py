@@ -75,6 +75,8 @@ DYN = "eval.dynamic.model.mean"
 DYN_MED = "eval.dynamic.model.median"
 STAT = "eval.static.model.mean"
 STAT_MED = "eval.static.model.median"
+#: the background at its own training positions (the generalisation gap is STAT_FIT - STAT)
+STAT_FIT = "eval.static.fit.mean"
 DYN_NN = "eval.dynamic.nearest_neighbour.mean"
 DYN_MI = "eval.dynamic.mean_image.mean"
 DYN_IDW = "eval.dynamic.idw3.mean"

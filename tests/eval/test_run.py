@@ -24,12 +24,19 @@ def test_evaluate_run_writes_report(tmp_path, variant):
     Trainer(tiny_cfg(iterations=10), TrainData.open(ds), run, quiet=True).run()
     m = evaluate_run(run)
     out = run / "eval"
-    for f in ["summary.md", "metrics.json", "ssim.npz", "grid.png", "ssim_cdf.png", "ssim_vs_time.png"]:
+    for f in ["summary.md", "metrics.json", "ssim.npz", "grid.png", "ssim_cdf.png", "ssim_vs_time.png",
+              "ssim_map.png"]:
         assert (out / f).is_file(), f
     assert m["test_positions"] == 6 and 0 < m["nearest_neighbour"]["mean"] <= 1
     assert json.loads((out / "metrics.json").read_text())["num_gaussians"] == m["num_gaussians"]
     text = (out / "summary.md").read_text()
     assert "nearest neighbour" in text and "IDW-3" in text and "mean image" in text and "wall time" in text
+    assert m["fit"]["n"] == 24 and 0 < m["fit"]["mean"] <= 1   # every training position (24 < FIT_POSITIONS)
+    assert "generalisation gap" in text and "Where the model breaks" in text
+    for dist in ("to_fixed_device", "to_nearest_training"):
+        b = m["by_distance"][dist]
+        assert sum(b["count"]) == 6
+        assert np.average(b["model"], weights=b["count"]) == pytest.approx(m["model"]["mean"])
     assert m["best_floor"] in ("nearest_neighbour", "idw3") and 0 < m["idw3"]["mean"] <= 1
     with np.load(out / "ssim.npz") as z:
         assert z["model"].shape == (6,) and z["idw3"].shape == (6,)

@@ -101,3 +101,30 @@ def test_all_jobs_once_grouped_by_dataset_with_each_prior_first():
     for j, n in zip(jobs, names):
         if j.prior_job() is not None:
             assert pos[f"{j.dataset.key}/{j.prior_job().key}"] < pos[n]
+
+
+def test_large_room_table_gives_the_fit_gap_and_where_it_breaks(tmp_path):
+    """The Baseline's static fit against its test score per room, the seed mean of its breakdown by
+    distance, and large_room.png; jobs that predate the breakdown leave those lines out."""
+    from rfmitsuba.experiments.paper_tables import LargeRoomTable
+
+    cfg = size_config("full")
+    table = LargeRoomTable()
+    results = {}
+    for seed in cfg.seeds:
+        for job in table.jobs(cfg, seed):
+            name, r = _result(job, 0.8, 0.85 + 0.01 * seed)
+            r["eval"]["static"]["fit"] = {"mean": 0.95}
+            r["eval"]["static"]["nearest_neighbour"]["mean"] = 0.6
+            b = {"edges": [1.0, 2.0, 4.0], "count": [5, 5], "model": [0.9 - 0.01 * seed, 0.7], "nearest_neighbour": [0.6, 0.5]}
+            r["eval"]["static"]["by_distance"] = {"to_fixed_device": b, "to_nearest_training": b}
+            results[name] = r
+    text = "\n".join(table.section(cfg, results, Claims()))
+    # fit 0.95 against test 0.86 +- 0.01: gap +0.090
+    assert "| Larger scene (11 x 7.5 m) | 0.950 ± 0.000 | 0.860 ± 0.010 | +0.090 | 0.600 ± 0.000 |" in text
+    assert "1.00–2.00 m: **0.890** / 0.600 | 2.00–4.00 m: **0.700** / 0.500" in text
+    assert table.figures(tmp_path, cfg, results) and (tmp_path / "large_room.png").is_file()
+    for r in results.values():
+        del r["eval"]["static"]["by_distance"]
+    assert "Where it breaks" not in "\n".join(table.section(cfg, results, Claims()))
+    assert table.figures(tmp_path / "none", cfg, results) == []
