@@ -136,7 +136,9 @@ class CoherentGaussianConfig:
         12 since 2026-11-25 (6 before), seed 0, 3000 steps: NeRF2-like 200 tags 0.945 -> 0.958
         (IDW-3 0.951), 2000 tags 0.909 (IDW-3 0.919; 24 planes 0.904; 6 planes 0.888 at 6000 steps), blind bedroom RX
         0.777 -> 0.787 (NN 0.710); the extra planes are mostly not walls, but their images (and
-        their double reflections) are sources where the data put energy.
+        their double reflections) are sources where the data put energy. The NeRF2-like
+        spatial-block split (extrapolation to a held-out slab) lost on one seed in two (anchored
+        0.875 and 0.917 against 0.911 with 6 planes; NN 0.911).
     image_order: reflections per image of an unknown room: the scanned planes' images are
     composed up to this order (2: the images across two of the found planes, as a room's
     double reflections), identical maps once.
