@@ -20,6 +20,8 @@ from ..core.errors import ImageError
 
 #: Number of quantile bins of :func:`by_distance`.
 BINS = 4
+#: The distances of :func:`breakdown`: its keys -> what each measures to ("distance ..." reads it)
+DISTANCES = {"to_fixed_device": "to the fixed device", "to_nearest_training": "to the nearest training position"}
 
 
 def by_distance(distance: np.ndarray, series: dict, *, bins: int = BINS) -> dict:

@@ -39,6 +39,12 @@ from .metrics import floors, stats
 FIT_POSITIONS = 180
 
 
+def fit_rows(count: int) -> np.ndarray:
+    """Rows of the fit: up to :data:`FIT_POSITIONS` of ``count`` training samples, evenly spaced
+    (int64 [min(count, FIT_POSITIONS)], ascending)."""
+    return np.unique(np.linspace(0, count - 1, min(FIT_POSITIONS, count)).astype(np.int64))
+
+
 def test_sets(data: SampleData) -> dict:
     """Sample indices (into ``data`` opened with states="all") of both evaluations:
     ``dynamic_test``, ``dynamic_train`` (human-present training samples), ``static_test``,
@@ -114,7 +120,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
                                         {"model": s_model, "nearest_neighbour": fl["nearest_neighbour"],
                                          "idw3": fl["idw3"]})}
         if not use_human:   # the background at its own training positions: the generalisation gap
-            fit = train[np.unique(np.linspace(0, len(train) - 1, min(FIT_POSITIONS, len(train))).astype(np.int64))]
+            fit = train[fit_rows(len(train))]
             res["fit"] = stats(ssim_images(minmax(model.render(data, fit, batch=batch)), data.pas(fit)))
         if noisy is not None:   # the floors a lookup in the same noisy training data reaches
             fn = floor_cache.cached(

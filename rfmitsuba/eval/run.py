@@ -24,8 +24,8 @@ from ..core.ssim import ssim_images
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
 from .anchor import anchored, choose
-from .breakdown import breakdown, fixed_device
-from .dynamic_static import FIT_POSITIONS
+from .breakdown import DISTANCES, breakdown, fixed_device
+from .dynamic_static import fit_rows
 from .figures import plot_cdf, plot_grid, plot_map, plot_time
 from .metrics import best_floor, floors, stats
 
@@ -72,8 +72,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
             anchored(minmax(pred), field_train, gt_train, pos[train_idx], pos[test_idx], k=choice["k"],
                      alpha=choice["alpha"]), gt_test)
         anchor = {**choice, "test": stats(anchored_ssim)}
-    # the model at (up to FIT_POSITIONS, evenly spaced) of its own training positions
-    rows = np.unique(np.linspace(0, len(train_idx) - 1, min(FIT_POSITIONS, len(train_idx))).astype(np.int64))
+    rows = fit_rows(len(train_idx))   # the model at its own training positions
     fit_pred = field_train[rows] if field_train is not None else minmax(
         renderer.render(data, train_idx[rows], batch=batch))
     fit_ssim = ssim_images(fit_pred, gt_train[rows])
@@ -175,8 +174,7 @@ def _breakdown_lines(b: dict | None) -> list[str]:
         return []
     out = ["", "Where the model breaks: mean SSIM per quartile of a distance (model / nearest neighbour / IDW-3).", "",
            "| distance | quartile (m) | images | model | nearest neighbour | IDW-3 |", "|---|---|---|---|---|---|"]
-    names = {"to_fixed_device": "to the fixed device", "to_nearest_training": "to the nearest training position"}
-    for key, name in names.items():
+    for key, name in DISTANCES.items():
         part = b.get(key)
         if not part:
             continue

@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..eval.dynamic_static import AFFECTED_SSIM
+from ..eval.breakdown import DISTANCES
+from ..eval.dynamic_static import AFFECTED_SSIM, FIT_POSITIONS
 from . import paper
 from .job import Job
 from .results import (
@@ -227,9 +228,6 @@ class LargeRoomTable(Table):
     breaks (static SSIM by distance to the fixed device and to the nearest training position)."""
 
     key = "large_room"
-    #: the distances of the breakdown: results key -> label
-    DISTANCES = {"to_fixed_device": "distance to the fixed transmitter (m)",
-                 "to_nearest_training": "distance to the nearest training position (m)"}
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
         if not cfg.large_room:
@@ -249,7 +247,7 @@ class LargeRoomTable(Table):
                      f"{fmt(rb, DYN_NN)} | {paper_fmt(paper.LARGE_ROOM.get(sc))} |")
         L.append("")
         L += ["The background (Baseline, empty room) at its own training positions against unseen ones "
-              "(fit: 180 training positions, evenly spaced; a large gap is overfitting):", "",
+              f"(fit: {FIT_POSITIONS} training positions, evenly spaced; a large gap is overfitting):", "",
               "| scene | static fit (training positions) | static test | gap | static NN |", "|---|---|---|---|---|"]
         for sc in (room, cfg.large_room):
             rb = select(results, dataset=DatasetSpec(sc, "rx").key, method="baseline")
@@ -287,12 +285,12 @@ class LargeRoomTable(Table):
         rows = []
         for sc in (cfg.rooms[0], cfg.large_room):
             rb = select(results, dataset=DatasetSpec(sc, "rx").key, method="baseline")
-            for dist, label in self.DISTANCES.items():
+            for dist, label in DISTANCES.items():
                 b = self._binned(rb, dist)
                 if b:
                     cells = [f"{lo:.2f}–{hi:.2f} m: **{m:.3f}** / {n:.3f}" for lo, hi, m, n in
                              zip(b["edges"][:-1], b["edges"][1:], b["model"], b["nearest_neighbour"])]
-                    rows.append(f"| {paper.ROOM_LABELS.get(sc, sc)} | {label.split(' (')[0]} | " + " | ".join(cells) + " |")
+                    rows.append(f"| {paper.ROOM_LABELS.get(sc, sc)} | distance {label} | " + " | ".join(cells) + " |")
         if rows:
             L += ["Where it breaks: the Baseline's static test SSIM (**bold**) against nearest neighbour, by "
                   "quartile of a distance (mean over seeds):", "",
@@ -301,7 +299,7 @@ class LargeRoomTable(Table):
 
     def figures(self, out: Path, cfg: ExperimentConfig, results: dict) -> list[str]:
         """``large_room.png``: the Baseline's static SSIM and the nearest-neighbour floor per quartile
-        of each distance (:data:`DISTANCES`), the first room against the large one; nothing when
+        of each distance (:data:`rfmitsuba.eval.breakdown.DISTANCES`), the first room against the large one; nothing when
         no job recorded the breakdown."""
         from ..core import plots
 
@@ -309,10 +307,10 @@ class LargeRoomTable(Table):
             return []
         rooms = [(sc, select(results, dataset=DatasetSpec(sc, "rx").key, method="baseline"))
                  for sc in (cfg.rooms[0], cfg.large_room)]
-        if not any(self._binned(rb, d) for _, rb in rooms for d in self.DISTANCES):
+        if not any(self._binned(rb, d) for _, rb in rooms for d in DISTANCES):
             return []
-        fig, axes = plots.subplots(1, len(self.DISTANCES), figsize=(4.8 * len(self.DISTANCES), 3.6), squeeze=False)
-        for ax, (dist, label) in zip(axes[0], self.DISTANCES.items()):
+        fig, axes = plots.subplots(1, len(DISTANCES), figsize=(4.8 * len(DISTANCES), 3.6), squeeze=False)
+        for ax, (dist, label) in zip(axes[0], DISTANCES.items()):
             for (sc, rb), color in zip(rooms, ("tab:blue", "tab:red")):
                 b = self._binned(rb, dist)
                 if not b:
@@ -321,7 +319,7 @@ class LargeRoomTable(Table):
                 name = paper.ROOM_LABELS.get(sc, sc)
                 ax.plot(x, b["model"], "o-", color=color, label=f"{name}: Baseline")
                 ax.plot(x, b["nearest_neighbour"], "s--", color=color, alpha=0.6, label=f"{name}: NN")
-            plots.label(ax, xlabel=f"{label}, quartile centre", ylabel="static test SSIM (mean over seeds)",
+            plots.label(ax, xlabel=f"distance {label} (m), quartile centre", ylabel="static test SSIM (mean over seeds)",
                         legend_fontsize=7)
         plots.save(fig, Path(out) / "large_room.png")
         return ["![Where the background breaks, by distance](large_room.png)", ""]

@@ -12,14 +12,15 @@ class OracleAtTestPositions:
     num_primitives = 1
 
     def __init__(self, data):
-        self.test = set(DS.test_sets(data)["static_test"].tolist()) | set(DS.test_sets(data)["dynamic_test"].tolist())
+        sets = DS.test_sets(data)
+        self.test = np.concatenate([sets["static_test"], sets["dynamic_test"]])
 
     def render(self, data, idx, *, batch=8):
         idx = np.asarray(idx)
         out = data.pas(idx).astype(np.float32)
         flat = np.zeros_like(out)
         flat[:, :, :180] = 1.0
-        return np.where(np.isin(idx, list(self.test))[:, None, None], out, flat)
+        return np.where(np.isin(idx, self.test)[:, None, None], out, flat)
 
 
 def test_fit_and_breakdown(synthetic_ds):
