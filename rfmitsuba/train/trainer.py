@@ -51,6 +51,7 @@ from ..rf.bartlett_ref import (
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff
 from .density import make_strategy
+from .pursuit import pursuit_for
 from .select import SELECT_DIR, select_model
 from .loss import loss
 
@@ -366,7 +367,9 @@ class Trainer:
         opt = Adam(lr=1e-3)
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
-        strategy = make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
+        strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=d, prefix=self.prefix,
+                               iterations=cfg.iterations, loss_fn=loss_fn) \
+            or make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
 
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
