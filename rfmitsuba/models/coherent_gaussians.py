@@ -64,6 +64,9 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   the best is kept and a beam around its directions masked, ``images`` times, then
   ``scatterers`` times. The planes' images are composed up to ``image_order`` reflections
   (:func:`compose_images`). A known room gets scanned scatterers beside its image sources too.
+  During training an unknown room's field then grows, one plane at a time, where the loss
+  asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit_planes``): the walls next to the
+  fixed device, which the scan cannot see.
 
 Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 

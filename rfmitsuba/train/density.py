@@ -332,8 +332,9 @@ class DensityStrategy(Strategy):
 
 
 class NoDensity(Strategy):
-    """The density-control hooks for a model without adaptive density (the coherent fields:
-    their sources are the room's image points, fixed by the geometry). Every hook is a no-op."""
+    """The density-control hooks for a model without adaptive density (a known room's coherent
+    fields: their sources are the room's image points, fixed by the geometry; an unknown room's
+    grows by :class:`rfmitsuba.train.pursuit.PlanePursuit` instead). Every hook is a no-op."""
 
 
 def make_strategy(cfg: DensityConfig, field, *, prefix: str, iterations: int | None = None) -> Strategy:

@@ -200,3 +200,37 @@ def test_only_an_unknown_rooms_field_with_pursuit_planes_gets_a_pursuit():
     assert isinstance(got, PlanePursuit) and got.steps == [20, 60]
     field.init = "room"
     assert pursuit_for(field, **kw) is None
+
+
+def test_a_run_killed_after_a_pursuit_resumes_to_the_same_field(tmp_path):
+    """An unknown room (a NeRF2 folder, no scene) with a pursuit at step 12: stopped at step 25
+    (last checkpoint: step 20, after the pursuit) and run again, it ends with the uninterrupted
+    run's grown geometry and parameters, and its summary lists the pursuit once."""
+    import json
+
+    from stage1_data import make_dataset
+
+    from rfmitsuba.core import config as C
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer
+
+    folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=30, task="tx")), tmp_path / "n")
+    data = TrainData.open(folder)
+    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "iterations=40", "downsample=5", "val_every=10",
+                                     "checkpoint_every=10", "log_every=5", "val_fraction=0.1", "threads=1",
+                                     "coherent_gaussians.images=2", "coherent_gaussians.scatterers=2",
+                                     "coherent_gaussians.pursuit_at=[0.3]", 'coherent_gaussians.frame_search="off"'])
+    a, b = tmp_path / "a", tmp_path / "b"
+    sa = Trainer(cfg, data, a, quiet=True).run()
+    assert Trainer(cfg, data, b, quiet=True).run(stop_at=25)["stopped"] == "stop_at"
+    assert json.loads((b / "checkpoint" / "meta.json").read_text())["step"] == 20
+    sb = Trainer(cfg, data, b, quiet=True).run()
+    assert [e["step"] for e in sa["density_events"]] == [e["step"] for e in sb["density_events"]] == [12]
+    assert sa["num_gaussians"] == sb["num_gaussians"] > 1 + 2 * 2 + 2    # grown beyond the scan's field
+    with np.load(a / "final" / "field.npz") as za, np.load(b / "final" / "field.npz") as zb:
+        np.testing.assert_array_equal(za["geometry.A"], zb["geometry.A"])
+        for k in ("img_offset", "img_amp", "vis_center", "cal"):
+            np.testing.assert_allclose(za[k], zb[k], rtol=1e-3, atol=1e-4, err_msg=k)
