@@ -64,9 +64,9 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   the best is kept and a beam around its directions masked, ``images`` times, then
   ``scatterers`` times. The planes' images are composed up to ``image_order`` reflections
   (:func:`compose_images`). A known room gets scanned scatterers beside its image sources too.
-  During training an unknown room's field then grows, one plane at a time, where the loss
-  asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit_planes``): the walls next to the
-  fixed device, which the scan cannot see.
+  During training an unknown room's field with a fixed transmitter (moving RX) then grows, one
+  plane at a time, where the loss asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit``):
+  the walls next to the transmitter, which the scan cannot see.
 
 Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 
@@ -216,11 +216,19 @@ class CoherentGaussianConfig:
         3, furniture order 2, 3 seeds): RX 0.949 -> 0.952, TX 0.941 -> 0.946. Unknown room (3
         seeds): bedroom RX 0.767 -> 0.777, TX 0.746 -> 0.756; NeRF2-like random split 0.936 ->
         0.948, block split 0.823 -> 0.830 (its anchored prediction 0.905 -> 0.891).
-    pursuit_planes: unknown room: planes added during training where the loss asks for them
-        (:class:`rfmitsuba.train.pursuit.PlanePursuit`: coherent matching pursuit on the gradient
-        of the loss at each candidate image's gain), at each fraction ``pursuit_at`` of the run;
-        0: none. It finds walls the directional scan cannot, whose images arrive within the
-        array's beam of the direct path (walls next to the fixed device). Blind bedroom RX (its
+    pursuit: unknown room: add planes during training where the loss asks for them ("on"),
+        not ("off"), or "auto": on where the transmitter is fixed (the moving-RX task), off where
+        it moves (moving TX, NeRF2 tags). Where the transmitter moves, its images' directions
+        part from the direct path's as it moves and the scan sees them; there the pursuit
+        picked mostly non-walls and cost accuracy (seed-paired, 3000 steps: NeRF2-like random
+        split -0.001 and -0.016, blind bedroom TX +0.008, living room TX -0.020; 8 rounds in the
+        bedroom TX -0.059). Blind moving RX gains +0.072 +- 0.004 (bedroom, 3 seeds) and
+        +0.055 (living room, seed 0).
+    pursuit_planes: planes added at each pursuit step where the pursuit is on (:class:`rfmitsuba.train.pursuit.PlanePursuit`:
+        coherent matching pursuit on the gradient of the loss at each candidate image's gain),
+        at each fraction ``pursuit_at`` of the run; 0: none.
+        It finds walls the directional scan cannot, whose images arrive within the
+        array's beam of the direct path (walls next to the fixed transmitter). Blind bedroom RX (its
         transmitter in a corner, 0.3 m from two walls), seed 0, 3000 steps at batch 8, test SSIM:
         none 0.787; **one plane at each of 10, 20, 30, 40 and 50%** 0.860 (it picks the floor,
         y = 0, the ceiling and x = 0, each within 5 cm, then z = 3.75); 2 at 20% and 50% 0.850;
@@ -264,6 +272,7 @@ class CoherentGaussianConfig:
     frame_search: Literal["auto", "report", "apply", "off"] = "auto"
     frame_min_gain: float = 0.01
     room_box: tuple[float, float, float, float, float, float] | None = None
+    pursuit: Literal["auto", "on", "off"] = "auto"
     pursuit_planes: int = 1
     pursuit_at: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5)
     pursuit_views: int = 256
@@ -300,6 +309,8 @@ class CoherentGaussianConfig:
             if box.shape != (6,) or not np.isfinite(box).all() or not (box[:3] < box[3:]).all():
                 raise ConfigError(f"CoherentGaussianConfig.room_box must be 6 finite numbers (x0, y0, z0, x1, y1, "
                                   f"z1) [m] with x0 < x1, y0 < y1, z0 < z1, got {self.room_box!r}")
+        if self.pursuit not in ("auto", "on", "off"):
+            raise ConfigError(f"CoherentGaussianConfig.pursuit must be 'auto', 'on' or 'off', got {self.pursuit!r}")
         if self.pursuit_planes < 0 or self.pursuit_views < 1 or not all(0 < float(t) < 1 for t in self.pursuit_at):
             raise ConfigError(f"CoherentGaussianConfig: pursuit_planes >= 0, pursuit_views >= 1 and every pursuit_at "
                               f"in (0, 1) required, got {self.pursuit_planes!r}, {self.pursuit_views!r}, "

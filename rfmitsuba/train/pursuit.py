@@ -241,11 +241,14 @@ class PlanePursuit(Strategy):
 def pursuit_for(field, *, data, fit: np.ndarray, frozen: list, downsample: int, prefix: str, iterations: int,
                 loss_fn) -> PlanePursuit | None:
     """The :class:`PlanePursuit` of ``field`` when it is an unknown room's coherent Gaussian field
+    whose ``pursuit`` is on ("auto": when ``data``'s transmitter is fixed, the moving-RX task)
     with ``pursuit_planes`` > 0 (else None)."""
     if not isinstance(field, CoherentGaussianField) or field.init != "data" or field.cfg.pursuit_planes <= 0 \
             or field.frozen or iterations < 2:
         return None
     c = field.cfg
+    if c.pursuit == "off" or (c.pursuit == "auto" and getattr(data, "task", None) != "rx"):
+        return None
     return PlanePursuit(data=data, fit=fit, frozen=frozen, downsample=downsample, prefix=prefix,
                         iterations=iterations, planes=c.pursuit_planes, at=tuple(c.pursuit_at),
                         views=c.pursuit_views, loss_fn=loss_fn)

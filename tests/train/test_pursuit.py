@@ -184,7 +184,7 @@ def test_a_grown_field_round_trips(tmp_path):
         field.add_images(np.stack([A, A]), b[None], np.array([1, 1]), vis_center=np.zeros(3))
 
 
-def test_only_an_unknown_rooms_field_with_pursuit_planes_gets_a_pursuit():
+def test_only_an_unknown_rooms_field_with_the_pursuit_on_gets_one():
     import dataclasses
 
     from rfmitsuba.train.loss import loss
@@ -198,6 +198,13 @@ def test_only_an_unknown_rooms_field_with_pursuit_planes_gets_a_pursuit():
     field.cfg = dataclasses.replace(field.cfg, pursuit_planes=2, pursuit_at=(0.2, 0.6))
     got = pursuit_for(field, **kw)
     assert isinstance(got, PlanePursuit) and got.steps == [20, 60]
+    moving_tx = dict(kw, data=SimpleNamespace(**{**vars(data), "task": "tx"}))
+    assert pursuit_for(field, **moving_tx) is None               # "auto": a moving transmitter
+    field.cfg = dataclasses.replace(field.cfg, pursuit="on")
+    assert isinstance(pursuit_for(field, **moving_tx), PlanePursuit)
+    field.cfg = dataclasses.replace(field.cfg, pursuit="off")
+    assert pursuit_for(field, **kw) is None
+    field.cfg = dataclasses.replace(field.cfg, pursuit="on")
     field.init = "room"
     assert pursuit_for(field, **kw) is None
 
@@ -222,7 +229,8 @@ def test_a_run_killed_after_a_pursuit_resumes_to_the_same_field(tmp_path):
     cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "iterations=40", "downsample=5", "val_every=10",
                                      "checkpoint_every=10", "log_every=5", "val_fraction=0.1", "threads=1",
                                      "coherent_gaussians.images=2", "coherent_gaussians.scatterers=2",
-                                     "coherent_gaussians.pursuit_at=[0.3]", 'coherent_gaussians.frame_search="off"'])
+                                     "coherent_gaussians.pursuit_at=[0.3]", 'coherent_gaussians.frame_search="off"',
+                                     'coherent_gaussians.pursuit="on"'])   # a moving-TX folder: off by default
     a, b = tmp_path / "a", tmp_path / "b"
     sa = Trainer(cfg, data, a, quiet=True).run()
     assert Trainer(cfg, data, b, quiet=True).run(stop_at=25)["stopped"] == "stop_at"
