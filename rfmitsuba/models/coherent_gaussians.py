@@ -218,12 +218,14 @@ class CoherentGaussianConfig:
         0.948, block split 0.823 -> 0.830 (its anchored prediction 0.905 -> 0.891).
     pursuit: unknown room: add planes during training where the loss asks for them ("on"),
         not ("off"), or "auto": on where the transmitter is fixed (the moving-RX task), off where
-        it moves (moving TX, NeRF2 tags). Where the transmitter moves, its images' directions
-        part from the direct path's as it moves and the scan sees them; there the pursuit
-        picked mostly non-walls and cost accuracy (seed-paired, 3000 steps: NeRF2-like random
-        split -0.001 and -0.016, blind bedroom TX +0.008, living room TX -0.020; 8 rounds in the
-        bedroom TX -0.059). Blind moving RX gains +0.072 +- 0.004 (bedroom, 3 seeds) and
-        +0.055 (living room, seed 0).
+        it moves (moving TX, NeRF2 tags). A fixed transmitter's images across the walls next to
+        it arrive within the array's beam of the direct path, which the scan cannot resolve; a
+        moving transmitter's images part from the direct path's direction as it moves. Seed-paired
+        test SSIM, 3000 steps at batch 8: blind moving RX +0.072 +- 0.004 (bedroom, 3 seeds) and
+        +0.055 (living room, seed 0); blind moving TX mixed: bedroom +0.008, +0.045, +0.044,
+        living room -0.020, +0.014; NeRF2-like tags (random split, 6000 steps) -0.001, -0.016,
+        -0.006. "on" is worth trying on a moving-TX room; eight rounds instead of five cost the
+        bedroom TX 0.059 (seed 0).
     pursuit_planes: planes added at each pursuit step where the pursuit is on (:class:`rfmitsuba.train.pursuit.PlanePursuit`:
         coherent matching pursuit on the gradient of the loss at each candidate image's gain),
         at each fraction ``pursuit_at`` of the run; 0: none.
