@@ -187,7 +187,7 @@ class PlanePursuit(Strategy):
         """One pursuit: score, pick and add planes; remap the optimizer. Returns the event."""
         import drjit as dr
 
-        views, gr, gi = self.loss_gradient(field)
+        _, gr, gi = self.loss_gradient(field)
         tr_x, tr_y, tr_q = self.data.positions(np.asarray(self.data.train, np.int64))
         axis, off = plane_candidates(np.concatenate([tr_x, tr_y, tr_q]))
         A = np.stack([reflection(a, o)[0] for a, o in zip(axis, off)])
