@@ -226,11 +226,11 @@ class CoherentGaussianConfig:
         living room -0.020, +0.014; NeRF2-like tags (random split, 6000 steps) -0.001, -0.016,
         -0.006. "on" is worth trying on a moving-TX room; eight rounds instead of five cost the
         bedroom TX 0.059 (seed 0).
-    pursuit_planes: planes added at each pursuit step where the pursuit is on (:class:`rfmitsuba.train.pursuit.PlanePursuit`:
-        coherent matching pursuit on the gradient of the loss at each candidate image's gain),
-        at each fraction ``pursuit_at`` of the run; 0: none.
-        It finds walls the directional scan cannot, whose images arrive within the
-        array's beam of the direct path (walls next to the fixed transmitter). Blind bedroom RX (its
+    pursuit_planes: planes added at each fraction ``pursuit_at`` of the run where the pursuit is
+        on (:class:`rfmitsuba.train.pursuit.PlanePursuit`: coherent matching pursuit on the
+        gradient of the loss at each candidate image's gain); 0: none. The pursuit finds walls
+        the directional scan cannot, whose images arrive within the array's beam of the direct
+        path (walls next to the fixed transmitter). Blind bedroom RX (its
         transmitter in a corner, 0.3 m from two walls), seed 0, 3000 steps at batch 8, test SSIM:
         none 0.787; **one plane at each of 10, 20, 30, 40 and 50%** 0.860 (it picks the floor,
         y = 0, the ceiling and x = 0, each within 5 cm, then z = 3.75); 2 at 20% and 50% 0.850;
