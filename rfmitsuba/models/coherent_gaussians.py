@@ -222,7 +222,7 @@ class CoherentGaussianConfig:
         it arrive within the array's beam of the direct path, which the scan cannot resolve; a
         moving transmitter's images part from the direct path's direction as it moves. Seed-paired
         test SSIM, 3000 steps at batch 8: blind moving RX +0.072 +- 0.004 (bedroom, 3 seeds) and
-        +0.055 (living room, seed 0); blind moving TX mixed: bedroom +0.008, +0.045, +0.044,
+        +0.031 +- 0.022 (living room, 3 seeds); blind moving TX mixed: bedroom +0.008, +0.045, +0.044,
         living room -0.020, +0.014; NeRF2-like tags (random split, 6000 steps) -0.001, -0.016,
         -0.006. "on" is worth trying on a moving-TX room; eight rounds instead of five cost the
         bedroom TX 0.059 (seed 0).
