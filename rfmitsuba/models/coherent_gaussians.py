@@ -524,6 +524,15 @@ def compose_images(A: np.ndarray, b: np.ndarray, *, max_order: int) -> tuple[np.
     return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]), np.array([o[2] for o in out], np.int64))
 
 
+def summed_channels(fields: list, views: Views) -> tuple:
+    """The calibrated channels of ``fields`` (coherent Gaussian family) added: (re, im) ``Float`` [B*16]."""
+    hr = hi = None
+    for f in fields:
+        fr, fi = f.channels(views)
+        hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+    return hr, hi
+
+
 def read_out(h_re, h_im, *, readout: str, frequency_hz: float, height: int, width: int, normalize: bool):
     """PAS of calibrated channels (re, im) ``Float`` [B*16]: the amplitude Bartlett, or for
     ``readout = "phase_only"`` the Bartlett of ``h_m / |h_m|`` (NeRF2's measured spectra):
@@ -1187,10 +1196,7 @@ class CoherentGaussianField(FlatParameterField):
     def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
         """PAS of the fields' summed channels through one Bartlett read-out (phase-only when the
         first field's ``readout`` says so): ``TensorXf`` [B, height, width]."""
-        hr = hi = None
-        for f in fields:
-            fr, fi = f.channels(views)
-            hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+        hr, hi = summed_channels(fields, views)
         return read_out(hr, hi, readout=fields[0].readout, frequency_hz=views.frequency_hz, height=height,
                         width=width, normalize=normalize)
 

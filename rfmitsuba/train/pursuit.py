@@ -36,7 +36,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..models.base import Views
-from ..models.coherent_gaussians import CoherentGaussianField, read_out
+from ..models.coherent_gaussians import CoherentGaussianField, read_out, summed_channels
 from .density import Strategy
 
 #: candidate planes' spacing [m], how far beyond the known positions they reach [m], and the
@@ -158,9 +158,9 @@ class PlanePursuit(Strategy):
         self.history.append(event)
         return bool(event["images_added"])
 
-    def loss_gradient(self, field) -> tuple[Views, np.ndarray, np.ndarray]:
-        """Views of the pursuit's training positions and the training loss's gradient at the
-        summed calibrated channels of the frozen and trained fields: (views, re [B*16], im [B*16])."""
+    def loss_gradient(self, field) -> tuple[np.ndarray, np.ndarray]:
+        """The training loss's gradient at the summed calibrated channels of the frozen and
+        trained fields, at the pursuit's training positions ``self.idx``: (re, im) float64 [B*16]."""
         import drjit as dr
 
         h, w = 90 // self.d, 360 // self.d
@@ -169,10 +169,7 @@ class PlanePursuit(Strategy):
             idx = self.idx[i:i + CHUNK]
             v = Views.of(self.data, idx)
             with dr.suspend_grad():
-                hr = hi = None
-                for f in self.frozen + [field]:
-                    fr, fi = f.channels(v)
-                    hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+                hr, hi = summed_channels(self.frozen + [field], v)
             hr, hi = B.Float(np.asarray(hr.numpy())), B.Float(np.asarray(hi.numpy()))
             dr.enable_grad(hr, hi)
             pred = read_out(hr, hi, readout=field.readout, frequency_hz=v.frequency_hz, height=h, width=w,
@@ -181,17 +178,16 @@ class PlanePursuit(Strategy):
             dr.backward(loss)
             gr.append(np.asarray(dr.grad(hr).numpy(), np.float64))
             gi.append(np.asarray(dr.grad(hi).numpy(), np.float64))
-        return Views.of(self.data, self.idx), np.concatenate(gr), np.concatenate(gi)
+        return np.concatenate(gr), np.concatenate(gi)
 
     def pursue(self, field: CoherentGaussianField, opt) -> dict:
         """One pursuit: score, pick and add planes; remap the optimizer. Returns the event."""
         import drjit as dr
 
-        _, gr, gi = self.loss_gradient(field)
+        gr, gi = self.loss_gradient(field)
         tr_x, tr_y, tr_q = self.data.positions(np.asarray(self.data.train, np.int64))
         axis, off = plane_candidates(np.concatenate([tr_x, tr_y, tr_q]))
-        A = np.stack([reflection(a, o)[0] for a, o in zip(axis, off)])
-        b = np.stack([reflection(a, o)[1] for a, o in zip(axis, off)])
+        A, b = (np.stack(m) for m in zip(*(reflection(a, o) for a, o in zip(axis, off))))
         score = np.zeros(len(A), np.complex128)
         for i in range(0, len(self.idx), CHUNK):    # the gradient is a sum over views: by chunks
             sl = slice(i * 16, (i + CHUNK) * 16)

@@ -103,14 +103,15 @@ def test_candidate_score_is_the_derivative_of_the_training_loss():
     import drjit as dr
 
     from rfmitsuba.core import backend as B
-    from rfmitsuba.models.base import render
+    from rfmitsuba.models.base import Views, render
     from rfmitsuba.train.loss import loss
     from rfmitsuba.train.pursuit import reflection
 
     data = _data(_field(planes=[(0, 0.0)], gains=[0.7]), n=8)
     field = _field(planes=[(1, 4.0)], gains=[0.5])
     pur = _pursuit(data, views=8)
-    views, gr, gi = pur.loss_gradient(field)
+    gr, gi = pur.loss_gradient(field)
+    views = Views.of(data, np.arange(8))
     A, b = reflection(0, -0.05)
     g = field.image_gain_gradients(views, gr, gi, A[None], b[None])[0]
     gt = B.TensorXf(data.pas(np.arange(8)))
