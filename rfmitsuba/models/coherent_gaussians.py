@@ -547,6 +547,12 @@ def read_out(h_re, h_im, *, readout: str, frequency_hz: float, height: int, widt
 
 # ------------------------------------------------------------------------------ the field
 
+def _check_orthogonal(A: np.ndarray, owner: str) -> None:
+    """ConfigError naming ``owner`` unless every map of ``A`` (float [S, 3, 3]) is orthogonal."""
+    if not np.allclose(np.einsum("sij,skj->sik", A, A), np.eye(3), atol=1e-6):
+        raise ConfigError(f"{owner}: image maps must be orthogonal")
+
+
 def _builtin_scene(xml: str) -> str:
     """The built-in scene a missing XML path names (a run saved in another checkout), else RunError."""
     from ..scenes import path as scene_path
@@ -611,8 +617,7 @@ class CoherentGaussianField(FlatParameterField):
         self.order = np.asarray(order, np.int64).reshape(-1)
         if len(self.order) != len(self.A) or len(self.A) == 0:
             raise ConfigError("CoherentGaussianField: one order per image map, and at least one image")
-        if not np.allclose(np.einsum("sij,skj->sik", self.A, self.A), np.eye(3), atol=1e-6):
-            raise ConfigError("CoherentGaussianField: image maps must be orthogonal")
+        _check_orthogonal(self.A, "CoherentGaussianField")
         if readout not in ("amplitude", "phase_only") or wavefront not in ("plane", "spherical"):
             raise ConfigError(f"CoherentGaussianField: readout {readout!r} / wavefront {wavefront!r} not resolved")
         self.cfg, self.readout, self.wavefront = cfg, readout, wavefront
@@ -873,24 +878,22 @@ class CoherentGaussianField(FlatParameterField):
         self._A_cols = _columns(self.A.reshape(-1, 9))
 
     # ---- growth: sources the loss asks for (rfmitsuba.train.pursuit) -------------------------
-    def single_planes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def single_planes(self) -> tuple[np.ndarray, np.ndarray]:
         """The field's single reflections across axis-aligned planes, where they are now.
 
         Returns:
-            (index int64 [n] of the image, axis int64 [n] (0, 1, 2 = x, y, z), offset float64 [n]
-            [m]: the plane ``coord_axis = offset`` whose mirror image the learned offset draws).
+            (axis int64 [n] (0, 1, 2 = x, y, z), offset float64 [n] [m]): the planes
+            ``coord_axis = offset`` whose mirror images the learned offsets draw.
         """
         off = np.asarray(self.params["img_offset"].numpy(), np.float64).reshape(-1, 3)
-        rows = []
+        axis, offset = [], []
         for i, (A, o) in enumerate(zip(self.A, self.order)):
             d = np.diag(A)
             if o == 1 and np.allclose(A, np.diag(d)) and (d < 0).sum() == 1:
                 a = int(np.argmin(d))
-                rows.append((i, a, off[i, a] / 2.0))
-        if not rows:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        i, a, o = zip(*rows)
-        return np.array(i, np.int64), np.array(a, np.int64), np.array(o, np.float64)
+                axis.append(a)
+                offset.append(off[i, a] / 2.0)
+        return np.asarray(axis, np.int64), np.asarray(offset, np.float64)
 
     def image_gain_gradients(self, views: Views, grad_re: np.ndarray, grad_im: np.ndarray, A: np.ndarray,
                              b: np.ndarray) -> np.ndarray:
@@ -946,8 +949,7 @@ class CoherentGaussianField(FlatParameterField):
         n, S, P = len(A), self.num_images, self.num_scatterers
         if not (len(b) == len(order) == n) or not np.isfinite(b).all():
             raise ConfigError(f"add_images: {n} maps need {n} finite offsets and orders, got {b.shape}, {order.shape}")
-        if not np.allclose(np.einsum("sij,skj->sik", A, A), np.eye(3), atol=1e-6):
-            raise ConfigError("add_images: image maps must be orthogonal")
+        _check_orthogonal(A, "add_images")
         old = {k: np.asarray(v.numpy(), np.float64) for k, v in self.params.items()}
         src = np.concatenate([np.arange(S), np.arange(S, S + P) + n])          # old source -> new source
         per_source = {"vis_center": 3, "vis_log_extent": 1, "vis_grid": self.grid_cells}

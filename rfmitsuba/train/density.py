@@ -77,6 +77,25 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     ], 1)
 
 
+def move_adam_state(opt, key: str, new_value, *, src: np.ndarray, dst: np.ndarray) -> None:
+    """Install ``new_value`` (``Float`` [n]) as the parameter ``key`` of the Adam optimizer ``opt``
+    after its parameter changed size: the moments of old entries ``src`` move to new entries
+    ``dst`` (int arrays of one length); every other entry starts with zero moments. The step
+    count is kept."""
+    import drjit as dr
+
+    value, promoted, lr, (t, m, v, vmax) = opt.state[key]
+    n = dr.width(new_value)
+
+    def remap(x):
+        out = np.zeros(n, np.float32)
+        out[dst] = np.asarray(x.numpy(), np.float32)[src]
+        return B.Float(out)
+
+    dr.enable_grad(new_value)
+    opt.state[key] = (new_value, promoted, lr, (t, remap(m), remap(v), None if vmax is None else remap(vmax)))
+
+
 class Strategy:
     """Base of the density strategies: the trainer calls these named hooks, in this order
     within a step, and each is a no-op here.
@@ -283,24 +302,14 @@ class DensityStrategy(Strategy):
     def _apply(self, field: SplatField, opt, arrays: dict, keep: np.ndarray, n_new: int) -> None:
         """Install the new Gaussian set in the field and the optimizer, remapping Adam moments:
         kept rows keep their moments, new rows start from zero."""
-        import drjit as dr
-
         field.set_gaussians(arrays)
         for k, d in GAUSSIAN_KEYS.items():
             key = self.prefix + k
             if key not in opt:
                 continue
-            value, promoted, lr, extra = opt.state[key]
-            t, m, v, vmax = extra
             idx = (keep[:, None] * d + np.arange(d)[None, :]).ravel()
-
-            def remap(x):
-                x = np.asarray(x.numpy(), dtype=np.float32)
-                return B.Float(np.concatenate([x[idx], np.zeros(n_new * d, np.float32)]))
-
             new_val = B.Float(arrays[k].ravel())
-            dr.enable_grad(new_val)
-            opt.state[key] = (new_val, promoted, lr, (t, remap(m), remap(v), None if vmax is None else remap(vmax)))
+            move_adam_state(opt, key, new_val, src=idx, dst=np.arange(len(idx)))
             field.params[k] = new_val
         self._clear_stats(len(keep) + n_new)
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..core import backend as B
 from ..models.base import Views
 from ..models.coherent_gaussians import CoherentGaussianField, read_out, summed_channels
-from .density import Strategy
+from .density import Strategy, move_adam_state
 
 #: candidate planes' spacing [m], how far beyond the known positions they reach [m], and the
 #: closest two kept planes on one axis may be [m]
@@ -110,7 +110,7 @@ def new_images(field: CoherentGaussianField, planes: list[tuple[int, float]], *,
     singles = [reflection(a, o) for a, o in planes]
     A, b, order = [m[0] for m in singles], [m[1] for m in singles], [1] * len(singles)
     if max_order >= 2:
-        _, ex_axis, ex_off = field.single_planes()
+        ex_axis, ex_off = field.single_planes()
         others = [reflection(a, o) for a, o in zip(ex_axis, ex_off)] + singles
         for n, (An, bn) in enumerate(singles):
             for j, (Aj, bj) in enumerate(others):
@@ -182,8 +182,6 @@ class PlanePursuit(Strategy):
 
     def pursue(self, field: CoherentGaussianField, opt) -> dict:
         """One pursuit: score, pick and add planes; remap the optimizer. Returns the event."""
-        import drjit as dr
-
         gr, gi = self.loss_gradient(field)
         tr_x, tr_y, tr_q = self.data.positions(np.asarray(self.data.train, np.int64))
         axis, off = plane_candidates(np.concatenate([tr_x, tr_y, tr_q]))
@@ -195,7 +193,7 @@ class PlanePursuit(Strategy):
             g = field.image_gain_gradients(vi, gr[sl], gi[sl], A, b)
             score = score + g[:, 0] + 1j * g[:, 1]
         rel = np.abs(score)
-        _, ex_axis, ex_off = field.single_planes()
+        ex_axis, ex_off = field.single_planes()
         pick = pick_planes(rel, axis, off, count=self.planes, existing_axis=ex_axis, existing_offset=ex_off)
         planes = [(int(axis[i]), float(off[i])) for i in pick]
         event = {"event": "pursuit", "planes": [{"axis": "xyz"[a], "offset_m": round(o, 3), "score": float(rel[i])}
@@ -209,20 +207,8 @@ class PlanePursuit(Strategy):
         centre = (box[:3] + box[3:]) / 2 if box is not None else tr_q.mean(0)
         where = field.add_images(nA, nb, norder, vis_center=centre)
         for k, pos in where.items():
-            key = self.prefix + k
-            if key not in opt.state:
-                continue
-            value, promoted, lr, (t, m, v, vmax) = opt.state[key]
-            n = dr.width(field.params[k])
-
-            def remap(arr, pos=pos, n=n):
-                out = np.zeros(n, np.float32)
-                out[pos] = np.asarray(arr.numpy(), np.float32)
-                return B.Float(out)
-
-            new_val = field.params[k]
-            dr.enable_grad(new_val)
-            opt.state[key] = (new_val, promoted, lr, (t, remap(m), remap(v), None if vmax is None else remap(vmax)))
+            if self.prefix + k in opt.state:
+                move_adam_state(opt, self.prefix + k, field.params[k], src=np.arange(len(pos)), dst=pos)
         event["images_added"] = int(len(nA))
         event["n_gaussians"] = int(field.num_primitives)
         return event
