@@ -64,9 +64,11 @@ Initialisation (:meth:`CoherentGaussianField.for_training`):
   the best is kept and a beam around its directions masked, ``images`` times, then
   ``scatterers`` times. The planes' images are composed up to ``image_order`` reflections
   (:func:`compose_images`). A known room gets scanned scatterers beside its image sources too.
-  During training an unknown room's field with a fixed transmitter (moving RX) then grows, one
-  plane at a time, where the loss asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit``):
-  the walls next to the transmitter, which the scan cannot see.
+  Where the moving device walks round the fixed one (a room, either task: :func:`spreads_wide`)
+  the scan keeps no plane, and during training the field grows one plane at a time where the
+  loss asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit``): the walls next to the fixed
+  device too, whose images arrive within the array's beam of the direct path, which the scan
+  cannot see.
 
 Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 
@@ -125,6 +127,9 @@ LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img
 FRAME_WARN_GAIN = 0.05
 #: the visibility grid every field gets by default (cells along x, y, z), CoherentGaussianConfig.vis_grid
 DEFAULT_VIS_GRID = (4, 4, 2)
+#: planes the data scan finds for an unknown room by default where the moving device's positions
+#: lie within the array's beam (CoherentGaussianConfig.images = None; elsewhere none: the pursuit)
+SCAN_PLANES = 12
 
 
 @dataclass
@@ -136,12 +141,17 @@ class CoherentGaussianConfig:
     room_order / furniture_order / min_face_area: image maps of a known room (as
     :class:`~rfmitsuba.models.coherent.CoherentConfig`).
     images: reflecting planes found by the data scan (unknown room; the direct path comes extra).
-        12 since 2026-11-25 (6 before), seed 0, 3000 steps: NeRF2-like 200 tags 0.945 -> 0.958
-        (IDW-3 0.951), 2000 tags 0.909 (IDW-3 0.919; 24 planes 0.904; 6 planes 0.888 at 6000 steps), blind bedroom RX
-        0.777 -> 0.787 (NN 0.710); the extra planes are mostly not walls, but their images (and
-        their double reflections) are sources where the data put energy. The NeRF2-like
-        spatial-block split (extrapolation to a held-out slab) lost on one seed in two (anchored
-        0.875 and 0.917 against 0.911 with 6 planes; NN 0.911).
+        None (the default): :data:`SCAN_PLANES` (12) where the moving device's positions lie
+        within the array's beam as seen from the fixed device (NeRF2-like tags), none where they
+        spread wider (:func:`spreads_wide`: a walked room, where the plane pursuit finds them).
+        Within the beam, 12 since 2026-11-25 (6 before), seed 0, 3000 steps: NeRF2-like 200 tags
+        0.945 -> 0.958 (IDW-3 0.951), 2000 tags 0.909 (IDW-3 0.919; 24 planes 0.904; 6 planes
+        0.888 at 6000 steps); the extra planes are mostly not walls, but their images (and their
+        double reflections) are sources where the data put energy. The NeRF2-like spatial-block
+        split (extrapolation to a held-out slab) lost on one seed in two (anchored 0.875 and
+        0.917 against 0.911 with 6 planes; NN 0.911). In a walked room the scan's planes add
+        sources, not accuracy: blind bedroom TX, seed 0, with the pursuit: 12 scanned planes
+        0.875 with 587 sources, none 0.877 with 250 (NN 0.723).
     image_order: reflections per image of an unknown room: the scanned planes' images are
     composed up to this order (2: the images across two of the found planes, as a room's
     double reflections), identical maps once.
@@ -217,27 +227,29 @@ class CoherentGaussianConfig:
         seeds): bedroom RX 0.767 -> 0.777, TX 0.746 -> 0.756; NeRF2-like random split 0.936 ->
         0.948, block split 0.823 -> 0.830 (its anchored prediction 0.905 -> 0.891).
     pursuit: unknown room: add planes during training where the loss asks for them ("on"),
-        not ("off"), or "auto": on where the transmitter is fixed (the moving-RX task), off where
-        it moves (moving TX, NeRF2 tags). A fixed transmitter's images across the walls next to
-        it arrive within the array's beam of the direct path, which the scan cannot resolve; a
-        moving transmitter's images part from the direct path's direction as it moves. Seed-paired
-        test SSIM, 3000 steps at batch 8: blind moving RX +0.072 +- 0.004 (bedroom, 3 seeds) and
-        +0.031 +- 0.022 (living room, 3 seeds); blind moving TX mixed: bedroom +0.008, +0.045, +0.044,
-        living room -0.020, +0.014; NeRF2-like tags (random split, 6000 steps) -0.001, -0.016,
-        -0.006. "on" is worth trying on a moving-TX room; eight rounds instead of five cost the
-        bedroom TX 0.059 (seed 0).
+        not ("off"), or "auto": on where the moving device's training positions spread wider,
+        seen from the fixed device, than half the array's beam (:func:`spreads_wide`: a device
+        walked round a room, either task; 21-23 degrees in our rooms), off where they lie within
+        it (NeRF2-like tags in a patch 5 m from the gateway: 4 degrees). A fixed device's images
+        across the walls next to it arrive within the array's beam of the direct path, which the
+        directional scan cannot resolve; the pursuit scores them by the loss instead. Blind rooms,
+        3000 steps at batch 8, 3 seeds, test SSIM with the pursuit from no scanned plane (the
+        default since 2026-11-25): bedroom RX 0.886 +- 0.010, TX 0.874 +- 0.008; living room RX
+        0.918 +- 0.005, TX 0.899 +- 0.015 (NN 0.710, 0.723, 0.728, 0.721). Before, with the scan's
+        12 planes and five rounds on moving RX only: 0.864, 0.772, 0.882, 0.826 / 0.801. Within
+        the beam five rounds cost the NeRF2-like tags 0.008 (random split, 3 of 3 seeds), so
+        "auto" leaves it off there.
     pursuit_planes: planes added at each fraction ``pursuit_at`` of the run where the pursuit is
         on (:class:`rfmitsuba.train.pursuit.PlanePursuit`: coherent matching pursuit on the
-        gradient of the loss at each candidate image's gain); 0: none. The pursuit finds walls
-        the directional scan cannot, whose images arrive within the array's beam of the direct
-        path (walls next to the fixed transmitter). Blind bedroom RX (its
-        transmitter in a corner, 0.3 m from two walls), seed 0, 3000 steps at batch 8, test SSIM:
-        none 0.787; **one plane at each of 10, 20, 30, 40 and 50%** 0.860 (it picks the floor,
-        y = 0, the ceiling and x = 0, each within 5 cm, then z = 3.75); 2 at 20% and 50% 0.850;
-        4 at 25% 0.846; 4 at 20% and 45% 0.843; 6 at 25% 0.839; with 6 scanned planes instead of
-        12, 2 at 20% and 50% 0.811 (NN 0.710, IDW-3 0.760). One at a time, refitted in between,
-        is matching pursuit proper; more planes at once pick non-walls.
-    pursuit_at: fractions of the run's iterations at which planes are added, each in (0, 1).
+        gradient of the loss at each candidate image's gain); 0: none. One at a time, refitted
+        in between, is matching pursuit proper; more planes at once pick non-walls (blind bedroom
+        RX, seed 0, with the scan's 12 planes: one at each of five steps 0.860; 2 at 20% and 50%
+        0.850; 4 at 25% 0.846; 6 at 25% 0.839).
+    pursuit_at: fractions of the run's iterations at which planes are added, each in (0, 1);
+        by default every 4% from 4% to 60% (15 planes). Blind bedroom TX, seed 0, 3000 steps at
+        batch 8, no scanned plane: five rounds at 10-50% 0.784 (114 sources), fifteen 0.877 (250
+        sources; NN 0.723). A walked room's field starts from the direct path and its scatterers
+        alone, so the pursuit must supply every wall.
     pursuit_views: training views (evenly spaced) over which a pursuit sums the gradient.
     """
 
@@ -245,7 +257,7 @@ class CoherentGaussianConfig:
     room_order: int = 2
     furniture_order: int = 1
     min_face_area: float = 0.05
-    images: int = 12
+    images: int | None = None
     image_order: int = 2
     scatterers: int = 96
     room_scatterers: int = 24
@@ -276,7 +288,8 @@ class CoherentGaussianConfig:
     room_box: tuple[float, float, float, float, float, float] | None = None
     pursuit: Literal["auto", "on", "off"] = "auto"
     pursuit_planes: int = 1
-    pursuit_at: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5)
+    pursuit_at: tuple[float, ...] = (0.04, 0.08, 0.12, 0.16, 0.2, 0.24, 0.28, 0.32, 0.36, 0.4, 0.44, 0.48, 0.52,
+                                     0.56, 0.6)
     pursuit_views: int = 256
 
     def __post_init__(self) -> None:
@@ -293,7 +306,7 @@ class CoherentGaussianConfig:
         if self.wavefront not in ("auto", "plane", "spherical"):
             raise ConfigError(f"CoherentGaussianConfig.wavefront must be 'auto', 'plane' or 'spherical', "
                               f"got {self.wavefront!r}")
-        if min(self.images, self.scatterers, self.room_scatterers, self.room_order) < 0 or self.image_order < 1 \
+        if min(self.images or 0, self.scatterers, self.room_scatterers, self.room_order) < 0 or self.image_order < 1 \
                 or self.furniture_order not in (0, 1, 2):
             raise ConfigError("CoherentGaussianConfig: images, scatterers, room_scatterers, room_order >= 0 and furniture_order "
                               "0, 1 or 2 required")
@@ -324,6 +337,53 @@ class CoherentGaussianConfig:
                 and 0 < self.init_transmission <= 1):
             raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1], scatterer_gain > 0, init_through "
                               "in [0, 1] and init_transmission in (0, 1] required")
+
+
+def position_spread_deg(fixed: np.ndarray, moving: np.ndarray) -> float:
+    """How widely the moving device's positions spread as seen from the fixed device: the median
+    angle [degrees] between the directions from ``fixed`` (float [3] or [N, 3] m) to each of
+    ``moving`` (float [N, 3] m) and their mean direction."""
+    v = np.asarray(moving, np.float64).reshape(-1, 3) - np.asarray(fixed, np.float64).reshape(-1, 3)
+    n = np.linalg.norm(v, axis=1)
+    v = v[n > 1e-9] / n[n > 1e-9, None]
+    if not len(v):
+        return 0.0
+    m = v.mean(0)
+    if np.linalg.norm(m) < 1e-9:                 # positions all round the fixed device
+        return 90.0
+    return float(np.median(np.degrees(np.arccos(np.clip(v @ (m / np.linalg.norm(m)), -1.0, 1.0)))))
+
+
+def spreads_wide(data) -> bool:
+    """Whether ``data``'s training positions (a :class:`~rfmitsuba.data.views.TrainData`) spread
+    wider, seen from the fixed device, than half the array's half-power beamwidth
+    (:func:`rfmitsuba.rf.array.half_power_beamwidth_deg`, 13 degrees): a moving device that walks the
+    room around the fixed one (our rooms: 21-23 degrees), not tags in a patch far from the gateway
+    (NeRF2-like: about 4 degrees). Within the beam a source arrives from about one direction at every
+    view, which the data scan's directional search needs; beyond it the plane pursuit finds the
+    planes (:class:`CoherentGaussianConfig`, ``pursuit`` and ``images``)."""
+    idx = np.asarray(data.train, np.int64)
+    x, y, q = data.positions(idx)
+    fixed = y if data.task == "rx" else x
+    return position_spread_deg(fixed, q) > antenna.half_power_beamwidth_deg() / 2
+
+
+def scan_planes(cfg: CoherentGaussianConfig, data) -> int:
+    """Planes the data scan finds for an unknown room: ``cfg.images``, or where it is None
+    :data:`SCAN_PLANES` for positions within the array's beam and none where they spread wider
+    (:func:`spreads_wide`: the plane pursuit finds them)."""
+    if cfg.images is not None:
+        return int(cfg.images)
+    return 0 if spreads_wide(data) else SCAN_PLANES
+
+
+def uses_pursuit(cfg: CoherentGaussianConfig, data) -> bool:
+    """Whether an unknown room's field grows planes by the plane pursuit during training:
+    ``cfg.pursuit`` "on" / "off", or "auto": where the positions spread wider than the array's
+    beam (:func:`spreads_wide`)."""
+    if cfg.pursuit != "auto":
+        return cfg.pursuit == "on"
+    return spreads_wide(data)
 
 
 # ------------------------------------------------------------------------------ initialisation
@@ -751,7 +811,7 @@ class CoherentGaussianField(FlatParameterField):
                                    "stated_score": fit.stated_score, "min_gain": c.frame_min_gain}
             if applied:
                 frame = fit.rx_to_world(stated)
-        found = scan(pas, xs, ys, images=0 if init == "room" else c.images,
+        found = scan(pas, xs, ys, images=0 if init == "room" else scan_planes(c, data),
                      scatterers=c.room_scatterers if init == "room" else c.scatterers,
                      step=c.scan_step, margin=c.scan_margin, rx_to_world=frame,
                      radius_deg=c.room_scan_radius_deg if init == "room" else c.scan_radius_deg)

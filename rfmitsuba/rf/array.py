@@ -45,6 +45,22 @@ def element_positions(frequency_hz: float, *, rows: int = ROWS, cols: int = COLS
     return np.stack([x, y, np.zeros_like(x)], axis=1)
 
 
+def half_power_beamwidth_deg(*, cols: int = COLS, spacing_wavelengths: float = SPACING_WAVELENGTHS) -> float:
+    """Half-power (-3 dB) beamwidth [degrees] of the array's main beam at broadside, along one
+    row of ``cols`` elements ``spacing_wavelengths`` apart: twice the angle where the row's
+    array factor ``|sum_n exp(j 2 pi s n sin(theta))| / cols`` falls to ``1 / sqrt(2)``
+    (26.3 degrees for the 4x4 array at half a wavelength; ``0.886 / (cols s)`` rad for long rows)."""
+    if cols < 2 or not spacing_wavelengths > 0:
+        raise ConfigError(f"a beamwidth needs cols >= 2 and spacing > 0, got {cols}, {spacing_wavelengths!r}")
+    lo, hi = 0.0, min(1.0, 1.0 / (cols * spacing_wavelengths))     # the first null, or endfire
+    n = np.arange(cols)
+    for _ in range(60):                                              # bisection on u = sin(theta)
+        u = (lo + hi) / 2
+        af = abs(np.exp(2j * np.pi * spacing_wavelengths * n * u).sum()) / cols
+        lo, hi = (u, hi) if af > 2 ** -0.5 else (lo, u)
+    return float(np.degrees(2 * np.arcsin((lo + hi) / 2)))
+
+
 def describe(frequency_hz: float) -> dict:
     """The array geometry as recorded in a dataset's meta.json."""
     return {

@@ -669,3 +669,38 @@ def test_room_box_walls_join_the_scanned_planes():
         CoherentGaussianField.for_training(
             C.override(TrainConfig(), small[:-1] + [f"coherent_gaussians.room_box={box}"]), data,
             scene_xml=scene_path("bedroom"))
+
+
+def test_positions_within_the_beam_get_the_scan_and_wider_ones_the_pursuit():
+    """A room walked around a corner device spreads 20-ish degrees (pursuit, no scanned planes);
+    tags in a patch 5 m from the gateway a few degrees (scan, 12 planes); explicit settings win."""
+    from types import SimpleNamespace
+
+    from rfmitsuba.models.coherent_gaussians import (SCAN_PLANES, CoherentGaussianConfig, position_spread_deg,
+                                                     scan_planes, spreads_wide, uses_pursuit)
+
+    rng = np.random.default_rng(0)
+    room = np.c_[rng.uniform(0.15, 4.25, 300), rng.uniform(0.15, 3.35, 300), rng.uniform(0.5, 2.0, 300)]
+    tags = np.c_[rng.uniform(1.0, 2.6, 300), rng.uniform(0.5, 1.8, 300), rng.uniform(0.5, 1.4, 300)]
+    corner, gateway = np.array([0.3, 0.3, 2.0]), np.array([7.0, 1.2, 1.0])
+    assert 15 < position_spread_deg(corner, room) < 30
+    assert position_spread_deg(gateway, tags) < 8
+    assert position_spread_deg(corner, corner + np.array([[1.0, 0, 0], [-1.0, 0, 0]])) == 90.0
+    # along a line seen end on: no spread at all
+    assert position_spread_deg(np.zeros(3), np.outer(np.arange(1, 5), [0, 1.0, 0])) == 0.0
+
+    def data(task, fixed, moving):
+        n = len(moving)
+        f = np.tile(fixed, (n, 1))
+        return SimpleNamespace(train=np.arange(n), task=task,
+                               positions=lambda idx: (moving[idx], f[idx], moving[idx]) if task == "rx"
+                               else (f[idx], moving[idx], moving[idx]))
+
+    walk_rx, walk_tx, tag_tx = data("rx", corner, room), data("tx", corner, room), data("tx", gateway, tags)
+    assert spreads_wide(walk_rx) and spreads_wide(walk_tx) and not spreads_wide(tag_tx)
+    c = CoherentGaussianConfig()
+    assert [scan_planes(c, d) for d in (walk_rx, walk_tx, tag_tx)] == [0, 0, SCAN_PLANES]
+    assert [uses_pursuit(c, d) for d in (walk_rx, walk_tx, tag_tx)] == [True, True, False]
+    c = CoherentGaussianConfig(images=3, pursuit="on")
+    assert scan_planes(c, walk_rx) == 3 and uses_pursuit(c, tag_tx)
+    assert not uses_pursuit(CoherentGaussianConfig(pursuit="off"), walk_tx)

@@ -47,3 +47,19 @@ def test_array_response_shape_mismatch():
 def test_describe_records_geometry():
     d = antenna.describe(2.4e9)
     assert d["rows"] == 4 and d["cols"] == 4 and len(d["element_positions_m"]) == 16
+
+
+def test_half_power_beamwidth_is_where_the_array_response_falls_3_db():
+    from rfmitsuba.rf.array import array_response, half_power_beamwidth_deg, unit_vectors
+
+    bw = half_power_beamwidth_deg()
+    assert abs(bw - np.degrees(0.886 / 2)) < 1.5                  # the long-row rule, 25.4 degrees
+    # the 4x4 array's Bartlett power towards broadside, for a plane wave tilted by bw / 2 in x-z
+    f = 2.4e9
+    half = np.radians(bw / 2)
+    def h(theta):
+        return array_response(np.ones((1, 1)), unit_vectors(np.array([theta]), np.array([0.0]))[None], frequency_hz=f)
+
+    a, b = h(half).ravel().astype(np.complex128), h(0.0).ravel().astype(np.complex128)
+    gain = abs(np.vdot(b, a)) / abs(np.vdot(b, b))
+    assert abs(gain - 2 ** -0.5) < 1e-5

@@ -71,12 +71,17 @@ def test_candidates_lie_beyond_the_positions_and_picks_keep_apart():
     axis, off = plane_candidates(np.array([[0.3, 1.0, 0.5], [2.0, 3.0, 2.0]]), step=0.5, margin=1.0)
     assert sorted(off[axis == 0].tolist()) == [-0.7, -0.2, 2.5, 3.0]
     assert sorted(off[axis == 2].tolist()) == [-0.5, 0.0, 2.5, 3.0]
-    score = np.array([5.0, 4.9, 4.0, 3.0, 2.0, -1.0])
-    ax = np.array([0, 0, 1, 0, 2, 2])
-    of = np.array([0.0, 0.1, 0.0, 1.0, 3.0, 0.0])
-    # 1 is 0.1 m from 0 on x; 3 is 0.05 m from an existing plane on x; 5 scores below zero
-    got = pick_planes(score, ax, of, count=6, existing_axis=np.array([0]), existing_offset=np.array([1.05]))
-    assert got == [0, 2, 4]
+    score = np.array([5.0, 4.9, 4.0, 3.0, 2.5, 2.0, -1.0])
+    ax = np.array([0, 0, 1, 0, 0, 2, 2])
+    of = np.array([0.0, 0.1, 0.0, 1.0, 1.2, 3.0, 0.0])
+    # 1 is 0.1 m from the pick 0 on x (min_separation 0.3); 3 is 0.05 m from the field's plane
+    # x = 1.05 (existing_separation 0.08), 4 is 0.15 m from it: a misplaced plane does not hide
+    # the wall beside it; 6 scores below zero
+    got = pick_planes(score, ax, of, count=7, existing_axis=np.array([0]), existing_offset=np.array([1.05]))
+    assert got == [0, 2, 4, 5]
+    got = pick_planes(score, ax, of, count=7, existing_axis=np.array([0]), existing_offset=np.array([1.05]),
+                      existing_separation=0.3)
+    assert got == [0, 2, 5]
 
 
 def test_new_images_are_the_single_and_double_reflections():
@@ -199,10 +204,15 @@ def test_only_an_unknown_rooms_field_with_the_pursuit_on_gets_one():
     field.cfg = dataclasses.replace(field.cfg, pursuit_planes=2, pursuit_at=(0.2, 0.6))
     got = pursuit_for(field, **kw)
     assert isinstance(got, PlanePursuit) and got.steps == [20, 60]
-    moving_tx = dict(kw, data=SimpleNamespace(**{**vars(data), "task": "tx"}))
-    assert pursuit_for(field, **moving_tx) is None               # "auto": a moving transmitter
+    # "auto": off for tags in a patch 5 m from a fixed gateway (within the array's beam)
+    rng = np.random.default_rng(0)
+    tags = np.c_[rng.uniform(1.0, 2.6, 4), rng.uniform(0.5, 1.8, 4), rng.uniform(0.5, 1.4, 4)]
+    gateway = np.tile([7.0, 1.2, 1.0], (4, 1))
+    patch = dict(kw, data=SimpleNamespace(**{**vars(data), "task": "tx",
+                                             "positions": lambda idx: (gateway[idx], tags[idx], tags[idx])}))
+    assert pursuit_for(field, **patch) is None
     field.cfg = dataclasses.replace(field.cfg, pursuit="on")
-    assert isinstance(pursuit_for(field, **moving_tx), PlanePursuit)
+    assert isinstance(pursuit_for(field, **patch), PlanePursuit)
     field.cfg = dataclasses.replace(field.cfg, pursuit="off")
     assert pursuit_for(field, **kw) is None
     field.cfg = dataclasses.replace(field.cfg, pursuit="on")
