@@ -244,11 +244,13 @@ class CoherentGaussianConfig:
         gradient of the loss at each candidate image's gain); 0: none. One at a time, refitted
         in between, is matching pursuit proper; more planes at once pick non-walls (blind bedroom
         RX, seed 0, with the scan's 12 planes: one at each of five steps 0.860; 2 at 20% and 50%
-        0.850; 4 at 25% 0.846; 6 at 25% 0.839).
+        0.850; 4 at 25% 0.846; 6 at 25% 0.839). From no scanned plane, blind bedroom TX, seed 0,
+        15 rounds: one plane each 0.877 with 250 sources, two 0.888 with 709 (NN 0.723): the
+        knee of the parsimony curve is at one.
     pursuit_at: fractions of the run's iterations at which planes are added, each in (0, 1);
         by default every 4% from 4% to 60% (15 planes). Blind bedroom TX, seed 0, 3000 steps at
         batch 8, no scanned plane: five rounds at 10-50% 0.784 (114 sources), fifteen 0.877 (250
-        sources; NN 0.723). A walked room's field starts from the direct path and its scatterers
+        sources), 25 at 3-75% 0.885 (516 sources; NN 0.723). A walked room's field starts from the direct path and its scatterers
         alone, so the pursuit must supply every wall.
     pursuit_views: training views (evenly spaced) over which a pursuit sums the gradient.
     """
