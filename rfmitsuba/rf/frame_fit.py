@@ -96,6 +96,40 @@ def _candidates(max_angle: float, count: int, seed: int) -> np.ndarray:
     return np.concatenate([np.zeros((1, 3)), d * r[:, None]])
 
 
+def line_of_sight_views(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_world: np.ndarray | None,
+                        max_views: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """The views a line-of-sight fit scores, checked: at most ``max_views`` of ``pas`` (float
+    [N, H, 4H]), evenly spread, and each one's line-of-sight direction in the array frame.
+
+    Args:
+        pas: float [N, H, W] PAS; x, y: float [N, 3] array centres and transmitters [m, world];
+        rx_to_world: float [3, 3] array frame -> world, or None (identity); what: the caller's
+        name for the errors.
+    Returns:
+        (float64 [n, H, W] PAS, float64 [n, 3] unit directions from the array to the transmitter).
+    Raises:
+        ConfigError: shapes that do not match, non-finite values, fewer than 2 views, or a
+            transmitter at the array centre.
+    """
+    pas = np.asarray(pas, np.float64)
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    if pas.ndim != 3 or pas.shape[2] != 4 * pas.shape[1] or x.shape != (len(pas), 3) or y.shape != x.shape:
+        raise ConfigError(f"{what}: pas [N, H, 4H] with x, y [N, 3] required, got {pas.shape}, {x.shape}, "
+                          f"{y.shape}")
+    if len(pas) < 2 or not (np.isfinite(pas).all() and np.isfinite(x).all() and np.isfinite(y).all()):
+        raise ConfigError(f"{what}: at least 2 views of finite PAS and positions required")
+    los = y - x
+    dist = np.linalg.norm(los, axis=1, keepdims=True)
+    if (dist < 1e-6).any():
+        raise ConfigError(f"{what}: a transmitter sits at the array centre (no line-of-sight direction)")
+    if len(pas) > max_views:
+        keep = np.unique(np.linspace(0, len(pas) - 1, max_views).round().astype(np.int64))
+        pas, los, dist = pas[keep], los[keep], dist[keep]
+    R = np.eye(3) if rx_to_world is None else np.asarray(rx_to_world, np.float64).reshape(3, 3)
+    return pas, (los / dist) @ R
+
+
 def los_frame_fit(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_world: np.ndarray | None,
                   frequency_hz: float, max_views: int = 48, max_angle_deg: float = 60.0,
                   candidates: int = 400, refine: int = 4, seed: int = 0) -> FrameFit:
@@ -120,23 +154,7 @@ def los_frame_fit(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_world:
     """
     from scipy.optimize import minimize
 
-    pas = np.asarray(pas, np.float64)
-    x = np.asarray(x, np.float64)
-    y = np.asarray(y, np.float64)
-    if pas.ndim != 3 or pas.shape[2] != 4 * pas.shape[1] or x.shape != (len(pas), 3) or y.shape != x.shape:
-        raise ConfigError(f"los_frame_fit: pas [N, H, 4H] with x, y [N, 3] required, got {pas.shape}, {x.shape}, "
-                          f"{y.shape}")
-    if len(pas) < 2 or not (np.isfinite(pas).all() and np.isfinite(x).all() and np.isfinite(y).all()):
-        raise ConfigError("los_frame_fit: at least 2 views of finite PAS and positions required")
-    los = y - x
-    dist = np.linalg.norm(los, axis=1, keepdims=True)
-    if (dist < 1e-6).any():
-        raise ConfigError("los_frame_fit: a transmitter sits at the array centre (no line-of-sight direction)")
-    if len(pas) > max_views:
-        keep = np.unique(np.linspace(0, len(pas) - 1, max_views).round().astype(np.int64))
-        pas, los, dist = pas[keep], los[keep], dist[keep]
-    R = np.eye(3) if rx_to_world is None else np.asarray(rx_to_world, np.float64).reshape(3, 3)
-    u = (los / dist) @ R                                               # [N, 3] stated array frame
+    pas, u = line_of_sight_views(pas, x, y, rx_to_world=rx_to_world, max_views=max_views, what="los_frame_fit")
     img = pas.reshape(len(pas), -1)
     img = img - img.mean(1, keepdims=True)
     img /= np.maximum(np.linalg.norm(img, axis=1, keepdims=True), 1e-12)

@@ -580,7 +580,8 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
     corr = {}
     for mode in ("apply", "off"):
         cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
-                                         "coherent_gaussians.scatterers=0", f'coherent_gaussians.frame_search="{mode}"'])
+                                         "coherent_gaussians.scatterers=0", f'coherent_gaussians.frame_search="{mode}"',
+                                         'coherent_gaussians.calibration_search="off"'])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
@@ -595,7 +596,7 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
             assert f.init_report == {} and not np.asarray(f.params["pose"].numpy()).any()
     assert corr["apply"] > 0.99 > 0.9 > corr["off"]
     cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
-                                     "coherent_gaussians.scatterers=0"])
+                                     "coherent_gaussians.scatterers=0", 'coherent_gaussians.calibration_search="off"'])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
@@ -704,3 +705,50 @@ def test_positions_within_the_beam_get_the_scan_and_wider_ones_the_pursuit():
     c = CoherentGaussianConfig(images=3, pursuit="on")
     assert scan_planes(c, walk_rx) == 3 and uses_pursuit(c, tag_tx)
     assert not uses_pursuit(CoherentGaussianConfig(pursuit="off"), walk_tx)
+
+
+def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
+    """Phase-only spectra (a NeRF2 folder) of an array whose elements carry offsets anywhere in
+    +-180 degrees: by default ("auto") the initial field's line of sight draws the data's PAS at
+    correlation > 0.99 (``cal`` starts at the fitted offsets, the run summary says so); with the
+    search off, at under 0.5."""
+    import sys
+    from types import SimpleNamespace
+
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.base import Views, render
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
+    from rfmitsuba.train.config import TrainConfig
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "rf"))
+    from test_calibration_fit import F as F920, los_data_with_offsets
+
+    true = np.random.default_rng(3).uniform(-np.pi, np.pi, 16)
+    pas, x, y = los_data_with_offsets(true, n=24)
+    data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=None, frequency_hz=F920, measured=False,
+                           readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
+                           pas=lambda idx, d=1: pas[idx] if d == 2 else None)
+    views = Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F920, task="tx")
+    corr = {}
+    for mode in ("auto", "off"):
+        cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
+                                         "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
+                                         f'coherent_gaussians.calibration_search="{mode}"'])
+        f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
+        img = np.asarray(render([f], views, height=45, width=180))
+        a = img.reshape(len(x), -1) - img.reshape(len(x), -1).mean(1, keepdims=True)
+        b = pas.reshape(len(x), -1) - pas.reshape(len(x), -1).mean(1, keepdims=True)
+        corr[mode] = float(np.mean((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)))
+        cal = np.asarray(f.params["cal"].numpy()).reshape(16, 2)
+        if mode == "auto":
+            rep = f.init_report["calibration_fit"]
+            assert rep["applied"] and rep["score"] > 0.99 > 0.5 > rep["stated_score"]
+            np.testing.assert_allclose(cal[:, 0] + 1j * cal[:, 1], np.exp(1j * np.radians(rep["phase_deg"])), atol=1e-5)
+        else:
+            assert "calibration_fit" not in f.init_report and np.allclose(cal, [1.0, 0.0])
+    assert corr["auto"] > 0.99 and corr["off"] < 0.5
+    with pytest.raises(ConfigError, match="calibration_search"):
+        CoherentGaussianConfig(calibration_search="on")
+    with pytest.raises(ConfigError, match="calibration_min_gain"):
+        CoherentGaussianConfig(calibration_min_gain=float("nan"))
