@@ -216,8 +216,8 @@ class CoherentGaussianConfig:
         stated frame 25-45 degrees off as well as a right one (0.948 +- 0.009).
     frame_min_gain: smallest gain in line-of-sight correlation that applies a correction [1].
     calibration_search: start the per-element calibration ``cal`` from a global search of the
-        elements' phase offsets (:func:`rfmitsuba.rf.calibration_fit.los_calibration_fit`, about
-        20 s on 2 cores) where it draws the line of sight better than no offset by at least
+        elements' phase offsets (:func:`rfmitsuba.rf.calibration_fit.los_calibration_fit`, 5-15
+        s on 2 cores) where it draws the line of sight better than no offset by at least
         ``calibration_min_gain``: "apply", "off", or "auto": "apply" for phase-only spectra (a
         NeRF2 folder) in an unknown room (with ``calibrate``), else "off". Gradient descent from no offset finds
         offsets of tens of degrees but not offsets anywhere in +-180 degrees, as real arrays
