@@ -120,6 +120,10 @@ def los_calibration_fit(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_
         """Mean correlation over views of |sums| ([..., N, P]) with the PAS: [...]."""
         return (_unit_rows(np.abs(sums)) * img).sum(-1).mean(-1)
 
+    def score_at(c: np.ndarray) -> float:
+        """The score of offsets ``c`` (float [M] rad)."""
+        return float(score_of(np.einsum("nmp,m->np", terms, np.exp(1j * c))))
+
     def search(c: np.ndarray, grid: np.ndarray, passes: int) -> tuple[np.ndarray, float]:
         c = c.copy()
         rot = np.exp(1j * grid)[:, None, None]
@@ -133,7 +137,7 @@ def los_calibration_fit(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_
         return c, float(score_of(total))
 
     none = np.zeros(m_count)
-    stated = float(score_of(np.einsum("nmp,m->np", terms, np.exp(1j * none))))
+    stated = score_at(none)
     rng = np.random.default_rng(seed)
     grid = 2.0 * np.pi * np.arange(steps) / steps
     starts = [none] + [np.concatenate([[0.0], rng.uniform(0, 2 * np.pi, m_count - 1)]) for _ in range(restarts)]
@@ -157,8 +161,8 @@ def los_calibration_fit(pas: np.ndarray, x: np.ndarray, y: np.ndarray, *, rx_to_
     # phase stays linear under it); of the two, keep the one nearer no offset (|sum_m g_m|)
     twin = -best_c[::-1]
     twin = twin - twin[0]
-    t_score = float(score_of(np.einsum("nmp,m->np", terms, np.exp(1j * twin))))
+    t_score = score_at(twin)
     if t_score >= best_s - 1e-3 and abs(np.exp(1j * twin).sum()) > abs(np.exp(1j * best_c).sum()):
-        best_c, best_s = twin, max(best_s, t_score)
+        best_c, best_s = twin, t_score
     phase = np.angle(np.exp(1j * best_c))                               # in (-pi, pi]
     return CalibrationFit(phase_rad=phase, score=best_s, stated_score=stated)
