@@ -183,6 +183,12 @@ class Field:
     def feature_octaves(self) -> int | None:
         return None
 
+    @property
+    def starts_advised(self) -> int:
+        """Training starts this initial field advises (``TrainConfig.starts = 0``): 1 unless its
+        start is known to lead training into local minima now and then (a subclass says why)."""
+        return 1
+
     # ---- parameters --------------------------------------------------------------------
     @property
     def num_primitives(self) -> int:

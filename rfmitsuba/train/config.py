@@ -66,6 +66,11 @@ class TrainConfig:
     gradients' atomic adds run in no fixed order and Adam amplifies the last-bit differences, so
     two runs of one configuration differ (NeRF2-like, seed 0, 3000 steps: test SSIM 0.955 and
     0.940); 1 makes a run bit-reproducible, at about twice the time on 2 cores.
+    starts: training starts (0 = as many as the field advises, ``Field.starts_advised``: 1, or 2
+    for a coherent Gaussian field whose elements' offsets were searched). With more than one,
+    each start trains its own copy of the initial field with its own batches for a tenth of
+    the run (:func:`rfmitsuba.train.trainer.start_steps`) and the one with the best validation
+    SSIM trains on (the others' steps count as training time; ``starts.json`` in the run folder).
     model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
     :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
     (:func:`rfmitsuba.models.base.field_class`): "splat"
@@ -95,6 +100,7 @@ class TrainConfig:
     max_train_positions: int = 0
     state: int = 0
     threads: int = 0
+    starts: int = 0
     model: str = "splat"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
@@ -123,6 +129,8 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.split must be 'dataset', 'block' or 'random', got {self.split!r}")
         if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
             raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
+        if not 0 <= self.starts <= 16:
+            raise ConfigError(f"TrainConfig.starts must be in 0..16 (0 = as the field advises), got {self.starts}")
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and self.threads >= 0):
             raise ConfigError(f"TrainConfig.threads must be an integer >= 0 (0 = all cores), got {self.threads!r}")
 

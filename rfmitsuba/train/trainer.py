@@ -15,6 +15,8 @@ Run folder layout::
     run.json         dataset path, task, split sizes, package versions
     split.json       train / validation / test antenna indices
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    starts.json      with several training starts (TrainConfig.starts): each start's validation
+                     SSIM and loss after start_steps(iterations) steps, and the one kept
     checkpoint/      latest resumable state (written atomically)
     final/field.npz  the trained field (rfmitsuba.models.base.load_field)
     final/summary.json
@@ -344,9 +346,6 @@ class Trainer:
             dr.set_thread_count(threads)
 
     def _run(self, *, stop_at: int | None = None) -> dict:
-        import drjit as dr
-        from drjit.opt import Adam
-
         B.ensure()
         cfg = self.cfg
         summary_file = self.run_dir / "final" / "summary.json"
@@ -364,13 +363,7 @@ class Trainer:
         fit = split["fit"]
         probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
 
-        opt = Adam(lr=1e-3)
-        for k, v in field.trainable().items():
-            opt[self.prefix + k] = v
-        strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=d, prefix=self.prefix,
-                               iterations=cfg.iterations, loss_fn=loss_fn) \
-            or make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
-
+        opt, strategy = self._optimizer(field, fit, loss_fn)
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
         train_time = meta["train_time_s"] if meta else 0.0
@@ -379,7 +372,12 @@ class Trainer:
         self._pull(field, opt)
 
         probe_views = self.views(probe)
-
+        n_starts = cfg.starts or field.starts_advised
+        if meta is None and n_starts > 1:
+            field, opt, strategy, rng, start, train_time, val_hist = self._choose_start(
+                field, opt, strategy, rng, n_starts, split=split, gt_fit=gt_fit, gt_val=gt_val, loss_fn=loss_fn,
+                probe_views=probe_views)
+            self.field = field
 
         pbar = bar(total=cfg.iterations, desc=f"train {self.run_dir.name}", unit="step", quiet=self.quiet,
                    initial=start)
@@ -396,26 +394,9 @@ class Trainer:
                 if cfg.time_limit_s and train_time >= cfg.time_limit_s:
                     stopped = "time_limit"
                     break
-                lrs = self._lrs(step, train_time)
-                for k in list(opt.keys()):
-                    opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
-                pick = rng.choice(len(fit), size=min(cfg.batch_views, len(fit)), replace=False)
-                idx = fit[pick]
-                pred = self.render(field, idx)
-                gt = B.TensorXf(gt_fit[pick])
-                loss = loss_fn(pred, gt)
-                dr.backward(loss)
-                strategy.after_backward(field)
-                opt.step()
-                self._pull(field, opt)
-                lv = float(np.asarray(loss.numpy()).ravel()[0])
-                if not math.isfinite(lv):
-                    raise RunError(f"loss became {lv} at step {step + 1}; lower the learning rates "
-                                   f"(checkpoint of step {start} kept)")
+                lv = self._step(field, opt, strategy, rng, step, train_time, fit=fit, gt_fit=gt_fit,
+                                loss_fn=loss_fn, probe_views=probe_views, kept=start)
                 step += 1
-                changed = strategy.step_end(step, field, opt, rng=rng, probe_views=probe_views)
-                if changed:
-                    self._pull(field, opt)
                 log_loss += lv
                 log_n += 1
                 now = time.perf_counter()
@@ -445,6 +426,89 @@ class Trainer:
         if step % cfg.checkpoint_every != 0:
             self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
         return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
+
+    def _optimizer(self, field: Field, fit: np.ndarray, loss_fn) -> tuple:
+        """A fresh Adam over ``field``'s trainable parameters and its density (or pursuit) strategy."""
+        from drjit.opt import Adam
+
+        cfg = self.cfg
+        opt = Adam(lr=1e-3)
+        for k, v in field.trainable().items():
+            opt[self.prefix + k] = v
+        strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=cfg.downsample,
+                               prefix=self.prefix, iterations=cfg.iterations, loss_fn=loss_fn) \
+            or make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
+        return opt, strategy
+
+    def _step(self, field, opt, strategy, rng, step: int, train_time: float, *, fit, gt_fit, loss_fn, probe_views,
+              kept: int) -> float:
+        """One optimizer step (step ``step`` -> ``step + 1``) on a batch drawn by ``rng``; returns
+        the batch's loss. ``kept``: the step of the checkpoint a diverging loss names."""
+        import drjit as dr
+
+        lrs = self._lrs(step, train_time)
+        for k in list(opt.keys()):
+            opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
+        pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
+        pred = self.render(field, fit[pick])
+        loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
+        dr.backward(loss)
+        strategy.after_backward(field)
+        opt.step()
+        self._pull(field, opt)
+        lv = float(np.asarray(loss.numpy()).ravel()[0])
+        if not math.isfinite(lv):
+            raise RunError(f"loss became {lv} at step {step + 1}; lower the learning rates "
+                           + (f"(checkpoint of step {kept} kept)" if kept else "(no checkpoint was written yet)"))
+        if strategy.step_end(step + 1, field, opt, rng=rng, probe_views=probe_views):
+            self._pull(field, opt)
+        return lv
+
+    def _choose_start(self, field, opt, strategy, rng, n_starts: int, *, split, gt_fit, gt_val, loss_fn,
+                      probe_views) -> tuple:
+        """Train ``n_starts`` copies of the initial ``field`` for :func:`start_steps` steps each,
+        start ``k`` drawing its batches from its own generator (start 0 from ``rng``, the others
+        from ``default_rng([seed, k])``), and keep the one with the best validation SSIM (the
+        lowest training loss over the last quarter of its steps without validation positions).
+        Writes ``starts.json``. Returns (field, opt, strategy, rng, step, train_time, val_history)
+        of the start kept; every start's steps count as training time."""
+        cfg = self.cfg
+        n = start_steps(cfg.iterations)
+        init_state = field.state_dict()
+        report = getattr(field, "init_report", None)
+        pbar = bar(total=n * n_starts, desc=f"starts {self.run_dir.name}", unit="step", quiet=self.quiet)
+        t0, runs = time.perf_counter(), []
+        for k in range(n_starts):
+            if k:
+                field = type(field).from_state_dict(init_state)
+                if report is not None:
+                    field.init_report = report
+                opt, strategy = self._optimizer(field, split["fit"], loss_fn)
+                self._pull(field, opt)
+                rng = np.random.default_rng([cfg.seed, k])
+            losses = []
+            for i in range(n):
+                losses.append(self._step(field, opt, strategy, rng, i, time.perf_counter() - t0, fit=split["fit"],
+                                         gt_fit=gt_fit, loss_fn=loss_fn, probe_views=probe_views, kept=0))
+                pbar.update(1)
+            t1 = time.perf_counter()
+            val = self.validate(field, split["val"], gt_val)
+            t0 += time.perf_counter() - t1            # validation is not training time
+            runs.append({"start": k, "val_ssim": val, "loss": float(np.mean(losses[-max(1, n // 4):])),
+                         "state": (field, opt, strategy, rng)})
+        train_time = time.perf_counter() - t0
+        pbar.close()
+        score = [(r["val_ssim"] if math.isfinite(r["val_ssim"]) else -r["loss"]) for r in runs]
+        best = runs[int(np.argmax(score))]
+        _write_json(self.run_dir / "starts.json", {
+            "steps": n, "chosen": best["start"], "train_time_s": train_time,
+            "starts": [{k: v for k, v in r.items() if k != "state"} for r in runs],
+            "rule": "best validation SSIM after the steps (lowest training loss without validation positions)"})
+        val_hist = [{"step": n, "val_ssim": best["val_ssim"], "n_gaussians": best["state"][0].num_primitives,
+                     "time_s": train_time}]
+        self._log({"step": n, "loss": best["loss"], "n_gaussians": best["state"][0].num_primitives,
+                   "time_s": round(train_time, 3), "val_ssim": best["val_ssim"], "start": best["start"]})
+        return (*best["state"], n, train_time, val_hist)
 
     def _pull(self, field: Field, opt) -> None:
         vals = {k[len(self.prefix):]: opt[k] for k in opt.keys() if k.startswith(self.prefix)}
@@ -483,6 +547,12 @@ class Trainer:
             summary["init"] = field.init_report
         _write_json(fd / "summary.json", summary)
         return summary
+
+
+def start_steps(iterations: int) -> int:
+    """Steps each start trains before one is kept (``TrainConfig.starts``): a tenth of the run,
+    within 50..1000 and at most ``iterations - 1``."""
+    return int(max(1, min(iterations - 1, max(50, min(1000, round(0.1 * iterations))))))
 
 
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:

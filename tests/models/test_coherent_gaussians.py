@@ -730,25 +730,37 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
                            readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
                            pas=lambda idx, d=1: pas[idx] if d == 2 else None)
     views = Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F920, task="tx")
-    corr = {}
-    for mode in ("auto", "off"):
+    corr, phase = {}, {}
+    for mode in ("auto", "other", "off"):
         cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
                                          "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
-                                         f'coherent_gaussians.calibration_search="{mode}"'])
+                                         'coherent_gaussians.calibration_search="{}"'.format(
+                                             "auto" if mode == "other" else mode),
+                                         'coherent_gaussians.calibration_twin="{}"'.format(
+                                             "other" if mode == "other" else "nearer")])
         f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
         img = np.asarray(render([f], views, height=45, width=180))
         a = img.reshape(len(x), -1) - img.reshape(len(x), -1).mean(1, keepdims=True)
         b = pas.reshape(len(x), -1) - pas.reshape(len(x), -1).mean(1, keepdims=True)
         corr[mode] = float(np.mean((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)))
         cal = np.asarray(f.params["cal"].numpy()).reshape(16, 2)
-        if mode == "auto":
+        if mode != "off":
             rep = f.init_report["calibration_fit"]
             assert rep["applied"] and rep["score"] > 0.99 > 0.5 > rep["stated_score"]
+            assert rep["twin"] == ("other" if mode == "other" else "nearer")
             np.testing.assert_allclose(cal[:, 0] + 1j * cal[:, 1], np.exp(1j * np.radians(rep["phase_deg"])), atol=1e-5)
+            phase[mode] = np.radians(rep["phase_deg"])
+            assert f.starts_advised == 2        # a searched calibration: two training starts
         else:
             assert "calibration_fit" not in f.init_report and np.allclose(cal, [1.0, 0.0])
-    assert corr["auto"] > 0.99 and corr["off"] < 0.5
+            assert f.starts_advised == 1
+    assert corr["auto"] > 0.99 and corr["other"] > 0.99 and corr["off"] < 0.5
+    # "other" starts at the twin of "auto"'s offsets: conj, element order reversed, re-referenced
+    twin = -phase["auto"][::-1] + phase["auto"][-1]
+    np.testing.assert_allclose(np.angle(np.exp(1j * (phase["other"] - twin))), 0.0, atol=1e-5)
     with pytest.raises(ConfigError, match="calibration_search"):
         CoherentGaussianConfig(calibration_search="on")
     with pytest.raises(ConfigError, match="calibration_min_gain"):
         CoherentGaussianConfig(calibration_min_gain=float("nan"))
+    with pytest.raises(ConfigError, match="calibration_twin"):
+        CoherentGaussianConfig(calibration_twin="trial")

@@ -72,6 +72,12 @@ def test_a_fit_and_its_twin_draw_the_same_spectra():
     twin_pas, _, _ = los_data_with_offsets(-true[::-1], seed=2)
     for a, b in zip(pas, twin_pas):
         assert np.corrcoef(a.ravel(), b.ravel())[0, 1] > 0.9999
+    # the fit hands back the other twin too: its reflection, re-referenced, with the same score
+    expect = np.angle(np.exp(1j * (-fit.phase_rad[::-1] + fit.phase_rad[-1])))
+    np.testing.assert_allclose(np.angle(np.exp(1j * (fit.twin_phase_rad - expect))), 0.0, atol=1e-9)
+    assert fit.twin_phase_rad[0] == 0.0 and abs(fit.twin_score - fit.score) < 1e-3
+    # of the two, the fit keeps the one nearer no offset
+    assert abs(fit.cal.sum()) >= abs(fit.twin_cal.sum()) - 1e-9
 
 
 def test_an_array_without_offsets_is_left_alone():

@@ -121,6 +121,44 @@ def test_one_thread_makes_a_run_bit_reproducible(tiny_ds, tmp_path):
         TrainConfig(threads=-1)
 
 
+def test_several_starts_keep_the_best_by_validation_and_resume(tiny_ds, tmp_path):
+    """starts = 2: both copies of the initial field train start_steps(80) = 50 steps on their own
+    batches, the one with the better validation SSIM goes on to step 80 (starts.json says which,
+    the log's first row is its step 50); a run stopped at step 65 resumes from its step-60
+    checkpoint without choosing again and ends bit-identical (one thread); starts outside 0..16
+    are refused by name."""
+    import dataclasses
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer, start_steps
+
+    assert start_steps(80) == 50 and start_steps(6000) == 600 and start_steps(30000) == 1000
+    assert start_steps(20) == 19
+    data = TrainData.open(tiny_ds)
+    cfg = dataclasses.replace(tiny_cfg(iterations=80), starts=2, threads=1)
+    a, b = tmp_path / "a", tmp_path / "b"
+    s = Trainer(cfg, data, a, quiet=True).run()
+    st = json.loads((a / "starts.json").read_text())
+    vals = [r["val_ssim"] for r in st["starts"]]
+    assert st["steps"] == 50 and len(vals) == 2 and vals[0] != vals[1]
+    assert st["chosen"] == int(np.argmax(vals))
+    rows = _rows(a)
+    assert rows[0]["step"] == 50 and rows[0]["start"] == st["chosen"] and rows[0]["val_ssim"] == max(vals)
+    assert s["steps"] == 80 and s["train_time_s"] >= st["train_time_s"]
+    assert Trainer(cfg, data, b, quiet=True).run(stop_at=65)["stopped"] == "stop_at"
+    (b / "starts.json").write_text("{}")          # resuming does not choose again
+    Trainer(cfg, data, b, quiet=True).run()
+    assert (b / "starts.json").read_text() == "{}"
+    with np.load(a / "final" / "field.npz") as za, np.load(b / "final" / "field.npz") as zb:
+        for k in za.files:
+            np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
+    for bad in (-1, 17):
+        with pytest.raises(ConfigError, match="starts"):
+            TrainConfig(starts=bad)
+
+
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
     from rfmitsuba.core.errors import RunError
     from rfmitsuba.data.views import TrainData
