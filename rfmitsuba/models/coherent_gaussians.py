@@ -128,6 +128,9 @@ LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img
 FRAME_WARN_GAIN = 0.05
 #: the visibility grid every field gets by default (cells along x, y, z), CoherentGaussianConfig.vis_grid
 DEFAULT_VIS_GRID = (4, 4, 2)
+#: an unknown room's default grid where it has at least DENSE_POSITIONS training positions
+DENSE_VIS_GRID = (8, 8, 4)
+DENSE_POSITIONS = 1000
 #: planes the data scan finds for an unknown room by default where the moving device's positions
 #: lie within the array's beam (CoherentGaussianConfig.images = None; elsewhere none: the pursuit)
 SCAN_PLANES = 12
@@ -245,7 +248,8 @@ class CoherentGaussianConfig:
         0.776 without, 0.878 with the true box, 0.867 with every wall 6-8 cm off, 0.837 with the
         four walls alone (NN 0.710, IDW-3 0.760). Every training position must lie inside it.
     vis_grid: cells (x, y, z) of each source's visibility grid over the training positions' box
-        (the module docstring); None: (4, 4, 2); (0, 0, 0): none. Known room (bedroom, room order
+        (the module docstring); None: (4, 4, 2), or (8, 8, 4) for an unknown room with 1000
+        training positions or more (:func:`default_vis_grid`); (0, 0, 0): none. Known room (bedroom, room order
         3, furniture order 2, 3 seeds): RX 0.949 -> 0.952, TX 0.941 -> 0.946. Unknown room (3
         seeds): bedroom RX 0.767 -> 0.777, TX 0.746 -> 0.756; NeRF2-like random split 0.936 ->
         0.948, block split 0.823 -> 0.830 (its anchored prediction 0.905 -> 0.891).
@@ -421,6 +425,19 @@ def uses_pursuit(cfg: CoherentGaussianConfig, data) -> bool:
     if cfg.pursuit != "auto":
         return cfg.pursuit == "on"
     return spreads_wide(data)
+
+
+def default_vis_grid(*, init: str, num_positions: int) -> tuple[int, int, int]:
+    """The visibility grid of ``vis_grid = None``: :data:`DENSE_VIS_GRID` for an unknown room
+    (``init`` "data") with at least :data:`DENSE_POSITIONS` distinct training positions, else
+    :data:`DEFAULT_VIS_GRID`. A finer grid draws finer shadows where the data are dense enough to
+    show them: NeRF2-like, 2000 tags (1600 training), seeds 0 / 1: 0.920 / 0.918 with (4, 4, 2),
+    0.925 / 0.926 (medians 0.942 / 0.944) with (8, 8, 4), 0.927 / 0.946 with (12, 12, 6) on seed
+    0 (IDW-3 0.919 / 0.938). With 160 training tags (8, 8, 4) scores 0.956 / 0.960 against
+    0.958 +- 0.001; the rooms' 720 positions keep the grid their figures were measured with."""
+    if init == "data" and num_positions >= DENSE_POSITIONS:
+        return DENSE_VIS_GRID
+    return DEFAULT_VIS_GRID
 
 
 def searches_calibration(cfg: CoherentGaussianConfig, data, *, room_known: bool) -> bool:
@@ -804,8 +821,6 @@ class CoherentGaussianField(FlatParameterField):
                               "the joint field, rfmitsuba.models.coherent_gaussians_joint)")
         c = cfg.coherent_gaussians
         init = c.init if c.init != "auto" else ("room" if scene_xml is not None else "data")
-        if c.vis_grid is None:
-            c = dataclasses.replace(c, vis_grid=DEFAULT_VIS_GRID)
         if init == "room" and c.room_box is not None:
             raise ConfigError(f"coherent_gaussians.room_box describes an unknown room, but dataset {data.path} is "
                               f"trained from its scene's XML (init 'room'); set coherent_gaussians.init=data to "
@@ -817,6 +832,8 @@ class CoherentGaussianField(FlatParameterField):
         wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
         idx = np.asarray(data.train, np.int64)
         x, y, q = data.positions(idx)
+        if c.vis_grid is None:
+            c = dataclasses.replace(c, vis_grid=default_vis_grid(init=init, num_positions=len(np.unique(q, axis=0))))
         depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
         min_seg = getattr(data, "min_segment", None) if c.segment_limit else None   # and its shortest segment
         # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many

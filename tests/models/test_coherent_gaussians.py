@@ -553,6 +553,27 @@ def test_unknown_room_gets_the_default_visibility_grid():
     assert off.grid_cells == 0 and "vis_grid" not in off.parameters()
 
 
+def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
+    """vis_grid = None: (8, 8, 4) for an unknown room with DENSE_POSITIONS distinct training
+    positions or more, (4, 4, 2) below that and for a known room at any count; a grid set in the
+    config is kept."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.models import coherent_gaussians as cg
+    from rfmitsuba.train.config import TrainConfig
+
+    assert cg.default_vis_grid(init="data", num_positions=cg.DENSE_POSITIONS) == cg.DENSE_VIS_GRID == (8, 8, 4)
+    assert cg.default_vis_grid(init="data", num_positions=cg.DENSE_POSITIONS - 1) == cg.DEFAULT_VIS_GRID
+    assert cg.default_vis_grid(init="room", num_positions=10 * cg.DENSE_POSITIONS) == cg.DEFAULT_VIS_GRID
+    monkeypatch.setattr(cg, "DENSE_POSITIONS", 10)     # the stub's 10 positions count as dense
+    data, _, _ = _stub_training_data(10, seed=1)
+    small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
+    f = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
+    assert f.cfg.vis_grid == (8, 8, 4) and f.grid_cells == 256
+    g = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small + ["coherent_gaussians.vis_grid=[2,2,2]"]),
+                                              data, scene_xml=None)
+    assert g.grid_cells == 8
+
+
 def test_frame_search_starts_the_pose_at_the_corrected_frame():
     """A measured folder whose stated gateway frame is 30 degrees off: with the frame search the
     initial field's line of sight draws the data's PAS (the pose starts at the correction, the
