@@ -440,18 +440,6 @@ def default_vis_grid(*, init: str, num_positions: int) -> tuple[int, int, int]:
     return DEFAULT_VIS_GRID
 
 
-def searches_calibration(cfg: CoherentGaussianConfig, data, *, room_known: bool) -> bool:
-    """Whether a field of ``cfg`` searches its elements' phase offsets at its start
-    (``cfg.calibration_search``; "auto": for phase-only spectra in an unknown room, with
-    ``calibrate``). ``data``: the :class:`~rfmitsuba.data.views.TrainData` (its ``readout``);
-    ``room_known``: whether the field starts from the room's XML."""
-    if cfg.calibration_search != "auto":
-        return cfg.calibration_search == "apply"
-    init = cfg.init if cfg.init != "auto" else ("room" if room_known else "data")
-    readout = cfg.readout if cfg.readout != "auto" else str(getattr(data, "readout", "amplitude"))
-    return readout == "phase_only" and init == "data" and bool(cfg.calibrate)
-
-
 # ------------------------------------------------------------------------------ initialisation
 
 def pas_lookup(pas: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -877,7 +865,9 @@ class CoherentGaussianField(FlatParameterField):
                                    "stated_score": fit.stated_score, "min_gain": c.frame_min_gain}
             if applied:
                 frame = fit.rx_to_world(stated)
-        if searches_calibration(c, data, room_known=scene_xml is not None):
+        cal_search = c.calibration_search if c.calibration_search != "auto" else \
+            ("apply" if readout == "phase_only" and init == "data" and c.calibrate else "off")
+        if cal_search == "apply":
             cal_fit = los_calibration_fit(pas, xs, ys, rx_to_world=frame, frequency_hz=data.frequency_hz,
                                           seed=cfg.seed)
             twin = c.calibration_twin == "other"
