@@ -219,8 +219,8 @@ class CoherentFamily(Field):
         for k, m in self._modules().items():
             if k in state:
                 w = np.asarray(state[k], np.float32).ravel()
-                if w.shape != (m.num_parameters,):
-                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.num_parameters} weights, "
+                if w.shape != (m.buffer_size,):
+                    raise RunError(f"{type(self).__name__} state {k!r}: expected {m.buffer_size} weights, "
                                    f"got {w.shape[0]}")
                 m.set_weights(w)
 

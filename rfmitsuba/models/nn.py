@@ -48,6 +48,9 @@ class NetConfig:
     host_products: on the LLVM backend, run the MLPs' matrix products on the host's BLAS
         (:class:`MLP`); False: Dr.Jit cooperative vectors, as on CUDA. Same values and
         gradients; ``rfmitsuba bench splat`` times a Stage-1 step both ways.
+    precision: number format of the cooperative-vector products, "auto" (half on CUDA, where
+        Dr.Jit 1.5 packs only half-precision matrices; single on LLVM), "single" or "half"
+        (float16 products and inputs, float32 master weights: :class:`MLP`).
     """
 
     encoding: Literal["sin", "tri", "hashgrid"] = "sin"
@@ -63,8 +66,11 @@ class NetConfig:
     hash_per_level_scale: float = 1.6
     signal_bias: float = -2.0
     host_products: bool = True
+    precision: Literal["auto", "single", "half"] = "auto"
 
     def __post_init__(self) -> None:
+        if self.precision not in PRECISIONS:
+            raise ConfigError(f"NetConfig.precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         for name in ("gaussian_octaves", "antenna_octaves", "branch_layers", "head_layers"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"NetConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -74,8 +80,29 @@ class NetConfig:
             raise ConfigError("NetConfig: hash_levels and hash_features must be >= 1")
 
 
-def _tensor_type():
-    return B.ensure().TensorXf
+#: Number formats of :class:`MLP`'s products ("auto": :func:`resolve_precision`).
+PRECISIONS = ("auto", "single", "half")
+
+
+def resolve_precision(precision: str = "auto") -> str:
+    """The number format an :class:`MLP` runs in: "auto" is "half" on CUDA and "single" on LLVM.
+
+    Raises:
+        ConfigError: an unknown name, or "single" on CUDA (Dr.Jit 1.5 converts only half-precision
+            matrices to the layout its CUDA cooperative vectors need for training).
+    """
+    if precision not in PRECISIONS:
+        raise ConfigError(f"MLP precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "auto":
+        return "half" if B.is_cuda() else "single"
+    if precision == "single" and B.is_cuda():
+        raise ConfigError("MLP precision 'single' is not available on CUDA: Dr.Jit 1.5 packs only half-precision "
+                          "matrices for cooperative vectors there; use 'half' or 'auto'")
+    return precision
+
+
+def _tensor_type(*, half: bool = False):
+    return B.ensure().TensorXf16 if half else B.ensure().TensorXf
 
 
 def encode(inputs: list, *, octaves: int, kind: str = "sin") -> list:
@@ -285,7 +312,11 @@ class MLP:
     With ``host=True`` on the LLVM backend the products run on the host's BLAS
     (:class:`_HostMLP`, a custom AD op: weight gradients as one product instead of atomic
     adds); otherwise (the default, and always on CUDA) as Dr.Jit cooperative vectors. Both give
-    the same values and gradients (tests/models/test_nn.py). The host pays off for the splat
+    the same values and gradients (tests/models/test_nn.py). ``precision="half"`` (the default on
+    CUDA, where Dr.Jit 1.5 packs only half-precision matrices for training) keeps float32
+    master weights as :attr:`weights` and runs the products on float16 copies of weights and
+    inputs (outputs back in float32; gradients flow to the master through the casts); values
+    agree with single precision to about 1e-3 relative. The host pays off for the splat
     field's EM network (40 000 rows per call; :attr:`NetConfig.host_products`), not for small
     networks called often: the coherent model's gain network trained its test run in 52-57 s on
     the host against 34 s as cooperative vectors.
@@ -293,49 +324,91 @@ class MLP:
 
     def __init__(self, n_in: int, n_out: int, *, width: int, layers: int, seed: int,
                  out_bias: list[float] | None = None, input_layer: bool = True, zero_output: bool = False,
-                 host: bool = False):
+                 host: bool = False, precision: str = "auto"):
         import drjit as dr
         import drjit.nn as nn
 
         self.n_in, self.n_out = n_in, n_out
+        #: "single" or "half" (:func:`resolve_precision`)
+        self.precision = resolve_precision(precision)
+        half = self.precision == "half"
         mods = []
         for _ in range(layers):
             mods += [nn.Linear(-1, width), nn.LeakyReLU(0.01)]
         mods.append(nn.Linear(-1, n_out))
-        net = nn.Sequential(*mods).alloc(_tensor_type(), n_in, rng=dr.rng(seed=int(seed) + 0x1000))
+        tensor = _tensor_type(half=half)
+        net = nn.Sequential(*mods).alloc(tensor, n_in, rng=dr.rng(seed=int(seed) + 0x1000))
         if out_bias is not None:
-            net.layers[-1].bias = _tensor_type()(np.asarray(out_bias, dtype=np.float32))
+            net.layers[-1].bias = tensor(np.asarray(out_bias, dtype=np.float16 if half else np.float32))
         if zero_output:  # the network starts as the constant out_bias (its last layer learns first)
-            net.layers[-1].weights = dr.zeros(_tensor_type(), net.layers[-1].weights.shape)
+            net.layers[-1].weights = dr.zeros(tensor, net.layers[-1].weights.shape)
+        self._num_parameters = sum(int(np.prod(m.weights.shape)) + int(m.bias.shape[0])
+                                   for m in net.layers if isinstance(m, nn.Linear))
         self.net = nn.pack(net, layout="training")
+        #: half precision: the float32 master copy of the packed buffer (the trainable parameter)
+        self._master = None
+        if half:
+            self._master = B.Float(self.net["weights"])
+            dr.eval(self._master)
         #: (weight offset, out, in, row stride, bias offset) per linear layer where host matrix
         #: products run this network (:class:`_HostMLP`: LLVM backend, ``host``), else None
         self._host_layers = None
-        if host and not B.is_cuda():
+        if host and not B.is_cuda() and not half:
             lin = [m for m in self.net.layers if isinstance(m, nn.Linear)]
             self._host_layers = tuple((int(m.weights.offset), int(m.weights.shape[0]), int(m.weights.shape[1]),
                                        int(m.weights.stride), int(m.bias.offset)) for m in lin)
 
     @property
     def weights(self):
-        """The packed weights and biases: ``Float`` [num_parameters]."""
-        return self.net["weights"]
+        """The packed weights and biases: ``Float`` [buffer_size] (float32 in either precision)."""
+        return self._master if self._master is not None else self.net["weights"]
 
     def set_weights(self, value) -> None:
-        """Replace the weights (``Float`` or float32 numpy [num_parameters]); keeps AD links."""
-        n = self.num_parameters
+        """Replace the weights (``Float`` or float32 numpy [buffer_size]); keeps AD links."""
+        n = self.buffer_size
         if isinstance(value, np.ndarray):
             if value.shape != (n,):
                 raise ConfigError(f"MLP weights: expected shape ({n},), got {value.shape}")
             value = B.Float(value.astype(np.float32))
         import drjit as dr
 
+        if self._master is not None:
+            self._master = value
+            dr.eval(self._master)
+            return
         self.net["weights"] = value
         dr.eval(self.net["weights"])  # flush the in-place copy before any kernel reads it
 
     @property
     def num_parameters(self) -> int:
-        return int(self.net["weights"].shape[0])
+        """Trainable scalars: every layer's weights and biases (the buffer's padding not counted)."""
+        return self._num_parameters
+
+    @property
+    def buffer_size(self) -> int:
+        """Length of :attr:`weights`, the packed buffer: :attr:`num_parameters` on LLVM, more on
+        CUDA, whose training-optimal layout pads the matrices."""
+        return int(self.weights.shape[0])
+
+    def layer_arrays(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The current weights as ``(W [out, in], b [out])`` float32 arrays per linear layer, read
+        back from the packed buffer whatever its layout (row-major on LLVM; on CUDA the
+        training-optimal layout is padded and reordered, so :attr:`weights` is no plain matrix);
+        in half precision, the float16 values the products use."""
+        import drjit as dr
+        import drjit.nn as nn
+
+        if self._master is not None:
+            self.net["weights"] = B.ensure().Float16(dr.detach(self._master))
+        out = []
+        for layer in (m for m in self.net.layers if isinstance(m, nn.Linear)):
+            W, b = nn.unpack(layer.weights, layer.bias)
+            rows, cols = W.shape
+            wbuf = np.asarray(W.buffer.numpy(), np.float32)
+            bbuf = np.asarray(b.buffer.numpy(), np.float32)
+            out.append((wbuf[W.offset:W.offset + rows * W.stride].reshape(rows, W.stride)[:, :cols].copy(),
+                        bbuf[b.offset:b.offset + rows].copy()))
+        return out
 
     def __call__(self, inputs: list) -> list:
         """Evaluate on ``inputs``: list of n_in ``Float`` [M] -> list of n_out ``Float`` [M]."""
@@ -347,6 +420,11 @@ class MLP:
             import drjit as dr
 
             return list(dr.custom(_HostMLP.op(), list(inputs), [], self.net["weights"], self._host_layers))
+        if self._master is not None:
+            jit = B.ensure()
+            self.net["weights"] = jit.Float16(self._master)  # a differentiable cast: gradients reach the master
+            out = self.net(nn.CoopVec(*[jit.Float16(x) for x in inputs]))
+            return grad_barrier([B.Float(o) for o in out])
         return grad_barrier(list(self.net(nn.CoopVec(*inputs))))
 
     def pairs(self, per_item: list, per_view: list) -> list:
@@ -400,6 +478,9 @@ class HashGrid:
     def num_parameters(self) -> int:
         return int(self.enc.n_params)
 
+    #: Length of :attr:`weights` (no padding in a hash table).
+    buffer_size = num_parameters
+
     def __call__(self, inputs: list) -> list:
         return list(self.enc(inputs))
 
@@ -425,11 +506,11 @@ class EMNetwork:
         self.hash = HashGrid(cfg, seed=seed) if cfg.encoding == "hashgrid" else None
         n_g = (3 + self.hash.n_out) if self.hash else 3 * (1 + 2 * cfg.gaussian_octaves)
         n_a = 3 * (1 + 2 * cfg.antenna_octaves) + self.extra_inputs
-        host = cfg.host_products
-        self.gaussian = MLP(n_g, w, width=w, layers=cfg.branch_layers, seed=seed + 1, host=host)
-        self.antenna = MLP(n_a, w, width=w, layers=cfg.branch_layers, seed=seed + 2, host=host)
-        self.head = MLP(w, 3, width=w, layers=cfg.head_layers, seed=seed + 3,
-                        out_bias=[cfg.signal_bias, 0.0, 0.0], host=host)
+        kw = {"host": cfg.host_products, "precision": cfg.precision}
+        self.gaussian = MLP(n_g, w, width=w, layers=cfg.branch_layers, seed=seed + 1, **kw)
+        self.antenna = MLP(n_a, w, width=w, layers=cfg.branch_layers, seed=seed + 2, **kw)
+        self.head = MLP(w, 3, width=w, layers=cfg.head_layers, seed=seed + 3, out_bias=[cfg.signal_bias, 0.0, 0.0],
+                        **kw)
 
     def modules(self) -> dict:
         """Name -> module (each has ``weights``, ``set_weights``, ``num_parameters``)."""

@@ -529,8 +529,8 @@ class SplatField(Field):
             if key not in state:
                 raise RunError(f"field state has no network weights {key!r}")
             w = np.asarray(state[key], dtype=np.float32)
-            if w.shape != (m.num_parameters,):
-                raise RunError(f"field state {key!r} has {w.shape[0]} weights, this network needs {m.num_parameters}")
+            if w.shape != (m.buffer_size,):
+                raise RunError(f"field state {key!r} has {w.shape[0]} weights, this network needs {m.buffer_size}")
             m.set_weights(w)
         if "box" in state:
             self.box = np.asarray(state["box"], dtype=np.float64).reshape(2, 3)

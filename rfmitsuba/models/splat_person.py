@@ -270,9 +270,9 @@ class SplatPersonField(SplatField):
             if "deform.mlp" not in state:
                 raise RunError("human field state has no deformation weights 'deform.mlp'")
             w = np.asarray(state["deform.mlp"], np.float32)
-            if w.shape != (self.deform.num_parameters,):
+            if w.shape != (self.deform.buffer_size,):
                 raise RunError(f"human field state 'deform.mlp' has {w.shape[0]} weights, "
-                               f"this network needs {self.deform.num_parameters}")
+                               f"this network needs {self.deform.buffer_size}")
             self.deform.set_weights(w)
 
     @classmethod

@@ -22,8 +22,9 @@ def test_alias_and_unknown(variant):
 
 @pytest.mark.skipif(not backend.cuda_available(), reason="no CUDA device")
 def test_cuda_variant():  # pragma: no cover - runs on GPU machines only
+    before = backend.variant()
     try:
         assert backend.set_variant("cuda").startswith("cuda")
         assert backend.is_cuda()
     finally:
-        backend.set_variant("llvm")
+        backend.set_variant(before)

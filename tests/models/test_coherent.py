@@ -17,7 +17,7 @@ BOX = np.array([[0.0, 0.0, 0.0], [4.0, 3.0, 2.6]])
 
 
 def _zero(mlp):
-    mlp.set_weights(np.zeros(mlp.num_parameters, np.float32))
+    mlp.set_weights(np.zeros(mlp.buffer_size, np.float32))
 
 
 def direct_field(amp=(1.0, 0.0), **kw):
