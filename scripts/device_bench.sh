@@ -7,6 +7,7 @@
 #   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, ipywidgets, pythreejs, ... (cp312)
 #   .dev/mitsuba_strip.tar.xz  the mitsuba 3.9.1 cp312 wheel's files without the LLVM/spectral variants
 # Usage (from the repository root, on the GPU machine):  bash scripts/device_bench.sh OUTDIR
+# SKIP="step ..." leaves steps out; TESTS="paths" replaces the test modules of the CUDA test step.
 # Every step has its own time limit and the script goes on after a failed step, so one run gives
 # everything that works; each step's output is in OUTDIR/<step>.log.
 set -u
@@ -58,8 +59,8 @@ step train_coherent 150 bash -c "rfmitsuba train $DS --model coherent_gaussians 
 # needs the LLVM variant, which the carried Mitsuba leaves out.
 step pytest_cuda 150 python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
     --deselect tests/core/test_backend.py::test_alias_and_unknown \
-    tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/test_coherent_gaussians.py \
-    tests/models/test_splat.py
+    ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/test_coherent_gaussians.py \
+    tests/models/test_splat.py}
 gen() {  # Sionna RT on CUDA: 900 bedroom positions x 5 states (empty room + 4 person positions)
   local t0=$(date +%s.%N)
   rfmitsuba generate bedroom --task rx \
