@@ -55,6 +55,11 @@ step train_splat 100 bash -c "rfmitsuba train $DS --model splat --out /tmp/r_spl
 step train_coherent 150 bash -c "rfmitsuba train $DS --model coherent_gaussians --out /tmp/r_cg --set seed=0 \
     && rfmitsuba eval /tmp/r_cg && cp /tmp/r_cg/eval/metrics.json $OUT/metrics_coherent.json \
     && cp /tmp/r_cg/final/summary.json $OUT/summary_coherent.json"
+# Stage 1 of the default field in a known room: bedroom, moving RX, 900 positions, empty room only.
+step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions 900 --human-positions 0 \
+    --out /tmp/bedroom_rx && rfmitsuba train /tmp/bedroom_rx --model coherent_gaussians --out /tmp/r_bed --set seed=0 \
+    && rfmitsuba eval /tmp/r_bed && cp /tmp/r_bed/eval/metrics.json $OUT/metrics_bedroom.json \
+    && cp /tmp/r_bed/log.jsonl $OUT/log_bedroom.jsonl"
 # The test modules of the backend, the RF physics and the models, on CUDA. The LLVM alias test
 # needs the LLVM variant, which the carried Mitsuba leaves out.
 step pytest_cuda 150 python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
