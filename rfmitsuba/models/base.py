@@ -189,6 +189,11 @@ class Field:
         start is known to lead training into local minima now and then (a subclass says why)."""
         return 1
 
+    def penalty(self):
+        """A regularisation term the trainer adds to each step's loss (Dr.Jit ``Float`` [1],
+        differentiable in the field's parameters), or None (the default: no term)."""
+        return None
+
     # ---- parameters --------------------------------------------------------------------
     @property
     def num_primitives(self) -> int:

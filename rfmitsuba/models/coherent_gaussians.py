@@ -177,6 +177,8 @@ class CoherentGaussianConfig:
     visibility: learn the visibility windows (False: every source keeps its initial, wide window,
     which extrapolates better beyond the training positions).
     init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
+    amp_l1: weight of a sparsity penalty added to the training loss: ``amp_l1`` times the mean
+        magnitude of the sources' complex gains (images and scatterers) [1 / gain]; 0: none.
     init_reflection: initial gain of an image of order n is ``init_reflection ** n``.
     scatterer_gain: initial contribution of a scatterer relative to the direct path.
     ray_visibility: known room only: decide each image path's existence and blockage per view by
@@ -300,6 +302,7 @@ class CoherentGaussianConfig:
     learn_pose: bool = True
     visibility: bool = True
     init_extent: float = 5.0
+    amp_l1: float = 0.0
     init_reflection: float = 0.5
     scatterer_gain: float = 0.2
     ray_visibility: bool = True
@@ -328,6 +331,8 @@ class CoherentGaussianConfig:
         if self.frame_search not in ("auto", "report", "apply", "off"):
             raise ConfigError(f"CoherentGaussianConfig.frame_search must be 'auto', 'report', 'apply' or 'off', got "
                               f"{self.frame_search!r}")
+        if not self.amp_l1 >= 0:
+            raise ConfigError(f"CoherentGaussianConfig.amp_l1 must be >= 0, got {self.amp_l1!r}")
         if not self.frame_min_gain >= 0:
             raise ConfigError(f"CoherentGaussianConfig.frame_min_gain must be >= 0, got {self.frame_min_gain!r}")
         if self.init not in ("auto", "room", "data"):
@@ -935,6 +940,24 @@ class CoherentGaussianField(FlatParameterField):
         with the searched offsets stalled (validation 0.942, test 0.875, against 0.964-0.967),
         its training loss twice the others' from step 400 on (TrainConfig.starts)."""
         return 2 if self.init_report.get("calibration_fit", {}).get("applied") else 1
+
+    def penalty(self):
+        """``amp_l1`` times the mean magnitude of every source's complex gain (``img_amp`` and
+        ``sc_amp``), or None where ``amp_l1`` is 0."""
+        import drjit as dr
+
+        if not self.cfg.amp_l1:
+            return None
+        total, n = 0.0, 0
+        for key in ("img_amp", "sc_amp"):
+            a = self.params.get(key)
+            if a is None or dr.width(a) == 0:
+                continue
+            idx = dr.arange(B.UInt32, dr.width(a) // 2)
+            re, im = dr.gather(B.Float, a, 2 * idx), dr.gather(B.Float, a, 2 * idx + 1)
+            total = total + dr.sum(dr.sqrt(re * re + im * im + 1e-12))
+            n += dr.width(a) // 2
+        return None if n == 0 else total * (self.cfg.amp_l1 / n)
 
     def _sizes(self) -> dict:
         S, P = self.num_images, self.num_scatterers

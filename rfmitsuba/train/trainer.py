@@ -452,6 +452,9 @@ class Trainer:
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
         pred = self.render(field, fit[pick])
         loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
+        penalty = field.penalty()
+        if penalty is not None:
+            loss = loss + penalty
         dr.backward(loss)
         strategy.after_backward(field)
         opt.step()

@@ -785,3 +785,32 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
         CoherentGaussianConfig(calibration_min_gain=float("nan"))
     with pytest.raises(ConfigError, match="calibration_twin"):
         CoherentGaussianConfig(calibration_twin="trial")
+
+
+def test_amp_l1_penalty_is_the_mean_gain_magnitude(variant):
+    """``amp_l1``: the penalty is ``amp_l1`` times the mean |complex gain| over images and
+    scatterers, its gradient ``amp_l1 / n * a / |a|``; none at 0 (the default); a negative weight
+    is refused by name."""
+    import dataclasses
+
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig
+
+    f = _field()
+    assert f.penalty() is None
+    f.cfg = dataclasses.replace(f.cfg, amp_l1=0.3)
+    img = np.asarray(f.params["img_amp"].numpy(), np.float64).reshape(-1, 2)
+    sc = np.asarray(f.params["sc_amp"].numpy(), np.float64).reshape(-1, 2)
+    mags = np.hypot(*np.concatenate([img, sc]).T)
+    for k in ("img_amp", "sc_amp"):
+        dr.enable_grad(f.params[k])
+    pen = f.penalty()
+    assert float(pen.numpy()[0]) == pytest.approx(0.3 * mags.mean(), rel=1e-5)
+    dr.backward(pen)
+    g = np.asarray(dr.grad(f.params["img_amp"]).numpy(), np.float64).reshape(-1, 2)
+    np.testing.assert_allclose(g, 0.3 / len(mags) * img / np.hypot(*img.T)[:, None], rtol=1e-4)
+    with pytest.raises(ConfigError, match="amp_l1"):
+        CoherentGaussianConfig(amp_l1=-1.0)

@@ -70,6 +70,21 @@ def test_loss_decreases_and_run_folder_is_complete(tiny_ds, tmp_path):
     assert len(read_ply(run / "final" / "gaussians.ply")["x"]) == f.num_gaussians == s["num_gaussians"]
 
 
+def test_a_fields_penalty_is_added_to_the_loss(tiny_ds, tmp_path, monkeypatch):
+    """``Field.penalty()`` (None by default) joins every step's loss: a constant 5 shows in the log."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.models.splat import SplatField
+    from rfmitsuba.train.trainer import Trainer
+
+    assert SplatField.penalty(None) is None
+    monkeypatch.setattr(SplatField, "penalty", lambda self: B.Float([5.0]))
+    run = tmp_path / "run"
+    Trainer(tiny_cfg(iterations=10), TrainData.open(tiny_ds), run, quiet=True).run()
+    losses = [r["loss"] for r in _rows(run) if "loss" in r]
+    assert losses and min(losses) > 5.0 and max(losses) < 6.0
+
+
 def test_killed_run_resumes_to_the_same_result(tiny_ds, tmp_path):
     """A run stopped after step 25 (last checkpoint: step 20) and started again ends where an
     uninterrupted run ends: same Gaussians (count and values within float tolerance), same log."""
