@@ -795,7 +795,6 @@ def test_amp_l1_penalty_is_the_mean_gain_magnitude(variant):
 
     import drjit as dr
 
-    from rfmitsuba.core import backend as B
     from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig
 
