@@ -172,7 +172,8 @@ def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 
     dr.detail.malloc_clear_statistics()
     return {**_figures(forward, forward_backward, iteration, repeats),
             "peak_mib": max(_peak_bytes() - rss0, 0) / 2**20,
-            "jit_watermark_mib": dr.detail.malloc_watermark(dr.JitBackend.LLVM) / 2**20,
+            "jit_watermark_mib": dr.detail.malloc_watermark(dr.JitBackend.CUDA if B.is_cuda()
+                                                            else dr.JitBackend.LLVM) / 2**20,
             "threads": dr.thread_count()}
 
 
