@@ -391,16 +391,22 @@ class MLP:
         CUDA, whose training-optimal layout pads the matrices."""
         return int(self.weights.shape[0])
 
+    def _cast_master(self, *, detach: bool = False) -> None:
+        """Half precision: put the float16 copy of the float32 master weights into the packed
+        network (a differentiable cast, so gradients reach the master, unless ``detach``)."""
+        import drjit as dr
+
+        self.net["weights"] = B.ensure().Float16(dr.detach(self._master) if detach else self._master)
+
     def layer_arrays(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """The current weights as ``(W [out, in], b [out])`` float32 arrays per linear layer, read
         back from the packed buffer whatever its layout (row-major on LLVM; on CUDA the
         training-optimal layout is padded and reordered, so :attr:`weights` is no plain matrix);
         in half precision, the float16 values the products use."""
-        import drjit as dr
         import drjit.nn as nn
 
         if self._master is not None:
-            self.net["weights"] = B.ensure().Float16(dr.detach(self._master))
+            self._cast_master(detach=True)
         out = []
         for layer in (m for m in self.net.layers if isinstance(m, nn.Linear)):
             W, b = nn.unpack(layer.weights, layer.bias)
@@ -422,9 +428,8 @@ class MLP:
 
             return list(dr.custom(_HostMLP.op(), list(inputs), [], self.net["weights"], self._host_layers))
         if self._master is not None:
-            jit = B.ensure()
-            self.net["weights"] = jit.Float16(self._master)  # a differentiable cast: gradients reach the master
-            out = self.net(nn.CoopVec(*[jit.Float16(x) for x in inputs]))
+            self._cast_master()
+            out = self.net(nn.CoopVec(*[B.ensure().Float16(x) for x in inputs]))
             return grad_barrier([B.Float(o) for o in out])
         return grad_barrier(list(self.net(nn.CoopVec(*inputs))))
 
