@@ -42,7 +42,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
 
     rd = Path(run_dir)
     cfg, data, renderer = load_run(rd)
-    field = renderer.fields[0]
+    fields = renderer.fields   # one field, or an ensemble's members (TrainConfig.members)
     split = json.loads((rd / "split.json").read_text())
     train_idx = np.asarray(split["train"], np.int64)
     test_idx = np.asarray(split["test"], np.int64)
@@ -85,8 +85,9 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
         "beats_nearest_neighbour": bool(model_ssim.mean() > fl["nearest_neighbour"].mean()),
         "split": cfg.split,
-        "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
-        "network_parameters": field.network_parameters,
+        "num_gaussians": sum(f.num_primitives for f in fields),
+        "num_parameters": sum(f.num_parameters for f in fields),
+        "network_parameters": sum(f.network_parameters for f in fields), "members": len(fields),
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
         "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),
@@ -126,7 +127,8 @@ def summary_markdown(m: dict) -> str:
                if m.get("beats_best_floor") else
                f"The model does NOT beat the best neighbour floor ({best}) in both mean and median SSIM: "
                "it has learned nothing more useful than a lookup of the closest training PAS.")
-    rows = [("model", m["model"])]
+    members = m.get("members", 1)
+    rows = [("model" if members == 1 else f"model (mean of {members} members' PAS)", m["model"])]
     a = m.get("anchored")
     if a:
         how = "the model alone" if a["use"] == "field" else f"k = {a['k']}, alpha = {a['alpha']:g}"

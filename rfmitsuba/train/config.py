@@ -71,6 +71,15 @@ class TrainConfig:
     each start trains its own copy of the initial field with its own batches for a tenth of
     the run (:func:`rfmitsuba.train.trainer.start_steps`) and the one with the best validation
     SSIM trains on (the others' steps count as training time; ``starts.json`` in the run folder).
+    members: fields trained independently on one split, the run's prediction being the mean of
+    their per-image min-max normalised PAS (an ensemble: :mod:`rfmitsuba.models.members`). Member
+    ``k`` trains with seed ``seed + k`` in ``RUN/members/k`` (a run folder of its own) and the
+    run's training time, Gaussians and parameters are the members' sums. Averaging several fits
+    tames what one fit guesses where the data do not reach: on the NeRF2-like spatial-block
+    split five members scored 0.916 +- 0.007 where one scored 0.874 +- 0.025 (bootstrap over 7
+    fits, README "Choosing the field"); under the random split, where positions interpolate, it
+    gained 0.002-0.004. Stage 2 and the method table train on one member's field only (1 = no
+    ensemble).
     model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
     :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
     (:func:`rfmitsuba.models.base.field_class`): "splat"
@@ -101,6 +110,7 @@ class TrainConfig:
     state: int = 0
     threads: int = 0
     starts: int = 0
+    members: int = 1
     model: str = "splat"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
@@ -131,6 +141,8 @@ class TrainConfig:
             raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
         if not 0 <= self.starts <= 16:
             raise ConfigError(f"TrainConfig.starts must be in 0..16 (0 = as the field advises), got {self.starts}")
+        if not (isinstance(self.members, int) and not isinstance(self.members, bool) and 1 <= self.members <= 16):
+            raise ConfigError(f"TrainConfig.members must be an integer in 1..16 (1 = one field), got {self.members!r}")
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and self.threads >= 0):
             raise ConfigError(f"TrainConfig.threads must be an integer >= 0 (0 = all cores), got {self.threads!r}")
 

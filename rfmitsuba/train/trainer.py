@@ -17,6 +17,10 @@ Run folder layout::
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
     starts.json      with several training starts (TrainConfig.starts): each start's validation
                      SSIM and loss after start_steps(iterations) steps, and the one kept
+    members/K/       with an ensemble (TrainConfig.members > 1): member K's own run folder
+                     (seed + K, the same split); the parent then has no checkpoint/ and no
+                     final/field.npz but final/members.json, and its log.jsonl lists the
+                     members' validation rows one after another on one clock
     checkpoint/      latest resumable state (written atomically)
     final/field.npz  the trained field (rfmitsuba.models.base.load_field)
     final/summary.json
@@ -47,6 +51,7 @@ from ..data.split import block_split, make_split
 from ..data.store import resolve_scene
 from ..data.views import TrainData
 from ..models.base import Field, FieldSet, Views, field_class, load_field, render
+from ..models.members import FieldMean
 from ..rf.bartlett_ref import (
     normalize as minmax,  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
 )
@@ -124,6 +129,10 @@ class Trainer:
         self.name = name
         self.prefix = name + "."
         self.h, self.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+        self.split = None   # a split handed down (an ensemble's members share their parent's)
+        if cfg.members > 1 and (self.frozen or extra is not None or field_factory is not None):
+            raise ConfigError(f"TrainConfig.members = {cfg.members}: an ensemble is a Stage-1 background "
+                              "alone; Stage 2 and the joint fields train one field (members = 1)")
         self._check_run_dir()
 
     # ---- run folder ---------------------------------------------------------------------
@@ -182,6 +191,8 @@ class Trainer:
         return every[tr], every[te]
 
     def _make_split(self, rng: np.random.Generator) -> dict:
+        if self.split is not None:
+            return {k: np.asarray(v, np.int64) for k, v in self.split.items()}
         cfg = self.cfg
         train, test = self.base_split()
         if cfg.max_train_positions and cfg.max_train_positions < len(train):
@@ -337,13 +348,75 @@ class Trainer:
         if self.cfg.threads:
             dr.set_thread_count(self.cfg.threads)
         try:
+            if self.cfg.members > 1:
+                return self._run_members(stop_at=stop_at)
             return self._run(stop_at=stop_at)
         except BaseException:
-            if created and self.run_dir.is_dir() and not (self.run_dir / "checkpoint").is_dir():
+            if created and self.run_dir.is_dir() and not self._has_checkpoint():
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
         finally:
             dr.set_thread_count(threads)
+
+    def _has_checkpoint(self) -> bool:
+        """Whether the run folder holds trained state: its checkpoint, or a member's."""
+        rd = self.run_dir
+        return (rd / "checkpoint").is_dir() or any((m / "checkpoint").is_dir() for m in rd.glob("members/*"))
+
+    def _run_members(self, *, stop_at: int | None = None) -> dict:
+        """Train ``cfg.members`` fields one after another on one split (member ``k``: seed
+        ``seed + k``, folder ``members/k``, resumed like any run), then write the parent's
+        ``final/members.json``, ``final/summary.json`` (sums of time, Gaussians and parameters;
+        the validation SSIM of the members' mean PAS) and ``log.jsonl``."""
+        import dataclasses
+
+        cfg = self.cfg
+        summary_file = self.run_dir / "final" / "summary.json"
+        if summary_file.is_file():
+            return json.loads(summary_file.read_text())
+        split = self._make_split(np.random.default_rng(cfg.seed))
+        self._init_run_dir(split)
+        member_dirs, summaries = [], []
+        for k in range(cfg.members):
+            mdir = self.run_dir / "members" / str(k)
+            sub = Trainer(dataclasses.replace(cfg, members=1, seed=cfg.seed + k), self.data, mdir,
+                          quiet=self.quiet, name=self.name)
+            sub.split = split
+            s = sub.run(stop_at=stop_at)
+            if s.get("stopped") == "stop_at":
+                return {**s, "member": k}
+            member_dirs.append(f"members/{k}")
+            summaries.append(s)
+        mean = FieldMean([load_run(self.run_dir / d)[2] for d in member_dirs])
+        val = split["val"]
+        val_ssim = None
+        if len(val):
+            pred = mean.render(self.data, val, batch=self.cfg.batch_views * 2, h=self.h, w=self.w)
+            val_ssim = float(np.mean(ssim_images(pred, self.data.pas(val, d=cfg.downsample))))
+        rows, t0 = [], 0.0
+        for k, (d, s) in enumerate(zip(member_dirs, summaries)):
+            log = self.run_dir / d / "log.jsonl"
+            for ln in log.read_text().splitlines() if log.is_file() else []:
+                r = json.loads(ln)
+                if "val_ssim" in r:
+                    rows.append({"member": k, "step": r["step"], "val_ssim": r["val_ssim"],
+                                 "n_gaussians": r.get("n_gaussians"), "time_s": round(t0 + r["time_s"], 3)})
+            t0 += s["train_time_s"]
+        (self.run_dir / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        fd = self.run_dir / "final"
+        fd.mkdir(exist_ok=True)
+        _write_json(fd / "members.json", {"format": "rfmitsuba-members/1", "members": member_dirs,
+                                          "seeds": [cfg.seed + k for k in range(cfg.members)]})
+        summary = {"steps": sum(s["steps"] for s in summaries), "stopped_by": "members",
+                   "train_time_s": t0, "model": cfg.model, "members": cfg.members,
+                   "num_gaussians": sum(s["num_gaussians"] for s in summaries),
+                   "num_parameters": sum(s["num_parameters"] for s in summaries),
+                   "network_parameters": sum(s.get("network_parameters") or 0 for s in summaries),
+                   "val_ssim": val_ssim, "member_val_ssim": [s["val_ssim"] for s in summaries],
+                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
+                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+        _write_json(summary_file, summary)
+        return summary
 
     def _run(self, *, stop_at: int | None = None) -> dict:
         B.ensure()
@@ -570,16 +643,22 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     return Trainer(cfg, data, out, quiet=quiet).run()
 
 
-def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet]:
+def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | FieldMean]:
     """Open a finished run: (config, data, a renderer of its trained field).
 
-    The renderer's ``fields[0]`` is the trained field; ``render(data, idx)`` gives raw PAS."""
+    The renderer's ``fields[0]`` is the trained field; ``render(data, idx)`` gives raw PAS. A run
+    of several members (``TrainConfig.members``) gives a :class:`~rfmitsuba.models.members.FieldMean`
+    of its members' renderers instead: ``fields`` lists every member's field and ``render`` gives
+    the mean of their min-max normalised PAS."""
     rd = Path(run_dir)
     if not (rd / "config.toml").is_file() or not (rd / "run.json").is_file():
         raise RunError(f"{rd} is not a run folder (no config.toml / run.json)")
     cfg = C.load(TrainConfig, rd / "config.toml")
     info = json.loads((rd / "run.json").read_text())
     data = TrainData.open(info["dataset"], state=cfg.state)
+    mfile = rd / "final" / "members.json"
+    if mfile.is_file():
+        return cfg, data, FieldMean([load_run(rd / d)[2] for d in json.loads(mfile.read_text())["members"]])
     fpath = rd / "final" / "field.npz"
     if not fpath.is_file():
         raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")

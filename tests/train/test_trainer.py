@@ -174,6 +174,60 @@ def test_several_starts_keep_the_best_by_validation_and_resume(tiny_ds, tmp_path
             TrainConfig(starts=bad)
 
 
+def test_members_share_one_split_resume_and_render_their_mean_pas(tiny_ds, tmp_path):
+    """members = 2: member k trains with seed + k in members/k on the parent's split; the parent's
+    summary sums time, steps and Gaussians, its log lists member 0's then member 1's validation
+    rows on one clock, and its renderer (load_run) gives the mean of the members' normalised PAS;
+    a run stopped inside member 0 resumes to bit-identical members (one thread); an ensemble
+    under Stage 2 and member counts outside 1..16 are refused by name."""
+    import dataclasses
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.models.members import FieldMean, mean_image
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer, load_run
+
+    data = TrainData.open(tiny_ds)
+    cfg = dataclasses.replace(tiny_cfg(iterations=30), members=2, threads=1)
+    a, b = tmp_path / "a", tmp_path / "b"
+    s = Trainer(cfg, data, a, quiet=True).run()
+    parts = [json.loads((a / "members" / str(k) / "final" / "summary.json").read_text()) for k in (0, 1)]
+    assert s["members"] == 2 and s["steps"] == 60
+    assert s["num_gaussians"] == sum(p["num_gaussians"] for p in parts)
+    assert s["train_time_s"] == pytest.approx(sum(p["train_time_s"] for p in parts))
+    split = (a / "split.json").read_text()
+    assert all((a / "members" / str(k) / "split.json").read_text() == split for k in (0, 1))
+    assert ['seed = 0' in (a / "members" / "0" / "config.toml").read_text(),
+            'seed = 1' in (a / "members" / "1" / "config.toml").read_text()] == [True, True]
+    rows = _rows(a)
+    assert [r["member"] for r in rows] == [0, 0, 0, 1, 1, 1]
+    assert np.all(np.diff([r["time_s"] for r in rows]) > 0)
+    assert not (a / "final" / "field.npz").exists() and not (a / "checkpoint").exists()
+
+    _, _, mean = load_run(a)
+    assert isinstance(mean, FieldMean) and len(mean.fields) == 2
+    test = np.array(json.loads(split)["test"])
+    one = [load_run(a / "members" / str(k))[2].render(data, test, h=18, w=72) for k in (0, 1)]
+    got = mean.render(data, test, h=18, w=72)
+    np.testing.assert_allclose(got, mean_image(one), atol=1e-6)
+    assert not np.allclose(one[0], one[1])             # two fits, not one twice
+
+    assert Trainer(cfg, data, b, quiet=True).run(stop_at=25) == {"stopped": "stop_at", "step": 25, "member": 0}
+    assert not (b / "members" / "1").exists()
+    Trainer(cfg, data, b, quiet=True).run()
+    for k in (0, 1):
+        with np.load(a / "members" / str(k) / "final" / "field.npz") as za, \
+                np.load(b / "members" / str(k) / "final" / "field.npz") as zb:
+            for key in za.files:
+                np.testing.assert_array_equal(za[key], zb[key], err_msg=f"member {k}: {key}")
+    with pytest.raises(ConfigError, match="members"):
+        Trainer(cfg, data, tmp_path / "c", quiet=True, frozen=[mean.fields[0]])
+    for bad in (0, 17, True):
+        with pytest.raises(ConfigError, match="members"):
+            TrainConfig(members=bad)
+
+
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
     from rfmitsuba.core.errors import RunError
     from rfmitsuba.data.views import TrainData
