@@ -48,7 +48,8 @@ def run(args) -> int:
 
     cfg = build_config(args)
     s = train(args.dataset, args.out, cfg=cfg, quiet=args.quiet)
-    print(f"run {Path(args.out)}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} Gaussians, "
-          f"{s['num_parameters']} parameters, validation SSIM {s['val_ssim']}")
+    members = f" ({s['members']} members, their mean PAS)" if s.get("members", 1) > 1 else ""
+    print(f"run {Path(args.out)}{members}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} "
+          f"Gaussians, {s['num_parameters']} parameters, validation SSIM {s['val_ssim']}")
     print(f"next: rfmitsuba eval {args.out}")
     return 0

@@ -452,7 +452,9 @@ class Trainer:
                 probe_views=probe_views)
             self.field = field
 
-        pbar = bar(total=cfg.iterations, desc=f"train {self.run_dir.name}", unit="step", quiet=self.quiet,
+        rd = self.run_dir
+        name = f"{rd.parent.parent.name} member {rd.name}" if rd.parent.name == "members" else rd.name
+        pbar = bar(total=cfg.iterations, desc=f"train {name}", unit="step", quiet=self.quiet,
                    initial=start)
         log_loss, log_n = 0.0, 0
         last_val = val_hist[-1]["val_ssim"] if val_hist else float("nan")

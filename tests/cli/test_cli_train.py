@@ -32,3 +32,20 @@ def test_train_cli_defaults_to_auto_and_takes_a_model(tmp_path, capsys):
     assert metrics["anchored"]["use"] in ("field", "anchored") and 0 < metrics["anchored"]["test"]["mean"] <= 1
     assert main(["train", str(ds), "--out", str(tmp_path / "bad"), "--model", "nerf"] + TINY) == 2
     assert "unknown field kind 'nerf'" in capsys.readouterr().err
+
+
+def test_train_cli_ensemble_chooses_the_field_once_and_trains_it_as_members(tmp_path, capsys):
+    """``--set members=2`` without --model: the trials train one field each, the chosen kind
+    trains as two members, and the closing line says so."""
+    from rfmitsuba.cli import main
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=24, task="tx")
+    out = tmp_path / "ens"
+    assert main(["train", str(ds), "--out", str(out), "--set", "members=2"] + TINY) == 0
+    chosen = json.loads((out / "select" / "choice.json").read_text())["chosen"]
+    assert not any((out / "select").glob("*/members"))            # each trial: one field
+    for k in ("0", "1"):
+        assert f'model = "{chosen}"' in (out / "members" / k / "config.toml").read_text()
+    assert "(2 members, their mean PAS)" in capsys.readouterr().out
+    assert main(["eval", str(out)]) == 0
+    assert json.loads((out / "eval" / "metrics.json").read_text())["members"] == 2
