@@ -167,8 +167,8 @@ def test_room_box_of_an_unknown_room_refuses_positions_outside_it():
 
 
 def test_an_ensemble_run_evaluates_and_predicts_the_mean_of_its_members(tmp_path):
-    """members = 2: eval counts both members' Gaussians and parameters and names the ensemble in
-    its report; predict at the dataset's positions gives the mean of the members' own
+    """members = 2: eval counts both members' Gaussians and parameters, scores each member alone
+    too and names the ensemble in its report; predict at the dataset's positions gives the mean of the members' own
     predictions there (each normalised per image, the mean normalised again, as every prediction
     is), not a coherent sum of their fields."""
     import dataclasses
@@ -189,7 +189,9 @@ def test_an_ensemble_run_evaluates_and_predicts_the_mean_of_its_members(tmp_path
     one = [json.loads((run / "members" / str(k) / "final" / "summary.json").read_text()) for k in (0, 1)]
     assert m["members"] == 2 and m["num_gaussians"] == s["num_gaussians"] == sum(o["num_gaussians"] for o in one)
     assert m["num_parameters"] == sum(o["num_parameters"] for o in one)
-    assert "mean of 2 members' PAS" in (run / "eval" / "summary.md").read_text()
+    text = (run / "eval" / "summary.md").read_text()
+    assert "mean of 2 members' PAS" in text and "Each member alone" in text
+    assert [x["n"] for x in m["member_models"]] == [6, 6]      # each member's own test score
     q = TrainData.open(ds).antenna_pos[[0, 5, 11]]
     parts = [predict_run(run / "members" / str(k), q)["pas"] for k in (0, 1)]
     got = predict_run(run, q)["pas"]
