@@ -76,10 +76,11 @@ class TrainConfig:
     ``k`` trains with seed ``seed + k`` in ``RUN/members/k`` (a run folder of its own) and the
     run's training time, Gaussians and parameters are the members' sums. Averaging several fits
     tames what one fit guesses where the data do not reach: on the NeRF2-like spatial-block
-    split five members scored 0.916 +- 0.007 where one scored 0.874 +- 0.025 (bootstrap over 7
-    fits, README "Choosing the field"); under the random split, where positions interpolate, it
-    gained 0.002-0.004. Stage 2 and the method table train on one member's field only (1 = no
-    ensemble).
+    split one field scored 0.861 +- 0.028 (30 seeds), the mean of 10 0.901 +- 0.003 and its
+    neighbour-anchored prediction 0.917 +- 0.003 against nearest neighbour's 0.911 (3 seeds,
+    docs/measurements.md); under the random split, where positions interpolate, 5 members gained
+    nothing (0.958). K members cost K times the training time and Gaussians. Stage 2 and the
+    methods train one field (1 = no ensemble).
     model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
     :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
     (:func:`rfmitsuba.models.base.field_class`): "splat"
