@@ -73,8 +73,9 @@ class TrainConfig:
     SSIM trains on (the others' steps count as training time; ``starts.json`` in the run folder).
     members: fields trained independently on one split, the run's prediction being the mean of
     their per-image min-max normalised PAS (an ensemble: :mod:`rfmitsuba.models.members`). Member
-    ``k`` trains with seed ``seed + k`` in ``RUN/members/k`` (a run folder of its own) and the
-    run's training time, Gaussians and parameters are the members' sums. Averaging several fits
+    ``k`` trains with seed ``seed + k`` in ``RUN/members/k`` (a run folder of its own;
+    ``iterations``, ``starts`` and ``time_limit_s`` apply to each member) and the run's training
+    time, Gaussians and parameters are the members' sums. Averaging several fits
     tames what one fit guesses where the data do not reach: on the NeRF2-like spatial-block
     split one field scored 0.861 +- 0.028 (30 seeds), the mean of 10 0.901 +- 0.003 and its
     neighbour-anchored prediction 0.917 +- 0.003 against nearest neighbour's 0.911 (3 seeds,
