@@ -19,6 +19,8 @@ def register(sub) -> None:
                    help="splits: comma-separated field kinds (default coherent_gaussians,splat; 'auto' is what "
                         "`rfmitsuba train` picks)")
     p.add_argument("--seeds", default="0,1,2", help="splits: comma-separated training seeds (default 0,1,2)")
+    p.add_argument("--tag", default="", help="splits: a name for this call's settings (e.g. members5 with "
+                                             "--set members=5): its rows and run folders are <field>-<tag>")
     p.add_argument("--quick", action="store_true", help="quick training config and small counts")
     t = p.add_argument_group("truth", "generate the same positions with the synthetic and the exact array "
                                       "(rfmitsuba.experiments.truth) and compare channels and PAS")
@@ -67,7 +69,8 @@ def run(args) -> int:
             seeds = tuple(int(s) for s in args.seeds.split(",") if s.strip())
         except ValueError:
             raise ConfigError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
-        E.split_sensitivity(args.dataset, args.out, fields=fields, seeds=seeds, cfg=cfg, quiet=args.quiet)
+        E.split_sensitivity(args.dataset, args.out, fields=fields, seeds=seeds, cfg=cfg, tag=args.tag,
+                            quiet=args.quiet)
     elif args.kind == "motivation":
         counts = counts or (E.QUICK_MOTIVATION_COUNTS if args.quick else E.MOTIVATION_COUNTS)
         E.motivation_table(args.dataset, args.out, counts=counts, cfg=cfg, quiet=args.quiet)

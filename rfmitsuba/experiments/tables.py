@@ -23,10 +23,10 @@ from pathlib import Path
 
 from ..core import config as C
 from ..core import plots
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, RunError
 from ..data.views import TrainData
 from ..eval.run import evaluate_run
-from ..train.config import TrainConfig
+from ..train.config import TrainConfig, config_diff
 from ..train.trainer import Trainer, train
 
 MOTIVATION_COUNTS = (900, 1500, 3600, 6000, 10000)
@@ -174,14 +174,17 @@ def _mean_std(xs) -> tuple[float, float]:
 
 
 def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVITY_FIELDS, seeds=(0, 1, 2),
-                      cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
+                      cfg: TrainConfig | None = None, tag: str = "", quiet: bool = False) -> list[dict]:
     """How much of a score is interpolation: every field and every floor under the dataset's own
     split and the spatial-block split (SPEC, "Splits": measured data, always both).
 
-    One run per field x split x seed (``OUT/<field>_<split>_s<seed>``, an ordinary run folder:
-    a killed experiment resumes, finished runs are not trained or evaluated again). The table
-    also shows the runs of other fields already in ``OUT``, so a field that needs other settings
-    (fewer splat steps) can be added by a second call into the same folder. A field is a
+    One run per field x split x seed (``OUT/<field>_<split>_s<seed>``, or
+    ``OUT/<field>-<tag>_<split>_s<seed>`` with a ``tag``; an ordinary run folder: a killed
+    experiment resumes, finished runs are not trained or evaluated again). The table also shows
+    the runs of other fields or tags already in ``OUT``, so a field that needs other settings
+    (fewer splat steps) can be added by a second call into the same folder, and one field under
+    other settings (``members = 5``) by a second call with a tag naming them; a finished run of
+    another configuration under the same name is refused, not reused. A field is a
     ``model`` kind (``"auto"`` included: what ``rfmitsuba train`` picks). The table
     (``OUT/table.md``, ``OUT/table.json``) gives per field and split the model's and the
     neighbour-anchored prediction's mean / median test SSIM (mean and std over seeds), the
@@ -195,31 +198,56 @@ def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVIT
         fields: model kinds, one row each per split.
         seeds: training seeds (the block split is the same for every seed; the dataset's is its own).
         cfg: training configuration of every run (``model``, ``split`` and ``seed`` are set per run).
+        tag: a name for these settings in the table's rows and the run folders (letters, digits
+            and ``.=+``; "" = the field alone).
     Returns:
         the table rows (one per field and split).
     Raises:
-        ConfigError: no fields or no seeds, or a field that is not a Stage-1 kind.
+        ConfigError: no fields or no seeds, a field that is not a Stage-1 kind, or a bad tag.
+        RunError: a finished run in ``OUT`` under a requested name holds another configuration.
     """
+    import re
+
     fields, seeds = tuple(fields), tuple(int(s) for s in seeds)
     if not fields or not seeds:
         raise ConfigError("split sensitivity needs at least one field and one seed")
+    if tag and not re.fullmatch(r"[A-Za-z0-9.=+]+", tag):
+        raise ConfigError(f"split sensitivity: tag {tag!r} may hold letters, digits and '.=+' only")
     cfg = cfg or TrainConfig()
     for f in fields:  # every field is a Stage-1 kind (ConfigError naming the known ones) before any run starts
         C.override(cfg, [f'model="{f}"'])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    names = [f"{f}-{tag}" if tag else f for f in fields]
     for split in SENSITIVITY_SPLITS:
-        for f in fields:
+        for f, name in zip(fields, names):
             for s in seeds:
-                rd = out / f"{f}_{split}_s{s}"
-                if (rd / "eval" / "metrics.json").is_file() and (rd / "final" / "field.npz").is_file():
+                rd = out / f"{name}_{split}_s{s}"
+                want = C.override(cfg, [f'model="{f}"', f'split="{split}"', f"seed={s}"])
+                if (rd / "eval" / "metrics.json").is_file() and (rd / "final" / "summary.json").is_file():
+                    _check_same_config(rd, want)
                     continue
-                train(dataset, rd, cfg=C.override(cfg, [f'model="{f}"', f'split="{split}"', f"seed={s}"]), quiet=quiet)
+                train(dataset, rd, cfg=want, quiet=quiet)
                 evaluate_run(rd)
-            rows = _sensitivity_rows(out, fields)      # the table grows field by field
+            rows = _sensitivity_rows(out, names)      # the table grows field by field
             _write_sensitivity(out, dataset, rows)
     _plot_sensitivity(out / "splits.png", rows)
     return rows
+
+
+def _check_same_config(rd: Path, want: TrainConfig) -> None:
+    """Refuse to reuse the finished run ``rd`` for ``want`` when its configuration differs (what
+    ``model = "auto"`` chose aside: the field and its coherent-Gaussian variant), naming the
+    difference (RunError)."""
+    have = C.to_dict(C.load(TrainConfig, rd / "config.toml"))
+    want = C.to_dict(want)
+    if want["model"] == "auto":
+        for k in ("model", "coherent_gaussians"):
+            have.pop(k, None), want.pop(k, None)
+    diff = config_diff(have, want)
+    if diff:
+        raise RunError(f"{rd} holds a finished run of another configuration: {'; '.join(diff)}. Name these "
+                       "settings with a tag (`--tag`) or use another --out; nothing was changed")
 
 
 def _sensitivity_rows(out: Path, fields) -> list[dict]:

@@ -31,7 +31,8 @@ def test_parsimony_curve_of_the_coherent_gaussian_field(tmp_path):
 
 def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_path):
     """Both splits per field, the floors of each split, resumable, and a second call into the same
-    folder adds a field with its own settings."""
+    folder adds a field with its own settings; the same field under other settings is refused
+    unless a tag names them, and then joins as its own row (an ensemble here)."""
     import json
 
     import pytest
@@ -69,3 +70,21 @@ def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_pa
                                                          ("splat", "block"), ("coherent_gaussians", "block")]
     assert {r["field"]: r["train_steps"] for r in rows2 if r["split"] == "block"} == {"splat": 6,
                                                                                       "coherent_gaussians": 4}
+    import dataclasses
+
+    from rfmitsuba.core.errors import RunError
+
+    ens = dataclasses.replace(cfg, members=2)
+    table = (out / "table.md").read_text()
+    with pytest.raises(RunError, match=r"coherent_gaussians_dataset_s0 holds a finished run of another "
+                                       r"configuration: members \(run has 1, requested 2\)"):
+        split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, quiet=True)
+    assert (out / "table.md").read_text() == table                     # nothing was changed
+    with pytest.raises(ConfigError, match="tag 'members 2'"):
+        split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="members 2", quiet=True)
+    rows3 = split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="members2",
+                              quiet=True)
+    by = {(r["field"], r["split"]): r for r in rows3}
+    assert by["coherent_gaussians-members2", "block"]["seeds"] == 1 and len(rows3) == 6
+    assert (out / "coherent_gaussians-members2_block_s0" / "members" / "1" / "final" / "field.npz").is_file()
+    assert "| block (32/8) | coherent_gaussians-members2 | 1 |" in (out / "table.md").read_text()
