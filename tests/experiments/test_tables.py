@@ -76,8 +76,8 @@ def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_pa
 
     ens = dataclasses.replace(cfg, members=2)
     table = (out / "table.md").read_text()
-    with pytest.raises(RunError, match=r"coherent_gaussians_dataset_s0 holds a finished run of another "
-                                       r"configuration: members \(run has 1, requested 2\)"):
+    with pytest.raises(RunError, match=r"coherent_gaussians_dataset_s0 belongs to another configuration: "
+                                       r"members \(run has 1, requested 2\)"):
         split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, quiet=True)
     assert (out / "table.md").read_text() == table                     # nothing was changed
     with pytest.raises(ConfigError, match="tag 'members 2'"):
