@@ -387,7 +387,7 @@ class Trainer:
                 return {**s, "member": k}
             member_dirs.append(f"members/{k}")
             summaries.append(s)
-        mean = FieldMean([load_run(self.run_dir / d)[2] for d in member_dirs])
+        mean = FieldMean([_trained_renderer(self.run_dir / d) for d in member_dirs])
         val = split["val"]
         val_ssim = None
         if len(val):
@@ -658,12 +658,18 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | Fi
     cfg = C.load(TrainConfig, rd / "config.toml")
     info = json.loads((rd / "run.json").read_text())
     data = TrainData.open(info["dataset"], state=cfg.state)
+    return cfg, data, _trained_renderer(rd)
+
+
+def _trained_renderer(rd: Path) -> FieldSet | FieldMean:
+    """The renderer of a finished run folder's trained field, or of its members' (an ensemble),
+    read from ``final/`` alone (the dataset is not opened again per member)."""
     mfile = rd / "final" / "members.json"
     if mfile.is_file():
-        return cfg, data, FieldMean([load_run(rd / d)[2] for d in json.loads(mfile.read_text())["members"]])
+        return FieldMean([_trained_renderer(rd / d) for d in json.loads(mfile.read_text())["members"]])
     fpath = rd / "final" / "field.npz"
     if not fpath.is_file():
         raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")
     field = load_field(fpath)
     field.freeze()
-    return cfg, data, FieldSet([field])
+    return FieldSet([field])
