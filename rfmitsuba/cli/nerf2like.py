@@ -11,6 +11,9 @@ def register(sub) -> None:
     p.add_argument("--snr", type=float, default=20.0, help="signal-to-noise ratio in dB (default 20; inf = none)")
     p.add_argument("--phase-error", type=float, default=30.0,
                    help="per-element phase offsets uniform in +- this many degrees (default 30)")
+    p.add_argument("--diffuse", type=float, default=0.0,
+                   help="scattering coefficient of every material in [0, 1]: Sionna RT also traces diffuse "
+                        "reflections, as rough real surfaces scatter (default 0: specular paths only)")
     p.add_argument("--seed", type=int, default=0, help="trajectories, offsets, noise and the 160/40 split")
     p.add_argument("--scene", default="large_room", help="built-in room or XML (default large_room, fits 5 m)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -21,7 +24,8 @@ def run(args) -> int:
     from ..sim.nerf2like import make_nerf2like
 
     out = make_nerf2like(args.out, num_tags=args.tags, snr_db=args.snr, phase_error_deg=args.phase_error,
-                         seed=args.seed, scene=args.scene, quiet=args.quiet)
+                         seed=args.seed, scene=args.scene, diffuse=args.diffuse,
+                         quiet=args.quiet)
     print(f"NeRF2-like folder {out}")
     print(f"next: rfmitsuba train {out} --out RUN --set model=coherent_gaussians  (add --split block for the slab split)")
     return 0

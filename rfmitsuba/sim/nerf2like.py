@@ -32,6 +32,7 @@ its XML in which every ITU material whose table does not cover the carrier becom
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -338,7 +339,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                    seed: int = 0, scene: str | Path = "large_room", frequency_hz: float = nerf2.NERF2_FREQUENCY_HZ,
                    region_center=None, region_size=REGION_SIZE, gateway_pos=None, num_trajectories: int = 4,
                    step_m: float = STEP_M, pitch_m: float | None = None, solver=None,
-                   quiet: bool = True) -> Path:
+                   diffuse: float = 0.0, quiet: bool = True) -> Path:
     """Simulate a NeRF2-like RFID dataset and write it as a NeRF2 spectrum folder (module docstring).
 
     Args:
@@ -361,6 +362,10 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         pitch_m: element pitch [m]; default half a wavelength (0.163 m at 920 MHz).
         solver: :class:`rfmitsuba.sim.simulate.SolverConfig`; default
             :func:`rfmitsuba.sim.generate.default_solver` for the room.
+        diffuse: scattering coefficient of every material in [0, 1] [1]; above 0, Sionna RT also
+            traces diffuse reflections (``SolverConfig.diffuse_reflection``), the part of a real
+            room's response that no specular path draws: rough walls and furniture scatter a
+            fraction of the energy towards every tag. 0 (the default): specular paths only.
         quiet: no progress output.
     Returns:
         The folder [Path]; :func:`rfmitsuba.data.nerf2.read` reads it.
@@ -411,12 +416,17 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     solver = default_solver(geom) if solver is None else solver
     if isinstance(solver, dict):
         solver = _config.from_dict(SolverConfig, solver)
+    diffuse = _number(diffuse, "diffuse", lo=0.0, hi=1.0)
+    if diffuse > 0:
+        solver = dataclasses.replace(solver, diffuse_reflection=True)
     solver.check()
 
     config = {"num_tags": num_tags, "snr_db": "inf" if math.isinf(snr) else snr, "phase_error_deg": phase_err,
               "seed": seed, "scene": str(scene), "frequency_hz": f_hz, "region_center": centre.tolist(),
               "region_size": size.tolist(), "gateway_pos": gateway.tolist(), "num_trajectories": num_trajectories,
               "step_m": step, "pitch_m": pitch, "solver": _config.to_dict(solver)}
+    if diffuse > 0:   # only then: a folder made before the option existed keeps its configuration
+        config["scattering_coefficient"] = diffuse
     out.parent.mkdir(parents=True, exist_ok=True)
     _stale_tmp(out)
     if _existing(out, config):
@@ -432,6 +442,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             tempfile.TemporaryDirectory(prefix="rfm-nerf2like-") as tmpd:
         load_xml, materials = scene_for_carrier(xml, f_hz, Path(tmpd))
         sim = Simulator(load_xml, fixed_pos=gateway, frequency_hz=f_hz, solver=solver)
+        if diffuse > 0:
+            sim.set_scattering(diffuse)
         sim.set_positions(tags)
         paths = sim.solve()
         solver_s = sim.timing.solver_s
@@ -488,6 +500,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                           "element_positions_m": pos.tolist()},
                 "impairments": {
                     "order": ["per-element phase offset", "additive complex Gaussian noise", "phase-only Bartlett"],
+                    "diffuse_scattering": {"scattering_coefficient": diffuse,
+                                           "traced": bool(solver.diffuse_reflection)},
                     "phase_offset": {"distribution": "uniform", "max_deg": phase_err,
                                      "per_element_deg": offsets_deg.tolist(), "applied_as": "h_m * exp(+j offset_m)"},
                     "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,

@@ -104,6 +104,22 @@ def test_other_configuration_or_folder_is_refused(folder, tmp_path):
         nl.make_nerf2like(other, num_tags=N, solver=fast_solver())
 
 
+def test_diffuse_scattering_changes_the_spectra_and_is_recorded(folder, extra, tmp_path):
+    """--diffuse traces diffuse reflections on top of the same tags; a folder without it records
+    no scattering coefficient (so folders made before the option still match their configuration)."""
+    assert "scattering_coefficient" not in extra["config"] and extra["solver"]["diffuse_reflection"] is False
+    rough = nl.make_nerf2like(tmp_path / "rough", num_tags=N, seed=3, solver=fast_solver(), diffuse=0.5)
+    rec = json.loads((rough / nerf2.EXTRA).read_text())
+    assert rec["config"]["scattering_coefficient"] == 0.5 and rec["solver"]["diffuse_reflection"] is True
+    assert rec["impairments"]["diffuse_scattering"] == {"scattering_coefficient": 0.5, "traced": True}
+    a, b = nerf2.read(folder), nerf2.read(rough)
+    assert np.array_equal(a.antenna_pos, b.antenna_pos)
+    diff = np.abs(a.pas(0) - b.pas(0)).mean(axis=(1, 2))
+    assert diff.min() > 0.005                           # every tag's spectrum changed (8-bit steps are 0.004)
+    with pytest.raises(DatasetError, match="config.(scattering_coefficient|solver.diffuse_reflection)"):
+        nl.make_nerf2like(folder, num_tags=N, seed=3, solver=fast_solver(), diffuse=0.5)
+
+
 def test_phase_only_bartlett_ignores_element_amplitudes():
     rng = np.random.default_rng(0)
     h = rng.normal(size=(3, 16)) + 1j * rng.normal(size=(3, 16))
@@ -152,6 +168,8 @@ def test_auto_layout_in_a_small_room():
     ({"snr_db": float("nan")}, "snr_db"),
     ({"snr_db": -math.inf}, "snr_db"),
     ({"phase_error_deg": 200.0}, "phase_error_deg"),
+    ({"diffuse": 1.5}, "diffuse"),
+    ({"diffuse": float("nan")}, "diffuse"),
     ({"seed": -1}, "seed"),
     ({"num_trajectories": 0}, "num_trajectories"),
     ({"num_tags": 10, "num_trajectories": 6}, "num_trajectories"),
