@@ -244,6 +244,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     if overrides:
         cfg = override(cfg, list(overrides))
     cfg.iterations, cfg.log_every, cfg.val_every, cfg.checkpoint_every = steps, 10, 10**9, 10**9
+    cfg.epochs = 0.0                     # exactly ``steps``: a rate is measured, not a fit
     cfg.time_limit_s = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

@@ -189,6 +189,13 @@ class Field:
         start is known to lead training into local minima now and then (a subclass says why)."""
         return 1
 
+    @property
+    def epochs_advised(self) -> float:
+        """Least passes over the fitting positions this initial field advises
+        (``TrainConfig.epochs = -1``): 0 (none) unless some of its parameters learn only from
+        the views of a small part of the data (a subclass says why)."""
+        return 0.0
+
     def penalty(self):
         """A regularisation term the trainer adds to each step's loss (Dr.Jit ``Float`` [1],
         differentiable in the field's parameters), or None (the default: no term)."""

@@ -53,6 +53,12 @@ class TrainConfig:
     iterations: optimizer steps (6000 by default, since 2026-11-24: the coherent Gaussian field on a
     NeRF2-like folder, room unknown, 3 seeds, scored 0.948 +- 0.006 at 3000 and 0.956 +- 0.003 at
     6000 on the random split; the bedroom gains 0.001-0.004; experiments set their own budgets);
+    epochs: least passes over the fitting positions: a run trains ``max(iterations,
+    ceil(epochs * fitting positions / batch_views))`` steps (recorded as ``iterations`` in its
+    summary). -1 (the default): as the field advises (``Field.epochs_advised``: a coherent
+    Gaussian field with the dense visibility grid of 1000 training positions or more asks for
+    20, every other field for none); 0: exactly ``iterations``. Applies to each member and start
+    alike; ``model = "auto"`` trials train their fixed budget.
     batch_views: PAS per step; downsample: train on
     (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
     resolution); seed: all randomness; val_fraction / val_max: training positions held out
@@ -100,6 +106,7 @@ class TrainConfig:
     """
 
     iterations: int = 6000
+    epochs: float = -1.0
     batch_views: int = 4
     downsample: int = 1
     seed: int = 0
@@ -126,6 +133,9 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.batch_views < 1:
             raise ConfigError("TrainConfig: iterations and batch_views must be >= 1")
+        if not (math.isfinite(self.epochs) and (self.epochs >= 0 or self.epochs == -1)):
+            raise ConfigError(f"TrainConfig.epochs must be -1 (as the field advises) or a finite number >= 0, "
+                              f"got {self.epochs!r}")
         if self.downsample not in (1, 2, 3, 5, 6, 9, 10):
             raise ConfigError(f"TrainConfig.downsample must divide 90 and 360 (1, 2, 3, 5, 6, 9, 10), got {self.downsample}")
         if not 0 <= self.val_fraction < 0.5:

@@ -129,6 +129,8 @@ class Trainer:
         self.name = name
         self.prefix = name + "."
         self.h, self.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+        #: steps this run trains (planned_iterations, set once the field exists)
+        self.iterations = cfg.iterations
         self.split = None   # a split handed down (an ensemble's members share their parent's)
         if cfg.members > 1 and (self.frozen or extra is not None or field_factory is not None):
             raise ConfigError(f"TrainConfig.members = {cfg.members}: an ensemble is a Stage-1 background "
@@ -233,7 +235,7 @@ class Trainer:
         iterations done and, with a time limit, the share of training time used (so a run stopped
         by its time limit ends with its final learning rates, not half-way down the schedule)."""
         o = self.cfg.optim
-        t = step / max(self.cfg.iterations - 1, 1)
+        t = step / max(self.iterations - 1, 1)
         if self.cfg.time_limit_s:
             t = min(1.0, max(t, train_time / self.cfg.time_limit_s))
         net = _lr(o.lr_net, o.lr_net_final, t)
@@ -330,7 +332,8 @@ class Trainer:
 
     # ---- main loop --------------------------------------------------------------------------
     def run(self, *, stop_at: int | None = None) -> dict:
-        """Train (or resume) to ``cfg.iterations`` steps; returns the summary dict.
+        """Train (or resume) to :func:`planned_iterations` steps (``cfg.iterations``, or more
+        where ``cfg.epochs`` asks for more passes); returns the summary dict.
 
         A run folder this call created is removed again when the run fails before its first
         checkpoint (a configuration the field refuses, bad data, a diverging first step), so a
@@ -429,6 +432,7 @@ class Trainer:
         self._init_run_dir(split)
         field = self._init_field(rng)
         self.field = field
+        self.iterations = planned_iterations(cfg, len(split["fit"]), field)
         loss_fn = load_loss()
         d = cfg.downsample
         gt_fit = self.data.pas(split["fit"], d=d)
@@ -454,7 +458,7 @@ class Trainer:
 
         rd = self.run_dir
         name = f"{rd.parent.parent.name} member {rd.name}" if rd.parent.name == "members" else rd.name
-        pbar = bar(total=cfg.iterations, desc=f"train {name}", unit="step", quiet=self.quiet,
+        pbar = bar(total=self.iterations, desc=f"train {name}", unit="step", quiet=self.quiet,
                    initial=start)
         log_loss, log_n = 0.0, 0
         last_val = val_hist[-1]["val_ssim"] if val_hist else float("nan")
@@ -462,7 +466,7 @@ class Trainer:
         step = start
         t_last = time.perf_counter()
         try:
-            while step < cfg.iterations:
+            while step < self.iterations:
                 if stop_at is not None and step >= stop_at:
                     stopped = "stop_at"
                     break
@@ -478,7 +482,7 @@ class Trainer:
                 train_time += now - t_last
                 t_last = now
                 row = None
-                if step % cfg.val_every == 0 or step == cfg.iterations:
+                if step % cfg.val_every == 0 or step == self.iterations:
                     last_val = self.validate(field, split["val"], gt_val)
                     strategy.on_validation(step, last_val)
                     val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_primitives,
@@ -511,8 +515,8 @@ class Trainer:
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
         strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=cfg.downsample,
-                               prefix=self.prefix, iterations=cfg.iterations, loss_fn=loss_fn) \
-            or make_strategy(cfg.density, field, prefix=self.prefix, iterations=cfg.iterations)
+                               prefix=self.prefix, iterations=self.iterations, loss_fn=loss_fn) \
+            or make_strategy(cfg.density, field, prefix=self.prefix, iterations=self.iterations)
         return opt, strategy
 
     def _step(self, field, opt, strategy, rng, step: int, train_time: float, *, fit, gt_fit, loss_fn, probe_views,
@@ -551,7 +555,7 @@ class Trainer:
         Writes ``starts.json``. Returns (field, opt, strategy, rng, step, train_time, val_history)
         of the start kept; every start's steps count as training time."""
         cfg = self.cfg
-        n = start_steps(cfg.iterations)
+        n = start_steps(self.iterations)
         init_state = field.state_dict()
         report = getattr(field, "init_report", None)
         pbar = bar(total=n * n_starts, desc=f"starts {self.run_dir.name}", unit="step", quiet=self.quiet)
@@ -613,7 +617,8 @@ class Trainer:
         field.save(fd / "field.npz")
         fit = split["fit"]
         field.export_ply(fd, views=self.views(fit[np.linspace(0, len(fit) - 1, min(32, len(fit))).astype(int)]))
-        summary = {"steps": step, "stopped_by": stopped, "train_time_s": train_time, "model": self.cfg.model,
+        summary = {"steps": step, "iterations": self.iterations, "stopped_by": stopped, "train_time_s": train_time,
+                   "model": self.cfg.model,
                    "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
                    "network_parameters": field.network_parameters,
                    "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
@@ -625,6 +630,16 @@ class Trainer:
             summary["init"] = field.init_report
         _write_json(fd / "summary.json", summary)
         return summary
+
+
+def planned_iterations(cfg: TrainConfig, num_fit: int, field: Field) -> int:
+    """Steps a run trains: ``cfg.iterations``, or more where ``cfg.epochs`` (-1: the field's
+    ``epochs_advised``) passes over ``num_fit`` fitting positions at ``cfg.batch_views`` views a
+    step take more."""
+    epochs = field.epochs_advised if cfg.epochs == -1 else cfg.epochs
+    if epochs <= 0 or num_fit <= 0:
+        return int(cfg.iterations)
+    return int(max(cfg.iterations, math.ceil(epochs * num_fit / cfg.batch_views)))
 
 
 def start_steps(iterations: int) -> int:

@@ -556,7 +556,7 @@ def test_unknown_room_gets_the_default_visibility_grid():
 def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
     """vis_grid = None: (8, 8, 4) for an unknown room with DENSE_POSITIONS distinct training
     positions or more, (4, 4, 2) below that and for a known room at any count; a grid set in the
-    config is kept."""
+    config is kept. Only the fine grid advises DENSE_EPOCHS passes over the data."""
     from rfmitsuba.core import config as C
     from rfmitsuba.models import coherent_gaussians as cg
     from rfmitsuba.train.config import TrainConfig
@@ -572,6 +572,8 @@ def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
     g = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small + ["coherent_gaussians.vis_grid=[2,2,2]"]),
                                               data, scene_xml=None)
     assert g.grid_cells == 8
+    # the fine grid learns cell by cell: it asks for passes over the data (TrainConfig.epochs = -1)
+    assert f.epochs_advised == cg.DENSE_EPOCHS == 20.0 and g.epochs_advised == 0.0
 
 
 def test_frame_search_starts_the_pose_at_the_corrected_frame():

@@ -174,6 +174,35 @@ def test_several_starts_keep_the_best_by_validation_and_resume(tiny_ds, tmp_path
             TrainConfig(starts=bad)
 
 
+def test_epochs_lengthen_a_run_to_passes_over_the_fitting_positions(tiny_ds, tmp_path):
+    """epochs = 3 over the 43 fitting positions at batch 4 trains ceil(3 * 43 / 4) = 33 steps
+    where iterations asks for 20, and the learning rates reach their final values at step 33;
+    -1 follows the field's advice (a splat field advises none); bad values are refused."""
+    import dataclasses
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer, planned_iterations
+
+    data = TrainData.open(tiny_ds)
+    cfg = dataclasses.replace(tiny_cfg(iterations=20), epochs=3.0)
+    t = Trainer(cfg, data, tmp_path / "a", quiet=True)
+    s = t.run()
+    fit = json.loads((tmp_path / "a" / "split.json").read_text())["fit"]
+    want = -(-3 * len(fit) // 4)
+    assert len(fit) == 43 and s["steps"] == s["iterations"] == want == 33
+    lr_end, lr_mid = t._lrs(want - 1), t._lrs(want // 2)
+    t.iterations = 20
+    assert t._lrs(19) == lr_end and t._lrs(want // 2) != lr_mid     # the schedule spans the longer run
+    assert Trainer(tiny_cfg(iterations=20), data, tmp_path / "b", quiet=True).run()["steps"] == 20   # -1: splat, none
+    assert planned_iterations(dataclasses.replace(cfg, epochs=0.0), 43, t.field) == 20
+    assert planned_iterations(dataclasses.replace(cfg, epochs=1.0), 43, t.field) == 20       # 11 < 20
+    for bad in (-2.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="epochs"):
+            TrainConfig(epochs=bad)
+
+
 def test_members_share_one_split_resume_and_render_their_mean_pas(tiny_ds, tmp_path):
     """members = 2: member k trains with seed + k in members/k on the parent's split; the parent's
     summary sums time, steps and Gaussians, its log lists member 0's then member 1's validation
