@@ -12,7 +12,10 @@ The setup mirrors NeRF2's published RFID data:
   :data:`LAYOUTS`; other rooms get :func:`auto_layout` (as far apart as the room allows, up to 5 m);
 - **channel** ``h`` [K, 16] from one Sionna RT solve (:class:`rfmitsuba.sim.simulate.Simulator`,
   departure directions at the gateway, :func:`rfmitsuba.rf.array.array_response`);
-- **impairments**, in this order: a fixed per-element phase offset (calibration error, uniform in
+- **impairments**, in this order: optionally mutual coupling between the elements
+  (:func:`coupling_matrix`, ``coupling_db``: each element picks up its neighbours' signals, so
+  each element's response depends on the arrival direction, which no per-element calibration
+  undoes), a fixed per-element phase offset (calibration error, uniform in
   ``+-phase_error_deg``, seeded), additive complex Gaussian noise at ``snr_db`` (a fixed noise floor:
   the SNR is that of the mean element power over all tags), then NeRF2's **phase-only Bartlett**
   read-out (``h_m / |h_m|``, :func:`rfmitsuba.rf.bartlett_ref.bartlett` with ``phase_only=True``) on
@@ -234,6 +237,31 @@ def tag_trajectories(n: int, *, lo, hi, num_trajectories: int, step_m: float = S
     return np.concatenate(out), np.concatenate(ids)
 
 
+# ---------------------------------------------------------------------------------- mutual coupling
+def coupling_matrix(level_db: float, *, rng: np.random.Generator, rows: int = antenna.ROWS,
+                    cols: int = antenna.COLS) -> np.ndarray:
+    """A reciprocal mutual-coupling matrix ``C`` of the ``rows x cols`` array (x fastest): the
+    coupled channel is ``C h``. ``C = I + K``, ``K`` symmetric; an element couples to each of its
+    row and column neighbours with magnitude ``10^(level_db / 20)`` and to its diagonal
+    neighbours 6 dB below that, each pair with its own uniform random phase (elements farther
+    apart: none).
+
+    Args:
+        level_db: coupling of adjacent elements [dB], finite (a patch array at half a wavelength:
+            about -15 to -25 dB).
+        rng: draws the phases.
+    Returns:
+        complex128 [rows*cols, rows*cols].
+    """
+    n = rows * cols
+    r, c = np.divmod(np.arange(n), cols)
+    d2 = (r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2
+    mag = np.where(d2 == 1, 1.0, np.where(d2 == 2, 0.5, 0.0)) * 10 ** (level_db / 20)
+    phase = rng.uniform(-np.pi, np.pi, (n, n))
+    phase = np.triu(phase, 1) + np.triu(phase, 1).T                 # reciprocity: C = C^T
+    return np.eye(n) + mag * np.exp(1j * phase)
+
+
 # ---------------------------------------------------------------------------------- scene at the carrier
 def scene_for_carrier(xml: Path, frequency_hz: float, folder: Path) -> tuple[Path, dict]:
     """The scene XML to load at ``frequency_hz``: ``xml`` itself when Sionna's ITU table covers every
@@ -339,7 +367,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                    seed: int = 0, scene: str | Path = "large_room", frequency_hz: float = nerf2.NERF2_FREQUENCY_HZ,
                    region_center=None, region_size=REGION_SIZE, gateway_pos=None, num_trajectories: int = 4,
                    step_m: float = STEP_M, pitch_m: float | None = None, solver=None,
-                   diffuse: float = 0.0, quiet: bool = True) -> Path:
+                   diffuse: float = 0.0, coupling_db: float = -math.inf, quiet: bool = True) -> Path:
     """Simulate a NeRF2-like RFID dataset and write it as a NeRF2 spectrum folder (module docstring).
 
     Args:
@@ -366,6 +394,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             traces diffuse reflections (``SolverConfig.diffuse_reflection``), the part of a real
             room's response that no specular path draws: rough walls and furniture scatter a
             fraction of the energy towards every tag. 0 (the default): specular paths only.
+        coupling_db: mutual coupling of adjacent elements [dB] (:func:`coupling_matrix`, seeded
+            by ``seed``), applied to the channel before the phase offsets; -inf (the default): none.
         quiet: no progress output.
     Returns:
         The folder [Path]; :func:`rfmitsuba.data.nerf2.read` reads it.
@@ -417,6 +447,9 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     if isinstance(solver, dict):
         solver = _config.from_dict(SolverConfig, solver)
     diffuse = _number(diffuse, "diffuse", lo=0.0, hi=1.0)
+    coupling = _number(coupling_db, "coupling_db", allow_inf=True)
+    if coupling == math.inf or coupling > 0:
+        raise ConfigError(f"coupling_db must be finite and <= 0 dB, or -inf (none), got {coupling_db!r}")
     if diffuse > 0:
         solver = dataclasses.replace(solver, diffuse_reflection=True)
     solver.check()
@@ -427,6 +460,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
               "step_m": step, "pitch_m": pitch, "solver": _config.to_dict(solver)}
     if diffuse > 0:   # only then: a folder made before the option existed keeps its configuration
         config["scattering_coefficient"] = diffuse
+    if math.isfinite(coupling):
+        config["coupling_db"] = coupling
     out.parent.mkdir(parents=True, exist_ok=True)
     _stale_tmp(out)
     if _existing(out, config):
@@ -455,7 +490,10 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         # departure directions at the gateway (reciprocity, docs/conventions.md): the array's channel
         h = antenna.array_response(paths.a, paths.u_fixed, frequency_hz=f_hz, positions=pos).astype(np.complex128)
 
-        # ---- impairments: phase offsets, noise, phase-only Bartlett
+        # ---- impairments: coupling, phase offsets, noise, phase-only Bartlett
+        C = coupling_matrix(coupling, rng=np.random.default_rng([seed, 4])) if math.isfinite(coupling) else None
+        if C is not None:
+            h = h @ C.T
         offsets_deg = np.random.default_rng([seed, 2]).uniform(-phase_err, phase_err, h.shape[1])
         h_cal = h * np.exp(1j * np.deg2rad(offsets_deg))[None]
         signal_power = float(np.mean(np.abs(h) ** 2))
@@ -499,7 +537,12 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                           "orientation": "horizontal: array frame = world frame, normal +z",
                           "element_positions_m": pos.tolist()},
                 "impairments": {
-                    "order": ["per-element phase offset", "additive complex Gaussian noise", "phase-only Bartlett"],
+                    "order": ["mutual coupling", "per-element phase offset", "additive complex Gaussian noise",
+                              "phase-only Bartlett"],
+                    "coupling": None if C is None else {
+                        "adjacent_db": coupling, "diagonal_db": coupling - 20 * math.log10(2),
+                        "applied_as": "h <- C h (C symmetric)", "matrix_re": C.real.tolist(),
+                        "matrix_im": C.imag.tolist()},
                     "diffuse_scattering": {"scattering_coefficient": diffuse,
                                            "traced": bool(solver.diffuse_reflection)},
                     "phase_offset": {"distribution": "uniform", "max_deg": phase_err,
@@ -510,7 +553,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                                "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
                                "8-bit PNG",
                 },
-                "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "split": seed,
+                "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "coupling": [seed, 4],
+                          "split": seed,
                           "solver": solver.seed},
                 "solver": _config.to_dict(solver),
                 "timing": {"solver_s": solver_s, "total_s": time.perf_counter() - t_start},

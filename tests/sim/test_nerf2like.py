@@ -120,6 +120,28 @@ def test_diffuse_scattering_changes_the_spectra_and_is_recorded(folder, extra, t
         nl.make_nerf2like(folder, num_tags=N, seed=3, solver=fast_solver(), diffuse=0.5)
 
 
+def test_coupling_matrix_is_reciprocal_and_local():
+    C = nl.coupling_matrix(-20.0, rng=np.random.default_rng(0))
+    assert C.shape == (16, 16) and np.allclose(C, C.T) and np.allclose(np.diag(C), 1.0)
+    mag = np.abs(C - np.eye(16))
+    # element 5 (row 1, col 1): row/column neighbours 1, 4, 6, 9 at -20 dB, diagonal ones 6 dB below
+    np.testing.assert_allclose(mag[5, [1, 4, 6, 9]], 0.1)
+    np.testing.assert_allclose(mag[5, [0, 2, 8, 10]], 0.05)
+    assert np.count_nonzero(mag[5]) == 8 and mag[0, 15] == 0
+    assert not np.allclose(C, nl.coupling_matrix(-20.0, rng=np.random.default_rng(1)))   # seeded phases
+
+
+def test_coupling_changes_the_spectra_and_is_recorded(folder, extra, tmp_path):
+    assert "coupling_db" not in extra["config"] and extra["impairments"]["coupling"] is None
+    coupled = nl.make_nerf2like(tmp_path / "coupled", num_tags=N, seed=3, solver=fast_solver(), coupling_db=-15.0)
+    rec = json.loads((coupled / nerf2.EXTRA).read_text())
+    assert rec["config"]["coupling_db"] == -15.0
+    C = np.asarray(rec["impairments"]["coupling"]["matrix_re"]) + 1j * np.asarray(rec["impairments"]["coupling"]["matrix_im"])
+    np.testing.assert_allclose(C, nl.coupling_matrix(-15.0, rng=np.random.default_rng([3, 4])))
+    diff = np.abs(nerf2.read(folder).pas(0) - nerf2.read(coupled).pas(0)).mean(axis=(1, 2))
+    assert diff.min() > 0.005
+
+
 def test_phase_only_bartlett_ignores_element_amplitudes():
     rng = np.random.default_rng(0)
     h = rng.normal(size=(3, 16)) + 1j * rng.normal(size=(3, 16))
@@ -170,6 +192,8 @@ def test_auto_layout_in_a_small_room():
     ({"phase_error_deg": 200.0}, "phase_error_deg"),
     ({"diffuse": 1.5}, "diffuse"),
     ({"diffuse": float("nan")}, "diffuse"),
+    ({"coupling_db": 3.0}, "coupling_db"),
+    ({"coupling_db": float("inf")}, "coupling_db"),
     ({"seed": -1}, "seed"),
     ({"num_trajectories": 0}, "num_trajectories"),
     ({"num_tags": 10, "num_trajectories": 6}, "num_trajectories"),
