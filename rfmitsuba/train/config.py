@@ -57,7 +57,7 @@ class TrainConfig:
     ceil(epochs * fitting positions / batch_views))`` steps (recorded as ``iterations`` in its
     summary). -1 (the default): as the field advises (``Field.epochs_advised``: a coherent
     Gaussian field with the dense visibility grid of 1000 training positions or more asks for
-    20, every other field for none); 0: exactly ``iterations``. Applies to each member and start
+    40, every other field for none); 0: exactly ``iterations``. Applies to each member and start
     alike; ``model = "auto"`` trials train their fixed budget.
     batch_views: PAS per step; downsample: train on
     (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full

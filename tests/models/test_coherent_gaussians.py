@@ -573,7 +573,7 @@ def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
                                               data, scene_xml=None)
     assert g.grid_cells == 8
     # the fine grid learns cell by cell: it asks for passes over the data (TrainConfig.epochs = -1)
-    assert f.epochs_advised == cg.DENSE_EPOCHS == 20.0 and g.epochs_advised == 0.0
+    assert f.epochs_advised == cg.DENSE_EPOCHS == 40.0 and g.epochs_advised == 0.0
 
 
 def test_frame_search_starts_the_pose_at_the_corrected_frame():
