@@ -25,7 +25,9 @@ window cannot draw. The channel at element ``m`` is
 
 with ``D`` the spreading (``L`` for an image, ``|y - p| |p - e_m|`` for a scatterer), ``k = 2 pi /
 lambda``, and ``cal_m`` a learned complex per-element calibration (cable and phase-centre errors of a
-measured array). Phase comes from the exact path length to each element (``wavefront =
+measured array). Optionally (``coupling``) the elements' channels are first mixed by ``I + K``,
+``K`` a learned complex 16 x 16 matrix (zero at the start): a real array's mutual coupling, under
+which an element's response depends on the arrival direction and no per-element gain undoes it. Phase comes from the exact path length to each element (``wavefront =
 "spherical"``) or from the plane-wave rule about the array centre (``"plane"``, what Sionna's
 synthetic array simulates). The array's pose is learned too: a small rotation (rotation vector
 ``omega`` [rad]) and a translation ``t`` [m] of the array relative to its stated pose.
@@ -86,6 +88,7 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``vis_grid``       (S+P)*G       1 (logit)   amp  (G = the grid's cells, ``vis_grid`` on only)
 ``vis_grid_box``   6             m           not trained: the grid's box (low corner, high corner)
 ``cal``            16*2          1           amp
+``coupling``       16*16*2       1           amp  (``coupling`` on only: ``K`` below)
 ``pose``           6             rad, m      means in a known room (decays), else rotations (constant)
 =================  ============  ==========  ==========
 
@@ -122,7 +125,7 @@ SCAN_SAMPLES = 1024
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp",
              "mat_through": "amp", "sc_pos": "means",
              "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "vis_grid": "amp",
-             "cal": "amp", "pose": "means"}   # vis_grid_box is never trained: no group
+             "cal": "amp", "coupling": "amp", "pose": "means"}   # vis_grid_box is never trained: no group
 #: a frame fit gaining at least this much line-of-sight correlation over the stated frame warns
 #: (a right frame gained 0.002 on NeRF2-like data, one 25 / 45 degrees off 0.023 / 0.66)
 FRAME_WARN_GAIN = 0.05
@@ -177,6 +180,8 @@ class CoherentGaussianConfig:
     wavefront: "auto" (plane for simulated data, whose truth uses the plane-wave rule; spherical
     for measured folders), "plane" or "spherical".
     calibrate: learn the per-element complex calibration; learn_pose: learn the array's pose;
+    coupling: also learn the elements' mutual coupling (``I + K`` before the calibration, ``K``
+    complex 16 x 16, zero at the start; 512 parameters).
     visibility: learn the visibility windows (False: every source keeps its initial, wide window,
     which extrapolates better beyond the training positions).
     init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
@@ -302,6 +307,7 @@ class CoherentGaussianConfig:
     readout: Literal["auto", "amplitude", "phase_only"] = "auto"
     wavefront: Literal["auto", "plane", "spherical"] = "auto"
     calibrate: bool = True
+    coupling: bool = False
     learn_pose: bool = True
     visibility: bool = True
     init_extent: float = 5.0
@@ -785,6 +791,8 @@ class CoherentGaussianField(FlatParameterField):
                       "vis_center": np.tile(np.asarray(vis_center, np.float64).reshape(3), S + P),
                       "vis_log_extent": np.full(S + P, np.log(cfg.init_extent)),
                       "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
+            if cfg.coupling:
+                params["coupling"] = np.zeros(2 * antenna.NUM_ELEMENTS ** 2)
             if self._vis is not None:
                 params["img_through"] = cfg.init_through * params["img_amp"]
                 params["img_slope"] = np.zeros(S * 2)
@@ -980,6 +988,8 @@ class CoherentGaussianField(FlatParameterField):
         S, P = self.num_images, self.num_scatterers
         out = {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
+        if self.cfg.coupling:
+            out["coupling"] = 2 * antenna.NUM_ELEMENTS ** 2
         if self.grid_cells:
             out["vis_grid"], out["vis_grid_box"] = (S + P) * self.grid_cells, 6
         if self._vis is not None:
@@ -1364,10 +1374,21 @@ class CoherentGaussianField(FlatParameterField):
         return hr, hi
 
     def _calibrate(self, prep: dict, hr, hi) -> tuple:
-        """The per-element calibration ``cal_m`` applied to channels (re, im) ``Float`` [B*16]."""
+        """The per-element calibration ``cal_m`` applied to channels (re, im) ``Float`` [B*16],
+        after the mutual coupling ``h + K h`` where ``coupling`` is on."""
         import drjit as dr
 
         M = antenna.NUM_ELEMENTS
+        if "coupling" in self.params:
+            # lane (b * 16 + m) * 16 + n: K[m, n] h_n[b], summed over n
+            lane = dr.arange(B.UInt32, prep["nb"] * M * M)
+            n = lane % M
+            bm = lane // M
+            src = (bm // M) * M + n
+            kr = dr.gather(B.Float, self.params["coupling"], 2 * ((bm % M) * M + n))
+            ki = dr.gather(B.Float, self.params["coupling"], 2 * ((bm % M) * M + n) + 1)
+            gr, gi = dr.gather(B.Float, hr, src), dr.gather(B.Float, hi, src)
+            hr, hi = hr + dr.block_sum(kr * gr - ki * gi, M), hi + dr.block_sum(kr * gi + ki * gr, M)
         m16 = dr.arange(B.UInt32, prep["nb"] * M) % M
         cal = self.params["cal"]
         calr, cali = dr.gather(B.Float, cal, 2 * m16), dr.gather(B.Float, cal, 2 * m16 + 1)
