@@ -957,8 +957,8 @@ class CoherentGaussianField(FlatParameterField):
         """:data:`DENSE_EPOCHS` (40) where the visibility grid has :data:`DENSE_VIS_GRID`'s cells
         (256) or more per source, else 0. A cell learns only from the views whose moving device
         is near it, so a fine grid needs passes over the data, not a fixed number of steps.
-        NeRF2-like, (8, 8, 4) grid, test mean / median (IDW-3): 2000 tags (1520 fitting
-        positions), seeds 0-2: 6000 steps (16 passes) 0.925 +- 0.001 / 0.943, 20 passes 0.922 +-
+        NeRF2-like, (8, 8, 4) grid, test mean / median (IDW-3): 2000 tags (1576 fitting
+        positions), seeds 0-2: 6000 steps (15 passes) 0.926 +- 0.001 / 0.943, 20 passes 0.922 +-
         0.004 / 0.941 (1 of 3 above IDW-3), 40 passes 0.929 +- 0.001 / 0.950 (3 of 3; IDW-3 0.919
         / 0.938); 6000 tags (4776 fitting positions), seed 0: 5 passes 0.915 / 0.934, 10 passes
         0.921 / 0.941, 20 passes 0.923 / 0.942, 40 passes 0.925 / 0.946 (IDW-3 0.916 / 0.936).
