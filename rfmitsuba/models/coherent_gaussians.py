@@ -1382,11 +1382,10 @@ class CoherentGaussianField(FlatParameterField):
         if "coupling" in self.params:
             # lane (b * 16 + m) * 16 + n: K[m, n] h_n[b], summed over n
             lane = dr.arange(B.UInt32, prep["nb"] * M * M)
-            n = lane % M
-            bm = lane // M
-            src = (bm // M) * M + n
-            kr = dr.gather(B.Float, self.params["coupling"], 2 * ((bm % M) * M + n))
-            ki = dr.gather(B.Float, self.params["coupling"], 2 * ((bm % M) * M + n) + 1)
+            mn = lane % (M * M)                                   # entry (m, n) of K
+            src = (lane // (M * M)) * M + mn % M                  # channel n of view b
+            kr = dr.gather(B.Float, self.params["coupling"], 2 * mn)
+            ki = dr.gather(B.Float, self.params["coupling"], 2 * mn + 1)
             gr, gi = dr.gather(B.Float, hr, src), dr.gather(B.Float, hi, src)
             hr, hi = hr + dr.block_sum(kr * gr - ki * gi, M), hi + dr.block_sum(kr * gi + ki * gr, M)
         m16 = dr.arange(B.UInt32, prep["nb"] * M) % M

@@ -448,7 +448,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         solver = _config.from_dict(SolverConfig, solver)
     diffuse = _number(diffuse, "diffuse", lo=0.0, hi=1.0)
     coupling = _number(coupling_db, "coupling_db", allow_inf=True)
-    if coupling == math.inf or coupling > 0:
+    if coupling > 0:                                   # +inf included
         raise ConfigError(f"coupling_db must be finite and <= 0 dB, or -inf (none), got {coupling_db!r}")
     if diffuse > 0:
         solver = dataclasses.replace(solver, diffuse_reflection=True)
