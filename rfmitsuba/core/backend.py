@@ -104,3 +104,29 @@ def sync() -> None:
     import drjit as dr
 
     dr.sync_thread()
+
+
+#: 2 pi in two parts for the argument reduction of :func:`sincos_phase`: ``TWO_PI_HI`` (6.28125)
+#: has 8 significant bits, so ``n * TWO_PI_HI`` is exact in float32 for ``|n| < 2**16``.
+TWO_PI_HI = 6.28125
+TWO_PI_LO = 0.0019353071795864769
+
+
+def sincos_phase(phase):
+    """(sin, cos) of a path phase ``Float`` [rad] that may be hundreds of radians (``k L``: 1000
+    rad at 2.4 GHz and 20 m), accurate to about 5e-7 on either backend.
+
+    Dr.Jit's LLVM backend evaluates ``sin`` with its own argument reduction (error about 9e-8 up
+    to 4000 rad). On CUDA, float32 ``sin``/``cos`` are the hardware's fast approximations, whose
+    error grows with the argument: about 1.4e-7 * |phase| (measured on an H100: 1.4e-4 at 1000
+    rad, 5.4e-4 at 4000). There the phase is first reduced to [-pi, pi] by ``phase - n 2 pi``
+    with ``2 pi`` in two parts (Cody and Waite), which leaves the float32 phase's own rounding
+    as the only error, the same on both backends. Differentiable (the reduction's ``n`` is a
+    constant)."""
+    import drjit as dr
+
+    if not is_cuda():
+        return dr.sin(phase), dr.cos(phase)
+    n = dr.detach(dr.round(phase * (0.5 / 3.141592653589793)))
+    r = dr.fma(-n, TWO_PI_LO, dr.fma(-n, TWO_PI_HI, phase))
+    return dr.sin(r), dr.cos(r)

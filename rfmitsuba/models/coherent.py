@@ -407,7 +407,8 @@ class CoherentField(CoherentFamily):
         if rx_to_world is not None:  # arrival directions in the array frame: R^T u
             R = np.asarray(rx_to_world, np.float64).reshape(3, 3)
             u = [sum(float(R[r, j]) * u[r] for r in range(3)) for j in range(3)]
-        pr, pi = dr.cos(k * L) / L, -dr.sin(k * L) / L
+        s, c = B.sincos_phase(k * L)
+        pr, pi = c / L, -s / L
         view = np.concatenate([self._enc(q), _extra_array(extra, nb, self.extra_inputs)], axis=1)
         o = self.gain(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + u)
         ar = dr.gather(B.Float, self.params["amp"], 2 * i)

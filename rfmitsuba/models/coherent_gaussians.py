@@ -1353,7 +1353,7 @@ class CoherentGaussianField(FlatParameterField):
             u = [(s[i] - cen[i]) / L for i in range(3)]
             phase = kw * (r[0] * u[0] + r[1] * u[1] + r[2] * u[2]) - kw * (L + lead)
         w = win / (L * spread0)
-        c, sn = dr.cos(phase), dr.sin(phase)
+        sn, c = B.sincos_phase(phase)
         vr, vi = w * (ar * c - ai * sn), w * (ar * sn + ai * c)
         dr.eval(vr, vi)                                   # one kernel for both parts
         return dr.block_sum(vr, ln["K"]), dr.block_sum(vi, ln["K"])

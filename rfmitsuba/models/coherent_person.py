@@ -245,7 +245,8 @@ class CoherentPersonField(CoherentFamily):
         gr, gi = _cmul(ar, ai, 1.0 + sc * o[0], sc * o[1])
         ph = -k * (L1 + L2)
         inv = 1.0 / (L1 * L2)
-        return sum_terms(*_cmul(gr, gi, dr.cos(ph) * inv, dr.sin(ph) * inv), u, nb, T, frequency_hz=self.frequency_hz)
+        s, c = B.sincos_phase(ph)
+        return sum_terms(*_cmul(gr, gi, c * inv, s * inv), u, nb, T, frequency_hz=self.frequency_hz)
 
     def write_ply(self, path: str | Path, **_) -> Path:
         """The scattering points as small Gaussians in the 3DGS PLY layout, at their learned
