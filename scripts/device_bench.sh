@@ -4,10 +4,13 @@
 # The GPU machine has Python 3.12 with PyTorch, NumPy, SciPy, matplotlib, scikit-image and pytest,
 # but no network: Dr.Jit, Mitsuba (stripped to the CUDA polarised variant), Sionna RT and the
 # pure-Python packages Sionna imports travel in an ignored folder (default .dev):
-#   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, ipywidgets, pythreejs, ... (cp312)
+#   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, ipywidgets, pythreejs, ... (cp312);
+#                              for the data and train tests also hypothesis, sortedcontainers, PyYAML,
+#                              tqdm and threadpoolctl
 #   .dev/mitsuba_strip.tar.xz  the mitsuba 3.9.1 cp312 wheel's files without the LLVM/spectral variants
 # Usage (from the repository root, on the GPU machine):  bash scripts/device_bench.sh OUTDIR
-# SKIP="step ..." leaves steps out; TESTS="paths" replaces the test modules of the CUDA test step.
+# SKIP="step ..." leaves steps out; TESTS="paths" replaces the test modules of the CUDA test step and
+# PYTEST_LIMIT its time limit in seconds (default 150).
 # Every step has its own time limit and the script goes on after a failed step, so one run gives
 # everything that works; each step's output is in OUTDIR/<step>.log.
 set -u
@@ -55,6 +58,10 @@ step train_splat 100 bash -c "rfmitsuba train $DS --model splat --out /tmp/r_spl
 step train_coherent 150 bash -c "rfmitsuba train $DS --model coherent_gaussians --out /tmp/r_cg --set seed=0 \
     && rfmitsuba eval /tmp/r_cg && cp /tmp/r_cg/eval/metrics.json $OUT/metrics_coherent.json \
     && cp /tmp/r_cg/final/summary.json $OUT/summary_coherent.json"
+# A dense folder (2000 NeRF2-like tags, generated on CUDA) with the default's 40 passes.
+step train_dense 170 bash -c "rfmitsuba nerf2like --tags 2000 --out /tmp/n2k --quiet \
+    && rfmitsuba train /tmp/n2k --model coherent_gaussians --out /tmp/r_n2k --set seed=0 && rfmitsuba eval /tmp/r_n2k \
+    && cp /tmp/r_n2k/eval/metrics.json $OUT/metrics_dense.json && cp /tmp/r_n2k/final/summary.json $OUT/summary_dense.json"
 # Stage 1 of the default field in a known room: bedroom, moving RX, 900 positions, empty room only.
 step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions 900 --human-positions 0 \
     --out /tmp/bedroom_rx && rfmitsuba train /tmp/bedroom_rx --model coherent_gaussians --out /tmp/r_bed --set seed=0 \
@@ -62,7 +69,7 @@ step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions
     && cp /tmp/r_bed/log.jsonl $OUT/log_bedroom.jsonl"
 # The test modules of the backend, the RF physics and the models, on CUDA. The LLVM alias test
 # needs the LLVM variant, which the carried Mitsuba leaves out.
-step pytest_cuda 150 python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
+step pytest_cuda "${PYTEST_LIMIT:-150}" python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
     --deselect tests/core/test_backend.py::test_alias_and_unknown \
     ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/test_coherent_gaussians.py \
     tests/models/test_splat.py}
