@@ -122,11 +122,13 @@ def sincos_phase(phase):
     rad, 5.4e-4 at 4000). There the phase is first reduced to [-pi, pi] by ``phase - n 2 pi``
     with ``2 pi`` in two parts (Cody and Waite), which leaves the float32 phase's own rounding
     as the only error, the same on both backends. Differentiable (the reduction's ``n`` is a
-    constant)."""
+    constant). The cosine is taken first: on LLVM the AD graph is then the one of the code before
+    this helper (``dr.cos`` then ``dr.sin``), and so are the results, bit for bit; created the
+    other way round, a 300-step Stage-2 test run ended at SSIM 0.663 instead of 0.679."""
     import drjit as dr
 
-    if not is_cuda():
-        return dr.sin(phase), dr.cos(phase)
-    n = dr.detach(dr.round(phase * (0.5 / 3.141592653589793)))
-    r = dr.fma(-n, TWO_PI_LO, dr.fma(-n, TWO_PI_HI, phase))
-    return dr.sin(r), dr.cos(r)
+    if is_cuda():
+        n = dr.detach(dr.round(phase * (0.5 / 3.141592653589793)))
+        phase = dr.fma(-n, TWO_PI_LO, dr.fma(-n, TWO_PI_HI, phase))
+    c = dr.cos(phase)
+    return dr.sin(phase), c
