@@ -73,7 +73,8 @@ class TrainConfig:
     two runs of one configuration differ (NeRF2-like, seed 0, 3000 steps: test SSIM 0.955 and
     0.940); 1 makes a run bit-reproducible, at about twice the time on 2 cores.
     starts: training starts (0 = as many as the field advises, ``Field.starts_advised``: 1, or 2
-    for a coherent Gaussian field whose elements' offsets were searched). With more than one,
+    for a coherent Gaussian field whose elements' offsets were searched or whose mutual coupling
+    it learns). With more than one,
     each start trains its own copy of the initial field with its own batches for a tenth of
     the run (:func:`rfmitsuba.train.trainer.start_steps`) and the one with the best validation
     SSIM trains on (the others' steps count as training time; ``starts.json`` in the run folder).

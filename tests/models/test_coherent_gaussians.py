@@ -186,7 +186,7 @@ def test_state_round_trip_and_frozen(tmp_path):
     assert (g.readout, g.wavefront, g.num_images, g.num_scatterers) == ("phase_only", "spherical", 2, 2)
     v = _views()
     np.testing.assert_allclose(render([g], v).numpy(), render([f], v).numpy(), atol=1e-6)
-    assert g.num_parameters == 6 + 4 + 6 + 4 + 12 + 4 + 32 + 6
+    assert g.num_parameters == 6 + 4 + 6 + 4 + 12 + 4 + 32 + 6 + 512   # K: "auto" learns it for phase-only spectra
     assert [x.name for x in g.export_ply(tmp_path, views=v)] == ["sources.ply"]
 
 
@@ -762,6 +762,7 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
     for mode in ("auto", "other", "off"):
         cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
                                          "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
+                                         "coherent_gaussians.coupling=false",
                                          'coherent_gaussians.calibration_search="{}"'.format(
                                              "auto" if mode == "other" else mode),
                                          'coherent_gaussians.calibration_twin="{}"'.format(
@@ -783,6 +784,13 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
             assert "calibration_fit" not in f.init_report and np.allclose(cal, [1.0, 0.0])
             assert f.starts_advised == 1
     assert corr["auto"] > 0.99 and corr["other"] > 0.99 and corr["off"] < 0.5
+    # with the coupling left to "auto", phase-only spectra learn it, and a learned coupling also
+    # trains from two starts
+    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
+                                     "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
+                                     'coherent_gaussians.calibration_search="off"'])
+    f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
+    assert f.cfg.coupling is True and "coupling" in f.params and f.starts_advised == 2
     # "other" starts at the twin of "auto"'s offsets: conj, element order reversed, re-referenced
     twin = -phase["auto"][::-1] + phase["auto"][-1]
     np.testing.assert_allclose(np.angle(np.exp(1j * (phase["other"] - twin))), 0.0, atol=1e-5)
@@ -878,3 +886,58 @@ def test_coupling_mixes_the_elements_as_i_plus_k(tmp_path):
     g.params["cal"] = f.params["cal"]
     zr, zi = g.channels(views)
     np.testing.assert_allclose(zr.numpy(), hr.numpy(), rtol=1e-6, atol=1e-7)
+
+
+def test_coupling_auto_follows_the_readout():
+    """``coupling = "auto"`` (the default) learns K for phase-only spectra (a NeRF2 gateway) and
+    not for the amplitude read-out of simulated rooms; a phase-only state saved without K loads
+    without it; anything but true, false or "auto" is refused."""
+    import json
+
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
+
+    assert CoherentGaussianConfig().coupling == "auto"
+    amp, pha = _field(), _field(readout="phase_only", wavefront="spherical")
+    assert amp.cfg.coupling is False and "coupling" not in amp.params
+    assert pha.cfg.coupling is True and pha.num_parameters == amp.num_parameters + 512
+    old = pha.state_dict()
+    del old["coupling"]
+    meta = json.loads(str(old["meta"]))
+    meta["config"]["coupling"] = "auto"
+    old["meta"] = np.asarray(json.dumps(meta))
+    back = CoherentGaussianField.from_state_dict(old)
+    assert back.cfg.coupling is False and "coupling" not in back.params
+    with pytest.raises(ConfigError, match="coupling"):
+        CoherentGaussianConfig(coupling="on")
+
+
+def test_candidate_image_gradient_sees_the_coupling():
+    """``image_gain_gradients`` of a coupled field: the gradient of ``sum Re(conj(G) h)`` with
+    respect to a candidate's gain equals ``<G, h_c>``, ``h_c`` the channel the candidate adds at
+    gain 1 when appended to the field (its coupling and calibration included)."""
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.train.pursuit import reflection
+
+    _, g = _coupled_field(seed=2)
+    views = _views(n=4)
+    A, b = reflection(1, -0.4)
+    rng = np.random.default_rng(5)
+    G = rng.normal(size=(2, 64))
+    got = g.image_gain_gradients(views, G[0], G[1], A[None], b[None])[0]
+    with dr.suspend_grad():
+        h0r, h0i = g.channels(views)
+        g.add_images(A[None], b[None], np.array([1]), vis_center=np.zeros(3))
+        amp = np.asarray(g.params["img_amp"].numpy()).copy()
+        ext = np.asarray(g.params["vis_log_extent"].numpy()).copy()
+        amp[-2:] = [1.0, 0.0]
+        ext[g.num_images - 1] = 30.0                  # the new image's window: 1 everywhere
+        g.params["img_amp"], g.params["vis_log_extent"] = B.Float(amp), B.Float(ext)
+        h1r, h1i = g.channels(views)
+    hcr = np.asarray(h1r.numpy(), np.float64) - np.asarray(h0r.numpy(), np.float64)
+    hci = np.asarray(h1i.numpy(), np.float64) - np.asarray(h0i.numpy(), np.float64)
+    # d/d re of sum(Gr Re h + Gi Im h) with h = gain * h_c: <G, h_c>; d/d im: <G, j h_c>
+    want = [G[0] @ hcr + G[1] @ hci, -G[0] @ hci + G[1] @ hcr]
+    np.testing.assert_allclose(got, want, rtol=2e-3, atol=2e-3 * np.abs(want).max())
