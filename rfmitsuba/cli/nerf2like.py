@@ -16,6 +16,10 @@ def register(sub) -> None:
                         "reflections, as rough real surfaces scatter (default 0: specular paths only)")
     p.add_argument("--coupling", type=float, default=float("-inf"),
                    help="mutual coupling of adjacent elements in dB, e.g. -20 (default: none)")
+    p.add_argument("--position-error", type=float, default=0.0, metavar="MM",
+                   help="the stated tag positions (tx_pos.csv) are off from where each spectrum was taken by "
+                        "Gaussian errors of this standard deviation per axis, in mm, as tracked positions are "
+                        "(default 0)")
     p.add_argument("--seed", type=int, default=0, help="trajectories, offsets, noise and the 160/40 split")
     p.add_argument("--scene", default="large_room", help="built-in room or XML (default large_room, fits 5 m)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -27,7 +31,7 @@ def run(args) -> int:
 
     out = make_nerf2like(args.out, num_tags=args.tags, snr_db=args.snr, phase_error_deg=args.phase_error,
                          seed=args.seed, scene=args.scene, diffuse=args.diffuse,
-                         coupling_db=args.coupling,
+                         coupling_db=args.coupling, position_error_m=args.position_error / 1000.0,
                          quiet=args.quiet)
     print(f"NeRF2-like folder {out}")
     print(f"next: rfmitsuba train {out} --out RUN --set model=coherent_gaussians  (add --split block for the slab split)")

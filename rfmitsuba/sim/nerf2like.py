@@ -19,7 +19,8 @@ The setup mirrors NeRF2's published RFID data:
   ``+-phase_error_deg``, seeded), additive complex Gaussian noise at ``snr_db`` (a fixed noise floor:
   the SNR is that of the mean element power over all tags), then NeRF2's **phase-only Bartlett**
   read-out (``h_m / |h_m|``, :func:`rfmitsuba.rf.bartlett_ref.bartlett` with ``phase_only=True``) on
-  the 90 x 360 PAS grid, min-max normalised and stored as 8-bit PNG.
+  the 90 x 360 PAS grid, min-max normalised and stored as 8-bit PNG; optionally the stated tag
+  positions (``tx_pos.csv``) are off by Gaussian errors (``position_error_m``), as a tracker's are.
 
 The folder is written by :func:`rfmitsuba.data.nerf2.write` (spectrum/00001.png..., tx_pos.csv,
 gateway_info.yml, the seeded 80/20 split of :func:`rfmitsuba.data.split.make_split` as
@@ -367,7 +368,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                    seed: int = 0, scene: str | Path = "large_room", frequency_hz: float = nerf2.NERF2_FREQUENCY_HZ,
                    region_center=None, region_size=REGION_SIZE, gateway_pos=None, num_trajectories: int = 4,
                    step_m: float = STEP_M, pitch_m: float | None = None, solver=None,
-                   diffuse: float = 0.0, coupling_db: float = -math.inf, quiet: bool = True) -> Path:
+                   diffuse: float = 0.0, coupling_db: float = -math.inf, position_error_m: float = 0.0,
+                   quiet: bool = True) -> Path:
     """Simulate a NeRF2-like RFID dataset and write it as a NeRF2 spectrum folder (module docstring).
 
     Args:
@@ -396,6 +398,10 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             fraction of the energy towards every tag. 0 (the default): specular paths only.
         coupling_db: mutual coupling of adjacent elements [dB] (:func:`coupling_matrix`, seeded
             by ``seed``), applied to the channel before the phase offsets; -inf (the default): none.
+        position_error_m: standard deviation per axis of the errors of the stated tag positions [m]:
+            ``tx_pos.csv`` holds each tag's position plus Gaussian noise (seeded by ``seed``), while
+            its spectrum comes from where the tag was, as a measured folder's tracked positions
+            are off; the true positions go to ``rfmitsuba.json``. 0 (the default): exact.
         quiet: no progress output.
     Returns:
         The folder [Path]; :func:`rfmitsuba.data.nerf2.read` reads it.
@@ -450,6 +456,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     coupling = _number(coupling_db, "coupling_db", allow_inf=True)
     if coupling > 0:                                   # +inf included
         raise ConfigError(f"coupling_db must be finite and <= 0 dB, or -inf (none), got {coupling_db!r}")
+    pos_err = _number(position_error_m, "position_error_m", lo=0.0, hi=0.5)
     if diffuse > 0:
         solver = dataclasses.replace(solver, diffuse_reflection=True)
     solver.check()
@@ -462,6 +469,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         config["scattering_coefficient"] = diffuse
     if math.isfinite(coupling):
         config["coupling_db"] = coupling
+    if pos_err > 0:
+        config["position_error_m"] = pos_err
     out.parent.mkdir(parents=True, exist_ok=True)
     _stale_tmp(out)
     if _existing(out, config):
@@ -505,13 +514,15 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             g = np.random.default_rng([seed, 3]).normal(size=(*h.shape, 2))
             h_meas = h_cal + math.sqrt(noise_power / 2) * (g[..., 0] + 1j * g[..., 1])
         pas = bartlett(h_meas, frequency_hz=f_hz, positions=pos, phase_only=True)
+        stated = tags if pos_err == 0 else \
+            np.round(tags + pos_err * np.random.default_rng([seed, 5]).normal(size=tags.shape), 7)
         pb.update(1)
 
         # ---- write into a temporary folder, then rename
         split = make_split(num_tags, 0, seed=seed)
         tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
-        source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=tags, fixed_pos=gateway, split=split,
+        source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=stated, fixed_pos=gateway, split=split,
                                  human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
                                  path=f"sionna-rt:{xml.stem}")
         try:
@@ -538,7 +549,11 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                           "element_positions_m": pos.tolist()},
                 "impairments": {
                     "order": ["mutual coupling", "per-element phase offset", "additive complex Gaussian noise",
-                              "phase-only Bartlett"],
+                              "phase-only Bartlett", "stated tag positions"],
+                    "position_error": None if pos_err == 0 else {
+                        "sigma_m_per_axis": pos_err, "applied_as": "tx_pos.csv = true position + N(0, sigma^2) per axis",
+                        "rms_m": float(np.sqrt(np.mean(np.sum((stated - tags) ** 2, axis=1)))),
+                        "true_tx_pos_m": tags.tolist()},
                     "coupling": None if C is None else {
                         "adjacent_db": coupling, "diagonal_db": coupling - 20 * math.log10(2),
                         "applied_as": "h <- C h (C symmetric)", "matrix_re": C.real.tolist(),
@@ -554,6 +569,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                                "8-bit PNG",
                 },
                 "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "coupling": [seed, 4],
+                          "position_error": [seed, 5],
                           "split": seed,
                           "solver": solver.seed},
                 "solver": _config.to_dict(solver),

@@ -142,6 +142,24 @@ def test_coupling_changes_the_spectra_and_is_recorded(folder, extra, tmp_path):
     assert diff.min() > 0.005
 
 
+def test_position_error_moves_only_the_stated_positions(folder, extra, tmp_path):
+    """The spectra are the error-free folder's; tx_pos.csv holds the true positions plus errors of
+    the asked standard deviation, which rfmitsuba.json records with the true positions."""
+    off = nl.make_nerf2like(tmp_path / "off", num_tags=N, seed=3, solver=fast_solver(), position_error_m=0.01)
+    a, b = nerf2.read(folder), nerf2.read(off)
+    np.testing.assert_array_equal(b.pas(0), a.pas(0))
+    d = b.antenna_pos.astype(np.float64) - a.antenna_pos.astype(np.float64)
+    assert 0.006 < d.std() < 0.014 and abs(d.mean()) < 0.005
+    rec = json.loads((off / nerf2.EXTRA).read_text())
+    assert rec["config"]["position_error_m"] == 0.01 and "position_error_m" not in extra["config"]
+    err = rec["impairments"]["position_error"]
+    np.testing.assert_allclose(err["true_tx_pos_m"], a.antenna_pos, atol=1e-6)
+    assert err["rms_m"] == pytest.approx(np.sqrt((d ** 2).sum(1).mean()), rel=1e-3)
+    assert extra["impairments"]["position_error"] is None
+    with pytest.raises(ConfigError, match="position_error_m"):
+        nl.make_nerf2like(tmp_path / "bad", num_tags=N, position_error_m=float("nan"))
+
+
 def test_phase_only_bartlett_ignores_element_amplitudes():
     rng = np.random.default_rng(0)
     h = rng.normal(size=(3, 16)) + 1j * rng.normal(size=(3, 16))
