@@ -27,12 +27,13 @@ from .density import DensityConfig
 @dataclass
 class OptimConfig:
     """Adam learning rates (per step). ``*_final`` values are reached at the last iteration by
-    exponential decay; the others are constant."""
+    exponential decay; the others are constant, and so is a group whose ``*_final`` is 0."""
 
     lr_means: float = 2e-3
     lr_means_final: float = 2e-5
     lr_log_scales: float = 5e-3
     lr_rotations: float = 1e-3
+    lr_rotations_final: float = 0.0
     lr_opacity: float = 2e-2
     lr_net: float = 2e-3
     lr_net_final: float = 2e-4

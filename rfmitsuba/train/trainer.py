@@ -240,7 +240,7 @@ class Trainer:
             t = min(1.0, max(t, train_time / self.cfg.time_limit_s))
         net = _lr(o.lr_net, o.lr_net_final, t)
         means = _lr(o.lr_means, o.lr_means_final, t)
-        return {"means": means, "log_scales": o.lr_log_scales, "rotations": o.lr_rotations,
+        return {"means": means, "log_scales": o.lr_log_scales, "rotations": _lr(o.lr_rotations, o.lr_rotations_final, t),
                 "opacity_logits": o.lr_opacity, "net": net,
                 "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
 

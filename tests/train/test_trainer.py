@@ -203,6 +203,29 @@ def test_epochs_lengthen_a_run_to_passes_over_the_fitting_positions(tiny_ds, tmp
             TrainConfig(epochs=bad)
 
 
+def test_learning_rate_schedules_decay_to_their_final_values(tiny_ds, tmp_path):
+    """A group with a ``*_final`` rate decays exponentially to it at the last step (half-way:
+    the geometric mean); the rotations' rate stays constant unless ``lr_rotations_final`` is set."""
+    import dataclasses
+
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import OptimConfig
+    from rfmitsuba.train.trainer import Trainer
+
+    data = TrainData.open(tiny_ds)
+    cfg = tiny_cfg(iterations=101)
+    t = Trainer(cfg, data, tmp_path / "a", quiet=True)
+    assert t._lrs(0)["rotations"] == t._lrs(100)["rotations"] == cfg.optim.lr_rotations
+    assert t._lrs(100)["means"] == pytest.approx(cfg.optim.lr_means_final)
+    assert t._lrs(50)["means"] == pytest.approx((cfg.optim.lr_means * cfg.optim.lr_means_final) ** 0.5)
+    o = dataclasses.replace(cfg.optim, lr_rotations=1e-3, lr_rotations_final=1e-5)
+    t = Trainer(dataclasses.replace(cfg, optim=o), data, tmp_path / "b", quiet=True)
+    assert t._lrs(0)["rotations"] == pytest.approx(1e-3)
+    assert t._lrs(50)["rotations"] == pytest.approx(1e-4)
+    assert t._lrs(100)["rotations"] == pytest.approx(1e-5)
+    assert OptimConfig().lr_rotations_final == 0.0
+
+
 def test_members_share_one_split_resume_and_render_their_mean_pas(tiny_ds, tmp_path):
     """members = 2: member k trains with seed + k in members/k on the parent's split; the parent's
     summary sums time, steps and Gaussians, its log lists member 0's then member 1's validation
