@@ -91,6 +91,14 @@ class TrainConfig:
     0.958 +- 0.001 against one field's 0.954 +- 0.003 (seeds 0, 5, 10). K members cost K times
     the training time and Gaussians. Stage 2 and the
     methods train one field (1 = no ensemble).
+    revert_drop: a run whose last validation SSIM lies more than this below the best validation
+    check of its last 30% (progress, as the learning-rate schedules count it) keeps the field of
+    that check instead (``final/summary.json``'s ``revert`` says when and from where); 0: always
+    the last state. It catches a collapse that lands on the last check: on NeRF2-like tags with
+    −15 dB element coupling, dips of 0.02–0.12 in the last 30% of a run, which recover at the next
+    checks, came in 4 of 5 runs, and one run ended in one (validation 0.962 -> 0.942, test 0.945
+    against the best floor's 0.952; docs/measurements.md). Not where the field's primitives
+    changed after that check (density control).
     model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
     :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
     (:func:`rfmitsuba.models.base.field_class`): "splat"
@@ -123,6 +131,7 @@ class TrainConfig:
     threads: int = 0
     starts: int = 0
     members: int = 1
+    revert_drop: float = 0.01
     model: str = "splat"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
@@ -154,6 +163,9 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.split must be 'dataset', 'block' or 'random', got {self.split!r}")
         if self.time_limit_s < 0 or self.max_train_positions < 0 or self.state < 0:
             raise ConfigError("TrainConfig: time_limit_s, max_train_positions and state must be >= 0")
+        if not (math.isfinite(self.revert_drop) and 0 <= self.revert_drop <= 1):
+            raise ConfigError(f"TrainConfig.revert_drop must be in [0, 1] (0 = keep the last state), "
+                              f"got {self.revert_drop!r}")
         if not 0 <= self.starts <= 16:
             raise ConfigError(f"TrainConfig.starts must be in 0..16 (0 = as the field advises), got {self.starts}")
         if not (isinstance(self.members, int) and not isinstance(self.members, bool) and 1 <= self.members <= 16):

@@ -7,7 +7,8 @@
 * :class:`Trainer` - Adam (``drjit.opt.Adam``) with per-parameter learning-rate schedules,
   loss ``0.8*L1 + 0.2*(1-SSIM)`` on per-image min-max normalised PAS, adaptive density
   control, validation SSIM on held-out *training* positions, checkpoints that resume to the
-  same result, a progress bar, and the run folder.
+  same result, a progress bar, and the run folder. A run whose last validation check collapsed
+  (``TrainConfig.revert_drop`` below the best check of its last 30%) keeps that check's field.
 
 Run folder layout::
 
@@ -132,6 +133,7 @@ class Trainer:
         #: steps this run trains (planned_iterations, set once the field exists)
         self.iterations = cfg.iterations
         self.split = None   # a split handed down (an ensemble's members share their parent's)
+        self._tail_best = None   # {"step", "val_ssim", "state"}: the best validation check of the tail
         if cfg.members > 1 and (self.frozen or extra is not None or field_factory is not None):
             raise ConfigError(f"TrainConfig.members = {cfg.members}: an ensemble is a Stage-1 background "
                               "alone; Stage 2 and the joint fields train one field (members = 1)")
@@ -230,14 +232,20 @@ class Trainer:
             return resolve_scene(self.cfg.scene)
         return self.data.scene_xml
 
-    def _lrs(self, step: int, train_time: float = 0.0) -> dict:
-        """Learning rates of step ``step``: the schedule's progress is the larger of the share of
-        iterations done and, with a time limit, the share of training time used (so a run stopped
-        by its time limit ends with its final learning rates, not half-way down the schedule)."""
-        o = self.cfg.optim
+    def _progress(self, step: int, train_time: float = 0.0) -> float:
+        """The share of the run done at step ``step``, in [0, 1]: the larger of the share of
+        iterations done and, with a time limit, the share of training time used."""
         t = step / max(self.iterations - 1, 1)
         if self.cfg.time_limit_s:
-            t = min(1.0, max(t, train_time / self.cfg.time_limit_s))
+            t = max(t, train_time / self.cfg.time_limit_s)
+        return float(min(1.0, t))
+
+    def _lrs(self, step: int, train_time: float = 0.0) -> dict:
+        """Learning rates of step ``step`` at the schedule's progress :meth:`_progress` (so a run
+        stopped by its time limit ends with its final learning rates, not half-way down the
+        schedule)."""
+        o = self.cfg.optim
+        t = self._progress(step, train_time)
         net = _lr(o.lr_net, o.lr_net_final, t)
         means = _lr(o.lr_means, o.lr_means_final, t)
         return {"means": means, "log_scales": o.lr_log_scales, "rotations": _lr(o.lr_rotations, o.lr_rotations_final, t),
@@ -291,9 +299,14 @@ class Trainer:
             arrays[f"opt/{key}/v"] = np.array(v.numpy(), dtype=np.float32, copy=True)
             arrays[f"opt/{key}/t"] = np.array(np.asarray(t.numpy()).ravel()[0] if hasattr(t, "numpy") else t)
         arrays.update({f"density/{k}": v for k, v in strategy.state_dict().items()})
+        tb = self._tail_best
+        if tb is not None:
+            arrays.update({f"tail_best/{k}": v for k, v in tb["state"].items()})
         np.savez(tmp / "state.npz", **arrays)
         _write_json(tmp / "meta.json", {"step": step, "rng": rng.bit_generator.state, "train_time_s": train_time,
-                                        "val_history": val_hist, "density_history": strategy.history})
+                                        "val_history": val_hist, "density_history": strategy.history,
+                                        "tail_best": None if tb is None else
+                                        {"step": tb["step"], "val_ssim": tb["val_ssim"]}})
         final = rd / "checkpoint"
         old = rd / "checkpoint.old"
         if old.exists():
@@ -327,6 +340,10 @@ class Trainer:
             opt.state[key] = (value, promoted, lr, (t, B.Float(st[f"opt/{key}/m"]), B.Float(st[f"opt/{key}/v"]), None))
         strategy.load_state_dict({k[len("density/"):]: v for k, v in st.items() if k.startswith("density/")})
         strategy.history = list(meta.get("density_history", []))
+        tb = meta.get("tail_best")
+        if tb is not None:
+            state = {k[len("tail_best/"):]: v for k, v in st.items() if k.startswith("tail_best/")}
+            self._tail_best = {"step": int(tb["step"]), "val_ssim": float(tb["val_ssim"]), "state": state}
         rng.bit_generator.state = meta["rng"]
         return meta
 
@@ -441,6 +458,7 @@ class Trainer:
         probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
 
         opt, strategy = self._optimizer(field, fit, loss_fn)
+        self._tail_best = None
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
         train_time = meta["train_time_s"] if meta else 0.0
@@ -488,6 +506,7 @@ class Trainer:
                     val_hist.append({"step": step, "val_ssim": last_val, "n_gaussians": field.num_primitives,
                                      "time_s": train_time})
                     row = {"val_ssim": last_val}
+                    self._keep_tail_best(field, step, train_time, last_val)
                     t_last = time.perf_counter()  # validation is not training time
                 if step % cfg.log_every == 0 or row is not None:
                     self._log({"step": step, "loss": log_loss / max(log_n, 1), "n_gaussians": field.num_primitives,
@@ -611,9 +630,41 @@ class Trainer:
         tmp.write_text("".join(r + "\n" for r in rows))
         tmp.replace(p)
 
+    def _keep_tail_best(self, field: Field, step: int, train_time: float, val: float) -> None:
+        """Keep the field's state when this validation check is the best of the run's tail
+        (progress >= :data:`TAIL`), for :meth:`_revert_collapse`."""
+        if self.cfg.revert_drop <= 0 or not math.isfinite(val) or self._progress(step, train_time) < TAIL:
+            return
+        if self._tail_best is None or val > self._tail_best["val_ssim"]:
+            self._tail_best = {"step": step, "val_ssim": val, "state": field.state_dict()}
+
+    def _revert_collapse(self, field: Field, val_hist: list) -> dict | None:
+        """If the last validation SSIM lies more than ``cfg.revert_drop`` below the best check of
+        the run's tail, load that check's state into ``field``; returns what was done (None: the
+        last state stays)."""
+        tb = self._tail_best
+        if self.cfg.revert_drop <= 0 or tb is None or not val_hist:
+            return None
+        last = val_hist[-1]["val_ssim"]
+        if not (math.isfinite(last) and last < tb["val_ssim"] - self.cfg.revert_drop):
+            return None
+        now = field.state_dict()
+        same = set(now) == set(tb["state"]) and all(
+            np.shape(now[k]) == np.shape(tb["state"][k]) for k in now if not k.startswith("geometry."))
+        out = {"from_step": val_hist[-1]["step"], "from_val_ssim": last, "to_step": tb["step"],
+               "to_val_ssim": tb["val_ssim"]}
+        if not same:   # density control changed the field after that check: keep the last state
+            return {**out, "reverted": False, "why": "the field's primitives changed after the check"}
+        field.load_state_dict(tb["state"])
+        return {**out, "reverted": True}
+
     def _finish(self, field, split, step, train_time, val_hist, stopped, strategy) -> dict:
         fd = self.run_dir / "final"
         fd.mkdir(exist_ok=True)
+        revert = self._revert_collapse(field, val_hist)
+        val_ssim = val_hist[-1]["val_ssim"] if val_hist else None
+        if revert and revert["reverted"]:
+            val_ssim = revert["to_val_ssim"]
         field.save(fd / "field.npz")
         fit = split["fit"]
         field.export_ply(fd, views=self.views(fit[np.linspace(0, len(fit) - 1, min(32, len(fit))).astype(int)]))
@@ -621,7 +672,7 @@ class Trainer:
                    "model": self.cfg.model,
                    "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
                    "network_parameters": field.network_parameters,
-                   "val_ssim": val_hist[-1]["val_ssim"] if val_hist else None,
+                   "val_ssim": val_ssim, "revert": revert,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
                    "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
@@ -630,6 +681,10 @@ class Trainer:
             summary["init"] = field.init_report
         _write_json(fd / "summary.json", summary)
         return summary
+
+
+#: the share of a run after which validation checks count as its tail (TrainConfig.revert_drop)
+TAIL = 0.7
 
 
 def planned_iterations(cfg: TrainConfig, num_fit: int, field: Field) -> int:

@@ -226,6 +226,57 @@ def test_learning_rate_schedules_decay_to_their_final_values(tiny_ds, tmp_path):
     assert OptimConfig().lr_rotations_final == 0.0
 
 
+def _scripted_validation(monkeypatch, table: dict):
+    """Make Trainer.validate return ``table[step]`` (the step just trained), so a test decides
+    where a run's validation SSIM dips; the training itself is untouched."""
+    from rfmitsuba.train.trainer import Trainer
+
+    step_of = Trainer._step
+
+    def _step(self, *a, **kw):
+        out = step_of(self, *a, **kw)
+        self._scripted_step = a[4] + 1 if len(a) > 4 else kw.get("step", 0) + 1
+        return out
+
+    monkeypatch.setattr(Trainer, "_step", _step)
+    monkeypatch.setattr(Trainer, "validate", lambda self, field, val, gt: table[self._scripted_step])
+
+
+def test_a_collapse_on_the_last_check_reverts_to_the_tails_best(tiny_ds, tmp_path, monkeypatch, one_thread):
+    """revert_drop: the last check (step 40) 0.4 below the tail's best (step 30) keeps the field
+    of step 30, bit for bit the state a run stopped at step 30 checkpointed; resumed from step
+    30 it ends the same; a drop within revert_drop, or revert_drop = 0, keeps the last state."""
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
+    from rfmitsuba.train.trainer import Trainer
+
+    data = TrainData.open(tiny_ds)
+    cfg = tiny_cfg(threads=1, **{"density.start": 1000})   # no density events: one structure throughout
+    _scripted_validation(monkeypatch, {10: 0.8, 20: 0.85, 30: 0.9, 40: 0.5})
+    s = Trainer(cfg, data, tmp_path / "a", quiet=True).run()
+    assert s["revert"] == {"from_step": 40, "from_val_ssim": 0.5, "to_step": 30, "to_val_ssim": 0.9,
+                           "reverted": True}
+    assert s["val_ssim"] == 0.9 and s["steps"] == 40
+    Trainer(cfg, data, tmp_path / "b", quiet=True).run(stop_at=30)
+    with np.load(tmp_path / "a" / "final" / "field.npz") as za, \
+            np.load(tmp_path / "b" / "checkpoint" / "state.npz") as zb:
+        for k in ["means", "log_scales", "opacity_logits", "net.head"]:
+            np.testing.assert_array_equal(za[k], zb["field/" + k], err_msg=k)
+    Trainer(cfg, data, tmp_path / "b", quiet=True).run()          # resumed: the tail's best came along
+    with np.load(tmp_path / "a" / "final" / "field.npz") as za, np.load(tmp_path / "b" / "final" / "field.npz") as zb:
+        np.testing.assert_array_equal(za["means"], zb["means"])
+    _scripted_validation(monkeypatch, {10: 0.8, 20: 0.85, 30: 0.9, 40: 0.895})
+    assert Trainer(cfg, data, tmp_path / "c", quiet=True).run()["revert"] is None
+    _scripted_validation(monkeypatch, {10: 0.8, 20: 0.85, 30: 0.9, 40: 0.5})
+    off = tiny_cfg(threads=1, revert_drop=0.0, **{"density.start": 1000})
+    s = Trainer(off, data, tmp_path / "d", quiet=True).run()
+    assert s["revert"] is None and s["val_ssim"] == 0.5
+    for bad in (-0.1, 2.0, float("nan")):
+        with pytest.raises(ConfigError, match="revert_drop"):
+            TrainConfig(revert_drop=bad)
+
+
 def test_members_share_one_split_resume_and_render_their_mean_pas(tiny_ds, tmp_path):
     """members = 2: member k trains with seed + k in members/k on the parent's split; the parent's
     summary sums time, steps and Gaussians, its log lists member 0's then member 1's validation
