@@ -248,7 +248,8 @@ class Trainer:
         t = self._progress(step, train_time)
         net = _lr(o.lr_net, o.lr_net_final, t)
         means = _lr(o.lr_means, o.lr_means_final, t)
-        return {"means": means, "log_scales": o.lr_log_scales, "rotations": _lr(o.lr_rotations, o.lr_rotations_final, t),
+        rotations = _lr(o.lr_rotations, o.lr_rotations_final, t)
+        return {"means": means, "log_scales": o.lr_log_scales, "rotations": rotations,
                 "opacity_logits": o.lr_opacity, "net": net,
                 "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
 
@@ -458,7 +459,6 @@ class Trainer:
         probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
 
         opt, strategy = self._optimizer(field, fit, loss_fn)
-        self._tail_best = None
         meta = self._load_checkpoint(field, opt, strategy, rng)
         start = meta["step"] if meta else 0
         train_time = meta["train_time_s"] if meta else 0.0
@@ -649,8 +649,7 @@ class Trainer:
         if not (math.isfinite(last) and last < tb["val_ssim"] - self.cfg.revert_drop):
             return None
         now = field.state_dict()
-        same = set(now) == set(tb["state"]) and all(
-            np.shape(now[k]) == np.shape(tb["state"][k]) for k in now if not k.startswith("geometry."))
+        same = set(now) == set(tb["state"]) and all(np.shape(now[k]) == np.shape(tb["state"][k]) for k in now)
         out = {"from_step": val_hist[-1]["step"], "from_val_ssim": last, "to_step": tb["step"],
                "to_val_ssim": tb["val_ssim"]}
         if not same:   # density control changed the field after that check: keep the last state
