@@ -474,8 +474,8 @@ def pas_lookup(pas: np.ndarray, u: np.ndarray) -> np.ndarray:
     res = 90.0 / h
     el = np.degrees(np.arcsin(np.clip(np.abs(u[..., 2]), 0.0, 1.0)))
     az = np.degrees(np.arctan2(u[..., 1], u[..., 0])) % 360.0
-    row = np.clip(np.rint(el / res).astype(np.int64) - 1, 0, h - 1)
-    col = np.rint(az / res).astype(np.int64) % w
+    row = np.clip(np.rint((el - (res + 1.0) / 2.0) / res).astype(np.int64), 0, h - 1)   # rfmitsuba.rf.grid
+    col = np.rint((az - (res - 1.0) / 2.0) / res).astype(np.int64) % w
     return np.asarray(pas, np.float64)[np.arange(n)[:, None], row, col]
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import backend as B
+from .grid import angle_grid
 
 
 def grid_directions(height: int, width: int, *, block: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -25,16 +26,16 @@ def grid_directions(height: int, width: int, *, block: int | None = None) -> tup
 
     ``block=None``: the splat renderer's grid (row i -> (i+1)*90/height deg, column j ->
     j*360/width deg). ``block=d``: the centres of d x d block means of the 90 x 360 PAS grid
-    (row i -> i*d + (d+1)/2 deg, column j -> j*d + (d-1)/2 deg), as the training targets.
+    (row i -> i*d + (d+1)/2 deg, column j -> j*d + (d-1)/2 deg), as the training targets:
+    :func:`rfmitsuba.rf.grid.angle_grid` at ``d`` degrees.
     """
+    if block is not None:
+        if (height, width) != (90 // block, 360 // block):
+            raise ValueError(f"grid_directions: a {height}x{width} grid is not the {block}-degree block grid")
+        el, az = angle_grid(resolution_deg=block)
+        return el.ravel(), az.ravel()
     i, j = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-    if block is None:
-        el = (i + 1) * 90.0 / height
-        az = j * 360.0 / width
-    else:
-        el = i * block + (block + 1) / 2.0
-        az = j * block + (block - 1) / 2.0
-    return np.deg2rad(el.ravel()), np.deg2rad(az.ravel())
+    return np.deg2rad(((i + 1) * 90.0 / height).ravel()), np.deg2rad((j * 360.0 / width).ravel())
 
 
 def bartlett_kernel(el_out, az_out, el_in, az_in, *, elements_wl: np.ndarray | None = None) -> np.ndarray:

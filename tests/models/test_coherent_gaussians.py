@@ -941,3 +941,16 @@ def test_candidate_image_gradient_sees_the_coupling():
     # d/d re of sum(Gr Re h + Gi Im h) with h = gain * h_c: <G, h_c>; d/d im: <G, j h_c>
     want = [G[0] @ hcr + G[1] @ hci, -G[0] @ hci + G[1] @ hcr]
     np.testing.assert_allclose(got, want, rtol=2e-3, atol=2e-3 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("h", [90, 45, 18])
+def test_pas_lookup_reads_the_pixel_of_its_own_direction(h):
+    """Every pixel's look direction (rfmitsuba.rf.grid, block centres on a coarse grid) reads
+    back that pixel, on the full grid and on coarse ones."""
+    from rfmitsuba.models.coherent_gaussians import pas_lookup
+    from rfmitsuba.rf.grid import directions
+
+    d = 90 // h
+    pas = np.arange(h * 4 * h, dtype=np.float64).reshape(1, h, 4 * h)
+    u = directions(resolution_deg=d).reshape(1, -1, 3)
+    np.testing.assert_array_equal(pas_lookup(pas, u), pas.reshape(1, -1))
