@@ -236,7 +236,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     step 10 and at ``steps``, so initialisation and the first steps' compilation are not
     counted. ``overrides``: ``key=value`` items applied to the training configuration."""
     from ..core.config import load, override
-    from ..train.config import TrainConfig
+    from ..train.config import TrainConfig, training_downsample
     from ..train.trainer import train
 
     ds = Path(dataset) if dataset is not None else default_dataset()
@@ -256,7 +256,8 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     last = rows[-1]
     rate = (last["step"] - first["step"]) / max(last["time_s"] - first["time_s"], 1e-9)
     return {"dataset": str(ds), "model": summary.get("model", cfg.model), "sources": summary.get("num_gaussians"),
-            "batch": cfg.batch_views, "steps": steps, "steps_per_s": rate, "step_ms": 1e3 / rate, "wall_s": total}
+            "batch": cfg.batch_views, "downsample": training_downsample(cfg), "steps": steps, "steps_per_s": rate,
+            "step_ms": 1e3 / rate, "wall_s": total}
 
 
 def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 40,
@@ -299,7 +300,11 @@ def run(*, quick: bool = False, dataset: str | Path | None = None, stage1_model:
     out["field"] = measure_field(repeats=repeats, scatterers=16 if quick else 96)
     out["bartlett"] = measure_bartlett(repeats=repeats)
     if stage1:
-        out["stage1"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=30 if quick else 110)
+        steps = 30 if quick else 110
+        out["stage1"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=steps)
+        if out["stage1"]["downsample"] != 1:   # the same training at 90 x 360, the reference of its ratio
+            out["stage1_full_res"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=steps,
+                                                    overrides=["downsample=1"])
     out["threads"] = dr.thread_count()
     out["load_after"] = _load()
     out["cpu_count"] = os.cpu_count()
@@ -339,8 +344,14 @@ def format_report(r: dict) -> str:
         if par:
             lines.append(f"| parity: {name} | PAS max abs {par['pas_max_abs']:.1e}, gradient max rel "
                          f"{par['grad_max_rel']:.1e} |")
-    s = r.get("stage1")
-    if s:
-        lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch {s.get('batch', 8)}, 90x360 | "
-                     f"{s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on `{s['dataset']}` |")
+    for key in ("stage1", "stage1_full_res"):
+        s = r.get(key)
+        if s:
+            d = s.get("downsample", 1)
+            d0 = r["stage1"].get("downsample", 1)
+            ratio = (f"; at {90 // d0}x{360 // d0} {r['stage1']['steps_per_s'] / max(s['steps_per_s'], 1e-9):.2f}x "
+                     "as many steps/s" if key == "stage1_full_res" else "")
+            lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch {s.get('batch', 8)}, "
+                         f"{90 // d}x{360 // d} | {s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on "
+                         f"`{s['dataset']}`{ratio} |")
     return "\n".join(lines)

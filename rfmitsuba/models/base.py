@@ -175,6 +175,9 @@ class Field:
     person: ClassVar[bool] = False
     position_input: ClassVar[bool] = False
     densify: ClassVar[bool] = False
+    #: the block size of the training images this kind advises (``TrainConfig.downsample = 0``):
+    #: it trains on (90/d) x (360/d) block means of the PAS; validation and evaluation stay at 90 x 360
+    downsample_advised: ClassVar[int] = 1
     name: str = "bg"
     extra_inputs: int = 0
     frozen: bool = False

@@ -738,6 +738,10 @@ class CoherentGaussianField(FlatParameterField):
     kind = "coherent_gaussians"
     family = "coherent_gaussians"
     format = FORMAT
+    #: trains on 45 x 180 block means (``TrainConfig.downsample = 0``): its sources are points and
+    #: its read-out the array's beam (about 26 degrees wide), so 2-degree pixels pin them as well as
+    #: 1-degree ones at a quarter of the read-out's cost (docs/measurements.md, issue 13)
+    downsample_advised = 2
 
     def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
                  readout: str, wavefront: str, vis_center: np.ndarray, frequency_hz: float, seed: int = 0,

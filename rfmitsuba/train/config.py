@@ -61,8 +61,9 @@ class TrainConfig:
     40, every other field for none); 0: exactly ``iterations``. Applies to each member and start
     alike; ``model = "auto"`` trials train their fixed budget.
     batch_views: PAS per step; downsample: train on
-    (90/d) x (360/d) images (block means of the ground truth; evaluation is always at full
-    resolution); seed: all randomness; val_fraction / val_max: training positions held out
+    (90/d) x (360/d) images (block means of the ground truth, :mod:`rfmitsuba.rf.grid`);
+    0 (the default): as the field advises (:func:`training_downsample`: 2 for the coherent
+    Gaussian field, 1 for the others). Validation and evaluation are always at 90 x 360; seed: all randomness; val_fraction / val_max: training positions held out
     for validation (never test positions; seeded at random, or with ``split = "block"`` the
     training block's outer slab of largest x, so validation measures extrapolation too); val_every / checkpoint_every / log_every: steps;
     time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
@@ -118,7 +119,7 @@ class TrainConfig:
     iterations: int = 6000
     epochs: float = -1.0
     batch_views: int = 4
-    downsample: int = 1
+    downsample: int = 0
     seed: int = 0
     val_fraction: float = 0.05
     val_max: int = 24
@@ -147,8 +148,9 @@ class TrainConfig:
         if not (math.isfinite(self.epochs) and (self.epochs >= 0 or self.epochs == -1)):
             raise ConfigError(f"TrainConfig.epochs must be -1 (as the field advises) or a finite number >= 0, "
                               f"got {self.epochs!r}")
-        if self.downsample not in (1, 2, 3, 5, 6, 9, 10):
-            raise ConfigError(f"TrainConfig.downsample must divide 90 and 360 (1, 2, 3, 5, 6, 9, 10), got {self.downsample}")
+        if self.downsample not in (0, 1, 2, 3, 5, 6, 9, 10):
+            raise ConfigError("TrainConfig.downsample must be 0 (as the field advises) or divide 90 and 360 "
+                              f"(1, 2, 3, 5, 6, 9, 10), got {self.downsample}")
         if not 0 <= self.val_fraction < 0.5:
             raise ConfigError(f"TrainConfig.val_fraction must be in [0, 0.5), got {self.val_fraction}")
         for k in ("val_every", "checkpoint_every", "log_every"):
@@ -192,3 +194,12 @@ def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
         elif va != vb:
             out.append(f"{prefix}{k} (run has {va!r}, requested {vb!r})")
     return out
+
+
+def training_downsample(cfg: TrainConfig) -> int:
+    """The block size ``d`` a run of ``cfg`` trains at (``(90/d) x (360/d)`` images):
+    ``cfg.downsample``, or where it is 0 what the field kind ``cfg.model`` advises
+    (``Field.downsample_advised``: 2 for the coherent Gaussian field, 1 for the others)."""
+    if cfg.downsample:
+        return int(cfg.downsample)
+    return int(field_class(cfg.model).downsample_advised)

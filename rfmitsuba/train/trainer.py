@@ -57,7 +57,7 @@ from ..rf.bartlett_ref import (
     normalize as minmax,  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
 )
 from ..rf.grid import PAS_SHAPE
-from .config import TrainConfig, config_diff
+from .config import TrainConfig, config_diff, training_downsample
 from .density import make_strategy
 from .pursuit import pursuit_for
 from .select import SELECT_DIR, select_model
@@ -129,7 +129,9 @@ class Trainer:
         self.quiet = quiet
         self.name = name
         self.prefix = name + "."
-        self.h, self.w = PAS_SHAPE[0] // cfg.downsample, PAS_SHAPE[1] // cfg.downsample
+        #: the training images' block size (TrainConfig.downsample, or the field's advice)
+        self.d = training_downsample(cfg)
+        self.h, self.w = PAS_SHAPE[0] // self.d, PAS_SHAPE[1] // self.d
         #: steps this run trains (planned_iterations, set once the field exists)
         self.iterations = cfg.iterations
         self.split = None   # a split handed down (an ensemble's members share their parent's)
@@ -279,10 +281,12 @@ class Trainer:
         return np.concatenate(out) if out else np.zeros((0, h, w), np.float32)
 
     def validate(self, field: Field, val: np.ndarray, gt: np.ndarray) -> float:
-        """Mean SSIM (metric protocol (docs/conventions.md), at the training resolution) over the validation positions."""
+        """Mean SSIM (metric protocol (docs/conventions.md), at 90 x 360 whatever the training
+        resolution, so runs and fields trained at different ones compare) over the validation
+        positions; ``gt``: their normalised PAS, float [K, 90, 360]."""
         if len(val) == 0:
             return float("nan")
-        pred = minmax(self.predict(field, val, h=self.h, w=self.w, batch=self.cfg.batch_views * 2))
+        pred = minmax(self.predict(field, val, batch=self.cfg.batch_views * 2))
         return float(np.mean(ssim_images(pred, gt)))
 
     # ---- checkpoints ------------------------------------------------------------------------
@@ -412,8 +416,8 @@ class Trainer:
         val = split["val"]
         val_ssim = None
         if len(val):
-            pred = mean.render(self.data, val, batch=self.cfg.batch_views * 2, h=self.h, w=self.w)
-            val_ssim = float(np.mean(ssim_images(pred, self.data.pas(val, d=cfg.downsample))))
+            pred = mean.render(self.data, val, batch=self.cfg.batch_views * 2)
+            val_ssim = float(np.mean(ssim_images(pred, self.data.pas(val))))
         rows, t0 = [], 0.0
         for k, (d, s) in enumerate(zip(member_dirs, summaries)):
             log = self.run_dir / d / "log.jsonl"
@@ -452,9 +456,8 @@ class Trainer:
         self.field = field
         self.iterations = planned_iterations(cfg, len(split["fit"]), field)
         loss_fn = load_loss()
-        d = cfg.downsample
-        gt_fit = self.data.pas(split["fit"], d=d)
-        gt_val = self.data.pas(split["val"], d=d)
+        gt_fit = self.data.pas(split["fit"], d=self.d)
+        gt_val = self.data.pas(split["val"])      # validation at the metric's 90 x 360, whatever d
         fit = split["fit"]
         probe = fit[np.linspace(0, len(fit) - 1, min(8, len(fit))).astype(int)]
 
@@ -533,7 +536,7 @@ class Trainer:
         opt = Adam(lr=1e-3)
         for k, v in field.trainable().items():
             opt[self.prefix + k] = v
-        strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=cfg.downsample,
+        strategy = pursuit_for(field, data=self.data, fit=fit, frozen=self.frozen, downsample=self.d,
                                prefix=self.prefix, iterations=self.iterations, loss_fn=loss_fn) \
             or make_strategy(cfg.density, field, prefix=self.prefix, iterations=self.iterations)
         return opt, strategy

@@ -6,6 +6,7 @@ import pytest
 from rfmitsuba.core import config as C
 from rfmitsuba.core.errors import ConfigError
 from rfmitsuba.experiments.sizes import SIZES, TrainSize, method_config, size_config
+from rfmitsuba.train.config import training_downsample
 
 
 def test_every_named_size_round_trips_and_yields_a_method_config(tmp_path):
@@ -35,14 +36,16 @@ def test_method_config_maps_sizes_and_applies_overrides_last():
 
 
 def test_coherent_gaussians_size_known_and_unknown_room():
-    """train.model = "coherent_gaussians": full resolution, known room or not; every method
+    """train.model = "coherent_gaussians": the resolution the field advises (downsample 0 -> 2,
+    whatever the size's splat downsample), known room or not; every method
     accepted (End-to-End trains the joint field), an unknown one named."""
     from rfmitsuba.experiments.compare import CompareConfig
 
     for known in (True, False):
         m = method_config(TrainSize(model="coherent_gaussians", overrides=["coherent_gaussians_human.num_points=4"]),
                           scene_known=known)
-        assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == 1
+        assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == 0
+        assert training_downsample(m.stage1) == 2
         assert m.coherent_gaussians_human.num_points == 4
     assert CompareConfig(train=TrainSize(model="coherent_gaussians")).methods == ["baseline", "end_to_end", "ours"]
     with pytest.raises(ConfigError, match="unknown method 'e2e'"):

@@ -136,6 +136,34 @@ def test_one_thread_makes_a_run_bit_reproducible(tiny_ds, tmp_path):
         TrainConfig(threads=-1)
 
 
+def test_downsample_zero_takes_the_fields_advice_and_validation_is_at_full_resolution(tiny_ds, tmp_path):
+    """``downsample = 0`` trains at the field kind's advice (the coherent Gaussian field at 45 x
+    180, the others at 90 x 360); any ``d`` trains on (90/d) x (360/d) images but validates at 90 x
+    360, so the logged validation SSIM is the metric's: the final field rendered at 90 x 360 at the
+    validation positions scores it again."""
+    from rfmitsuba.core.ssim import ssim_images
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.rf.bartlett_ref import normalize
+    from rfmitsuba.train.config import training_downsample
+    from rfmitsuba.train.trainer import Trainer, load_run
+
+    assert training_downsample(tiny_cfg(downsample=0, model="coherent_gaussians")) == 2
+    assert training_downsample(tiny_cfg(downsample=0, model="splat")) == 1
+    assert training_downsample(tiny_cfg(downsample=3, model="coherent_gaussians")) == 3
+    data = TrainData.open(tiny_ds)
+    tr = Trainer(tiny_cfg(downsample=0, model="coherent_gaussians"), data, tmp_path / "cg", quiet=True)
+    assert (tr.h, tr.w) == (45, 180)
+
+    run = tmp_path / "run"   # one check, at the last step, after the last density change
+    s = Trainer(tiny_cfg(iterations=20, val_every=20, checkpoint_every=20, **{"density.start": 1000}), data, run,
+                quiet=True).run()
+    assert json.loads((run / "run.json").read_text())["image"] == [18, 72]
+    _, data, fields = load_run(run)
+    val = np.array(json.loads((run / "split.json").read_text())["val"])
+    again = ssim_images(normalize(fields.render(data, val)), data.pas(val)).mean()
+    assert s["val_ssim"] == pytest.approx(again, abs=1e-4)
+
+
 def test_several_starts_keep_the_best_by_validation_and_resume(tiny_ds, tmp_path):
     """starts = 2: both copies of the initial field train start_steps(80) = 50 steps on their own
     batches, the one with the better validation SSIM goes on to step 80 (starts.json says which,
