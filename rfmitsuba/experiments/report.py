@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from ..core.atomic import write_text
+from ..train.config import training_downsample
 from .curves import speed_accuracy
 from .methods import METHODS
 from .paper_tables import TABLES, all_jobs
@@ -43,9 +44,11 @@ def _model_line(cfg) -> str:
                 f"`{method_config(cfg.train, scene_known=cfg.source == 'sionna').coherent_human.kind}`")
     if t.model == "coherent_gaussians":
         m = method_config(cfg.train, scene_known=cfg.source == "sionna")
+        d = training_downsample(m.stage1)
         return ("Coherent Gaussian field (`rfmitsuba.models.coherent_gaussians`: image sources of the room "
                 "with ray-cast visibility where the room is known, else found by the data scan, plus scatterers, "
-                "read out by Bartlett): training images 90x360; Stage 2 the person field "
+                f"read out by Bartlett): training images {90 // d}x{360 // d} (block means), validation at 90x360; "
+                "Stage 2 the person field "
                 f"(`coherent_gaussians_person`, {m.coherent_gaussians_human.num_points} body scatterers + blockage); "
                 "End-to-End the joint field (`coherent_gaussians_joint`)")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
