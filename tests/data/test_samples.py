@@ -76,3 +76,37 @@ def test_human_features():
     assert f.shape == (2, num_human_features(2))
     assert (f[0] == 0).all() and f[1, -1] == 1.0
     assert np.allclose(f[1, :3], [0.25, 0.25, 0.0])
+
+
+def test_pas_in_chunks_is_the_pas_at_once_and_names_a_bad_sample(synthetic_ds, monkeypatch):
+    """SampleData.pas reads, checks, block-averages and normalises PAS_CHUNK samples at a time (a
+    walk dataset's training samples are 2.6 GB at 90 x 360): with chunks of 7 the result equals the
+    normalised block means of all raw PAS at once, and a NaN in a later chunk names its own antenna
+    position and state."""
+    from rfmitsuba.core.errors import DatasetError
+    from rfmitsuba.data import samples
+    from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.data.views import downsample
+    from rfmitsuba.rf.bartlett_ref import normalize
+
+    d = SampleData.open_samples(synthetic_ds, states="all")
+    idx = d.train[::-1][:40]
+    whole = normalize(downsample(d.raw(idx), 2))
+    monkeypatch.setattr(samples, "PAS_CHUNK", 7)
+    np.testing.assert_allclose(d.pas(idx, d=2), whole, atol=1e-6)
+    assert d.pas(idx[:0], d=3).shape == (0, 30, 120)
+    raw = d.raw
+    k = int(idx[30])
+    monkeypatch.setattr(d, "raw", lambda part: np.where(np.asarray(part)[:, None, None] == k, np.nan, raw(part)))
+    with pytest.raises(DatasetError, match=f"antenna position {int(d.antennas[k])} \\(state {int(d.states[k])}\\)"):
+        d.pas(idx, d=2)
+
+
+def test_downsample_is_the_block_mean():
+    from rfmitsuba.data.views import downsample
+
+    x = np.random.default_rng(0).random((3, 90, 360)).astype(np.float32)
+    for d in (1, 2, 3, 5):
+        ref = x.reshape(3, 90 // d, d, 360 // d, d).astype(np.float64).mean(axis=(2, 4))
+        np.testing.assert_allclose(downsample(x, d), ref, atol=1e-6)
+        assert downsample(x, d).dtype == np.float32
