@@ -22,6 +22,7 @@ and amplitude read-out (the simulated-data configuration).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import statistics
@@ -256,7 +257,9 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     last = rows[-1]
     rate = (last["step"] - first["step"]) / max(last["time_s"] - first["time_s"], 1e-9)
     return {"dataset": str(ds), "model": summary.get("model", cfg.model), "sources": summary.get("num_gaussians"),
-            "batch": cfg.batch_views, "downsample": training_downsample(cfg), "steps": steps, "steps_per_s": rate,
+            "batch": cfg.batch_views,
+            "downsample": training_downsample(dataclasses.replace(cfg, model=summary.get("model", cfg.model))),
+            "steps": steps, "steps_per_s": rate,
             "step_ms": 1e3 / rate, "wall_s": total}
 
 

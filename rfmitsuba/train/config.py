@@ -63,7 +63,8 @@ class TrainConfig:
     batch_views: PAS per step; downsample: train on
     (90/d) x (360/d) images (block means of the ground truth, :mod:`rfmitsuba.rf.grid`);
     0 (the default): as the field advises (:func:`training_downsample`: 2 for the coherent
-    Gaussian field, 1 for the others). Validation and evaluation are always at 90 x 360; seed: all randomness; val_fraction / val_max: training positions held out
+    Gaussian field, 1 for the others). Validation and evaluation are always at 90 x 360;
+    seed: all randomness; val_fraction / val_max: training positions held out
     for validation (never test positions; seeded at random, or with ``split = "block"`` the
     training block's outer slab of largest x, so validation measures extrapolation too); val_every / checkpoint_every / log_every: steps;
     time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
