@@ -25,14 +25,11 @@ import numpy as np
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
 from ..rf import bartlett_ref as _pas
-from ..rf.bartlett_ref import normalize as minmax
 from ..rf.grid import PAS_SHAPE
 from .store import open_dataset
-from .views import TrainData, downsample
+from .views import TrainData, normalised_pas
 
 STATE_SETS = ("empty", "human", "all")
-#: samples per chunk of SampleData.pas (its peak memory besides the result: 1024 raw PAS, 133 MB)
-PAS_CHUNK = 1024
 
 
 def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
@@ -225,23 +222,14 @@ class SampleData(TrainData):
             self._noisy[(state, a)] = np.asarray(img, np.float32)
 
     def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
-        """Min-max normalised PAS of samples ``idx``: float32 [K, 90/d, 360/d].
+        """Min-max normalised PAS of samples ``idx``: float32 [K, 90/d, 360/d]
+        (:func:`rfmitsuba.data.views.normalised_pas`).
 
         Raises:
             DatasetError: a PAS with NaN/inf values (naming state and antenna).
         """
-        idx = np.asarray(idx, np.int64)
-        out = np.empty((len(idx), PAS_SHAPE[0] // d, PAS_SHAPE[1] // d), np.float32)
-        for c0 in range(0, len(idx), PAS_CHUNK):   # a chunk at a time: 20 000 samples at 90 x 360 are 2.6 GB
-            part = idx[c0:c0 + PAS_CHUNK]
-            raw = self.raw(part)
-            bad = ~np.isfinite(raw).all(axis=(1, 2))
-            if bad.any():
-                k = int(part[int(np.flatnonzero(bad)[0])])
-                raise DatasetError(f"{self.path}: PAS of antenna position {int(self.antennas[k])} (state "
-                                   f"{int(self.states[k])}) contains NaN or infinite values")
-            out[c0:c0 + len(part)] = minmax(downsample(raw, d))
-        return out
+        return normalised_pas(idx, self.raw, d=d, bad=lambda k: f"{self.path}: PAS of antenna position "
+                              f"{int(self.antennas[k])} (state {int(self.states[k])}) contains NaN or infinite values")
 
     def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False) -> np.ndarray:
         """:func:`human_features` of samples ``idx``: float32 [K, num_human_features(octaves)];

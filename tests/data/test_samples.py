@@ -79,12 +79,12 @@ def test_human_features():
 
 
 def test_pas_in_chunks_is_the_pas_at_once_and_names_a_bad_sample(synthetic_ds, monkeypatch):
-    """SampleData.pas reads, checks, block-averages and normalises PAS_CHUNK samples at a time (a
+    """SampleData.pas reads, checks, block-averages and normalises views.PAS_CHUNK samples at a time (a
     walk dataset's training samples are 2.6 GB at 90 x 360): with chunks of 7 the result equals the
     normalised block means of all raw PAS at once, and a NaN in a later chunk names its own antenna
     position and state."""
     from rfmitsuba.core.errors import DatasetError
-    from rfmitsuba.data import samples
+    from rfmitsuba.data import views
     from rfmitsuba.data.samples import SampleData
     from rfmitsuba.data.views import downsample
     from rfmitsuba.rf.bartlett_ref import normalize
@@ -92,7 +92,7 @@ def test_pas_in_chunks_is_the_pas_at_once_and_names_a_bad_sample(synthetic_ds, m
     d = SampleData.open_samples(synthetic_ds, states="all")
     idx = d.train[::-1][:40]
     whole = normalize(downsample(d.raw(idx), 2))
-    monkeypatch.setattr(samples, "PAS_CHUNK", 7)
+    monkeypatch.setattr(views, "PAS_CHUNK", 7)
     np.testing.assert_allclose(d.pas(idx, d=2), whole, atol=1e-6)
     assert d.pas(idx[:0], d=3).shape == (0, 30, 120)
     raw = d.raw

@@ -83,3 +83,21 @@ def test_positions_at_agrees_with_positions(tmp_path, task):
     xm, ym = d.positions_at(moved)
     np.testing.assert_array_equal(xm if task == "rx" else ym, moved)
     np.testing.assert_array_equal(ym if task == "rx" else xm, y if task == "rx" else x)
+
+
+def test_pas_in_chunks_keeps_the_order_asked_for(tmp_path, monkeypatch):
+    """TrainData.pas goes through views.normalised_pas a chunk at a time, reading each chunk's rows
+    sorted: with chunks of 5 and the indices shuffled (one repeated), every image is the normalised
+    block mean of its own antenna's raw PAS."""
+    import numpy as np
+    from stage1_data import make_dataset
+
+    from rfmitsuba.data import views
+    from rfmitsuba.data.views import TrainData, downsample
+    from rfmitsuba.rf.bartlett_ref import normalize
+
+    data = TrainData.open(make_dataset(tmp_path / "ds", num_antennas=12))
+    idx = np.array([7, 2, 11, 0, 5, 5, 9, 1, 3, 10, 4, 6, 8])
+    whole = normalize(downsample(np.asarray(data._pas, np.float32)[idx], 3))
+    monkeypatch.setattr(views, "PAS_CHUNK", 5)
+    np.testing.assert_allclose(data.pas(idx, d=3), whole, atol=1e-6)
