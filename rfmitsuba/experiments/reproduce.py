@@ -39,7 +39,7 @@ from .job import Job
 from .methods import FLOORS_FOLDER, config_dict, prior_kwargs, run_job
 from .paper_tables import all_jobs
 from .report import write_report
-from .sizes import DatasetSpec, ExperimentConfig, method_config
+from .sizes import DatasetSpec, DataSize, ExperimentConfig, method_config
 
 
 def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
@@ -71,14 +71,29 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
             synthetic.make_dataset(path, antennas=positions, humans=max(walk, 2), seed=seed, task=spec.task)
         return path
     from ..sim import generate as gen
-    from ..sim.simulate import SolverConfig
 
-    solver = SolverConfig(samples_per_src=d.samples_per_src) if d.samples_per_src else None
+    solver = solver_config(spec.scene, d)
     seed = data_seed(spec.scene, d.human_positions) + (STATIC_SEED_OFFSET if spec.static_positions else 0)
     gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=positions, human_positions=walk,
                             material=spec.material, seed=seed, solver=solver)
     gen.generate(path, gcfg, quiet=quiet)
     return path
+
+
+def solver_config(scene: str, data: DataSize):
+    """The ``SolverConfig`` of a dataset of ``scene`` at size ``data``: ``data.samples_per_src`` ray
+    samples, else ``data.samples_scale`` times the room's default (at least 1000); None where that
+    is the room's default unchanged (:func:`rfmitsuba.sim.generate.default_solver`)."""
+    from ..sim import generate as gen
+    from ..sim.geometry import RoomGeometry
+    from ..sim.simulate import SolverConfig
+
+    if data.samples_per_src:
+        return SolverConfig(samples_per_src=data.samples_per_src)
+    if data.samples_scale == 1.0:
+        return None
+    base = gen.default_solver(RoomGeometry.from_xml(resolve_scene(scene)))
+    return SolverConfig(samples_per_src=max(int(round(base.samples_per_src * data.samples_scale)), 1000))
 
 
 def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:

@@ -151,3 +151,20 @@ def test_report_only_writes_the_finished_jobs(tiny_reproduction, tmp_path, capsy
     assert f"report of {total - 3} of {total} jobs finished" in capsys.readouterr().out
     with pytest.raises(RunError, match="holds no reproduction"):
         report_finished(tmp_path / "empty", cfg)
+
+
+def test_solver_config_scales_each_rooms_default_samples():
+    """The full size traces a quarter of each room's default ray samples; an explicit count wins;
+    scale 1 leaves the room's default to the generator."""
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments.reproduce import solver_config
+    from rfmitsuba.experiments.sizes import DataSize, size_config
+
+    assert size_config("full").data.samples_scale == 0.25
+    assert solver_config("bedroom", DataSize(samples_scale=0.25)).samples_per_src == 25_000
+    assert solver_config("large_room", DataSize(samples_scale=0.25)).samples_per_src == 75_000  # 3e5 over 50 m^2
+    assert solver_config("bedroom", DataSize(samples_per_src=12_345, samples_scale=0.25)).samples_per_src == 12_345
+    assert solver_config("bedroom", DataSize()) is None
+    for bad in (0.0, 1.5, -0.1):
+        with pytest.raises(ConfigError, match="samples_scale"):
+            DataSize(samples_scale=bad)
