@@ -19,7 +19,8 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--plan", action="store_true",
                    help="run nothing: print the datasets and jobs still to do per table, with their wall time "
-                        "estimated from finished jobs (rfmitsuba.experiments.plan); writes nothing")
+                        "estimated from finished jobs (rfmitsuba.experiments.plan); with --workers N also the wall time "
+                        "on N workers; writes nothing")
     p.add_argument("--plan-from", action="append", default=[], metavar="DIR",
                    help="with --plan: also time the estimates by the finished jobs of this reproduction folder")
     p.add_argument("--report-only", action="store_true",
@@ -51,7 +52,8 @@ def run(args) -> int:
     if args.plan:
         from ..experiments.plan import format_plan, plan
 
-        print(format_plan(plan(args.out, cfg, data_dir=args.data, reference=args.plan_from)))
+        workers = max(getattr(args, "workers", 0) or 0, 1)
+        print(format_plan(plan(args.out, cfg, data_dir=args.data, reference=args.plan_from, workers=workers)))
         return 0
     if args.plan_from:
         from ..core.errors import ConfigError

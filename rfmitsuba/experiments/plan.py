@@ -13,11 +13,19 @@ PAS, ``timing.json``) of complete datasets in the data folder and in the referen
 ``data/``: the same scene and task, else the same scene, else the same task, else any; states
 already written are not counted again (:func:`generation_rates`).
 
+With ``workers`` > 1 (``reproduce --plan --workers N``) the plan also gives the wall time of a
+run on N single-thread workers (:func:`makespan`): the datasets first, each to the worker free
+first, then the jobs in submission order, each to the worker free first but not before the job
+it builds on (Ours after its Baseline) has finished, as ``reproduce`` submits them. It is
+as good as its job times: those of a run on the same number of workers time it best (a job on
+one thread of a 2-worker run took longer than on both threads of a serial run).
+
 Nothing is written: a plan of a folder that does not exist creates none.
 """
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import json
 import re
 import statistics
@@ -128,6 +136,42 @@ class Plan:
     datasets: list[DatasetPlan]
     measured_jobs: int
     sources: list[str] = dc_field(default_factory=list)
+    #: workers of the wall-time estimate (1: one task at a time, the sums above)
+    workers: int = 1
+    #: estimated wall time [s] on ``workers`` workers, datasets then jobs (:func:`makespan`);
+    #: what is not estimated counts as 0
+    makespan_s: float = 0.0
+
+
+def makespan(durations: list[float], *, workers: int, after: list[int | None] | None = None,
+             start: float = 0.0) -> float:
+    """When the last of ``durations`` [s] ends on ``workers`` workers, each task given in turn to the
+    worker free first (list scheduling, the order Dask runs tasks submitted together).
+
+    Args:
+        durations: task durations [s], in submission order.
+        workers: number of workers (>= 1).
+        after: per task, the index of an earlier task it must wait for, or None.
+        start: when every worker becomes free [s].
+
+    Returns:
+        The finish time [s] of the last task (``start`` if there is none).
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    free = [float(start)] * workers
+    heapq.heapify(free)
+    end = [0.0] * len(durations)
+    last = float(start)
+    for i, d in enumerate(durations):
+        t = heapq.heappop(free)
+        dep = after[i] if after is not None else None
+        if dep is not None:
+            t = max(t, end[dep])
+        end[i] = t + float(d)
+        heapq.heappush(free, end[i])
+        last = max(last, end[i])
+    return last
 
 
 def _estimate(job: Job, times: dict[str, list[float]]) -> float | None:
@@ -146,7 +190,7 @@ def _complete(path: Path) -> bool:
 
 
 def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None = None,
-         reference: list[str | Path] = ()) -> Plan:
+         reference: list[str | Path] = (), workers: int = 1) -> Plan:
     """The plan of running ``cfg`` into ``out`` (read only).
 
     Args:
@@ -154,6 +198,7 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
         cfg: the experiment.
         data_dir: where its datasets live (default ``out/data``).
         reference: other reproduction folders whose finished jobs time the estimates.
+        workers: single-thread workers of the wall-time estimate (:attr:`Plan.makespan_s`).
 
     Raises:
         RunError: ``out`` holds another experiment configuration (as :func:`reproduce` would).
@@ -188,7 +233,13 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
         datasets.append(DatasetPlan(spec.key, str(path), False, left,
                                     None if by is None else statistics.median(rates[by]) * left, by))
     measured = sum(len(v) for k, v in times.items() if k.startswith("method:"))
-    return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources])
+    data_end = makespan([d.estimate_s or 0.0 for d in datasets if not d.complete], workers=workers)
+    todo = [j for j in jobs if not (j.folder(out) / "DONE").is_file()]
+    index = {j: i for i, j in enumerate(todo)}
+    wall = makespan([_estimate(j, times) or 0.0 for j in todo], workers=workers, start=data_end,
+                    after=[index.get(j.prior_job()) if j.prior_job() else None for j in todo])
+    return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources], workers=workers,
+                makespan_s=wall)
 
 
 def format_plan(p: Plan) -> str:
@@ -211,7 +262,11 @@ def format_plan(p: Plan) -> str:
           "the total once; one job at a time. Datasets: seconds per PAS of the datasets already generated "
           "(same scene and task, else scene, else task, else any)."]
     total_s = p.total.estimate_s + sum(d.estimate_s or 0.0 for d in missing)
-    L += ["", f"Estimated total: {total_s / 3600:.2f} h (datasets + jobs)"
-          + (" plus what is not estimated" if p.total.unestimated or any(d.estimate_s is None for d in missing)
-             else "") + "."]
+    unknown = p.total.unestimated or any(d.estimate_s is None for d in missing)
+    L += ["", f"Estimated total: {total_s / 3600:.2f} h (datasets + jobs)" + (" plus what is not estimated"
+                                                                             if unknown else "") + "."]
+    if p.workers > 1:
+        L += [f"On {p.workers} single-thread workers (`--workers {p.workers}`): about {p.makespan_s / 3600:.2f} h "
+              "wall time" + (" plus what is not estimated" if unknown else "") + " (datasets first, then the "
+              "jobs, each to the worker free first; as good as the job times are for one thread)."]
     return "\n".join(L)

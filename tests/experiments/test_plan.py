@@ -52,6 +52,32 @@ def test_new_seeds_are_timed_by_the_finished_jobs_of_their_kind(tiny_reproductio
     assert not fresh.exists()
 
 
+def test_makespan_is_list_scheduling_with_dependencies():
+    # one worker: the sum; two: each task to the worker free first
+    assert P.makespan([3.0, 1.0, 2.0], workers=1) == 6.0
+    assert P.makespan([3.0, 1.0, 2.0], workers=2) == 3.0            # 3 | 1 then 2
+    assert P.makespan([3.0, 1.0, 2.0], workers=2, start=10.0) == 13.0
+    # task 2 builds on task 0: it waits for it although worker 2 is free at 1
+    assert P.makespan([3.0, 1.0, 2.0], workers=2, after=[None, None, 0]) == 5.0
+    assert P.makespan([], workers=4, start=7.0) == 7.0
+    with pytest.raises(ValueError, match="workers"):
+        P.makespan([1.0], workers=0)
+
+
+def test_plan_on_workers_is_shorter_than_one_at_a_time(tiny_reproduction, tmp_path, capsys):
+    from rfmitsuba.cli import main
+
+    out, cfg, _, _ = tiny_reproduction
+    fresh = tmp_path / "new"
+    one = P.plan(fresh, cfg, data_dir=out / "data", reference=[out])
+    two = P.plan(fresh, cfg, data_dir=out / "data", reference=[out], workers=2)
+    assert one.makespan_s == pytest.approx(one.total.estimate_s)   # the datasets are complete
+    assert one.total.estimate_s / 2 <= two.makespan_s < one.makespan_s
+    assert main(["reproduce", "--size", "tiny", "--out", str(fresh), "--data", str(out / "data"), "--plan",
+                 "--plan-from", str(out), "--workers", "2"]) == 0
+    assert "On 2 single-thread workers" in capsys.readouterr().out and not fresh.exists()
+
+
 def test_another_configuration_is_refused_as_by_reproduce(tiny_reproduction):
     out, cfg, _, _ = tiny_reproduction
     with pytest.raises(RunError, match="data.positions"):
