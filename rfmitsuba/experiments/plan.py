@@ -17,8 +17,7 @@ With ``workers`` > 1 (``reproduce --plan --workers N``) the plan also gives the 
 run on N single-thread workers (:func:`makespan`): the datasets first, each to the worker free
 first, then the jobs in submission order, each to the worker free first but not before the job
 it builds on (Ours after its Baseline) has finished, as ``reproduce`` submits them. It is
-as good as its job times: those of a run on the same number of workers time it best (a job on
-one thread of a 2-worker run took longer than on both threads of a serial run).
+as good as its job times: those of a run on the same number of workers time it best.
 
 Nothing is written: a plan of a folder that does not exist creates none.
 """
