@@ -73,6 +73,17 @@ def table_wall_times(cfg, results: dict) -> list[str]:
     return L
 
 
+def _ray_samples(cfg) -> str:
+    """The ray samples per source of the configuration's Sionna datasets, as the header states them."""
+    if cfg.source != "sionna":
+        return ""
+    if cfg.data.samples_per_src:
+        return f", {cfg.data.samples_per_src} ray samples per source in every room"
+    if cfg.data.samples_scale == 1.0:
+        return ", each room's default ray samples per source"
+    return f", {cfg.data.samples_scale:g} x each room's default ray samples per source"
+
+
 def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_total: int | None = None) -> Path:
     """Write ``out/report.md`` (+ ``speed_accuracy.png``): the header, each configured table's
     section (:data:`rfmitsuba.experiments.paper_tables.TABLES`), speed against accuracy, where
@@ -90,8 +101,8 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
     t = cfg.train
     L += ["# rfmitsuba reproduction of *One Walk is All You Need*", "",
           f"Size **{cfg.size}** (data source {cfg.source}: {cfg.data.positions} antenna positions x "
-          f"(1 + {cfg.data.human_positions}) states per dataset), seeds {seeds}; every figure of ours is "
-          "mean ± sample std over the seeds. Written "
+          f"(1 + {cfg.data.human_positions}) states per dataset{_ray_samples(cfg)}), seeds {seeds}; every figure "
+          "of ours is mean ± sample std over the seeds. Written "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
           + (f"this run took {wall_s:.0f} s wall time (jobs finished earlier and skipped are not included)"
              if wall_s is not None else

@@ -1,4 +1,5 @@
-"""rfmitsuba.experiments.report: the model line says at which resolution each family trains."""
+"""rfmitsuba.experiments.report: the header says at which resolution each family trains and how many
+ray samples the datasets were traced with."""
 from __future__ import annotations
 
 from rfmitsuba.experiments.report import _model_line
@@ -14,3 +15,15 @@ def test_model_line_names_the_training_resolution_of_each_family():
     assert "training images 45x180" in _model_line(full)       # the size's own downsample, 2
     full.train.model = "coherent"
     assert "training images 90x360" in _model_line(full)
+
+
+def test_header_states_the_ray_samples_per_source():
+    from rfmitsuba.experiments.report import _ray_samples
+
+    full = size_config("full")
+    assert _ray_samples(full) == ", 0.25 x each room's default ray samples per source"
+    full.data.samples_per_src = 25000
+    assert _ray_samples(full) == ", 25000 ray samples per source in every room"
+    full.data.samples_per_src, full.data.samples_scale = 0, 1.0
+    assert _ray_samples(full) == ", each room's default ray samples per source"
+    assert _ray_samples(size_config("tiny")) == ""          # synthetic data: no rays
