@@ -30,9 +30,11 @@ def test_cli_quick_prints_table_and_json(tmp_path, capsys, quick_dataset):
     # the Stage-1 splat step, both ways of running the networks' products, with their ratio
     step = json.loads(out.read_text())["stage1_step"]
     assert step["gaussians"] == 2000 and step["batch"] == 4
-    for side in ("host", "coop_vec"):
+    for side in ("host", "coop_vec", "host_45x180"):
         assert step[side]["model"] == "splat" and step[side]["batch"] == 4 and step[side]["step_ms"] > 0
+    assert step["host"]["downsample"] == 1 and step["host_45x180"]["downsample"] == 2
     assert "Stage-1 splat step, 2000 Gaussians, batch 4" in text and "as cooperative vectors" in text
+    assert "the same at 45x180 (downsample 2" in text
     assert "Dr.Jit fwd" in text and "compile time of a first iteration" in text
     result = json.loads(out.read_text())
     assert f"{result['tile_lanes']} rasteriser lanes per tile" in text and result["tile_lanes"] in (8, 16, 32, 64)
