@@ -36,8 +36,9 @@ from ..core.errors import DatasetError
 from ..data.store import open_dataset
 from .job import Job
 from .paper_tables import all_jobs
-from .reproduce import check_experiment, dataset_path
+from .reproduce import check_experiment, dataset_path, truth_checks
 from .sizes import ExperimentConfig
+from .truth import load_summary, truth_folder
 
 
 def job_kind(job: Job) -> str:
@@ -140,6 +141,10 @@ class Plan:
     #: estimated wall time [s] on ``workers`` workers, datasets then jobs (:func:`makespan`);
     #: what is not estimated counts as 0
     makespan_s: float = 0.0
+    #: the truth checks the run needs ("room_task"; :func:`rfmitsuba.experiments.reproduce.truth_checks`)
+    #: and those of them still to run (not estimated)
+    truth_checks: list[str] = dc_field(default_factory=list)
+    truth_left: list[str] = dc_field(default_factory=list)
 
 
 def makespan(durations: list[float], *, workers: int, after: list[int | None] | None = None,
@@ -237,8 +242,10 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
     index = {j: i for i, j in enumerate(todo)}
     wall = makespan([_estimate(j, times) or 0.0 for j in todo], workers=workers, start=data_end,
                     after=[index.get(j.prior_job()) if j.prior_job() else None for j in todo])
+    checks = {f"{r}_{k}": truth_folder(out, r, k) for r, k in truth_checks(cfg)}
     return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources], workers=workers,
-                makespan_s=wall)
+                makespan_s=wall, truth_checks=list(checks),
+                truth_left=[n for n, f in checks.items() if load_summary(f) is None])
 
 
 def format_plan(p: Plan) -> str:
@@ -252,6 +259,10 @@ def format_plan(p: Plan) -> str:
               f"| {d.timed_by or '-'} |" for d in missing]
         L += [f"| **all** | {sum(d.pas_left for d in missing)} | {sum(known) / 3600:.2f}"
               + (f" ({len(missing) - len(known)} not estimated)" if len(known) < len(missing) else "") + " | |"]
+    if p.truth_checks:
+        L += ["", f"Truth checks beside the main table: {len(p.truth_checks)} needed, "
+              f"{len(p.truth_checks) - len(p.truth_left)} done, {len(p.truth_left)} to run"
+              + (f" (not estimated: {', '.join(p.truth_left)})" if p.truth_left else "")]
     L += ["", "| table | jobs | done | to run | estimated wall time (h) | not estimated |", "|---|---|---|---|---|---|"]
     for t in p.tables + [p.total]:
         name = f"**{t.table}**" if t is p.total else t.table
@@ -261,7 +272,7 @@ def format_plan(p: Plan) -> str:
           "the total once; one job at a time. Datasets: seconds per PAS of the datasets already generated "
           "(same scene and task, else scene, else task, else any)."]
     total_s = p.total.estimate_s + sum(d.estimate_s or 0.0 for d in missing)
-    unknown = p.total.unestimated or any(d.estimate_s is None for d in missing)
+    unknown = p.total.unestimated or any(d.estimate_s is None for d in missing) or p.truth_left
     L += ["", f"Estimated total: {total_s / 3600:.2f} h (datasets + jobs)" + (" plus what is not estimated"
                                                                              if unknown else "") + "."]
     if p.workers > 1:

@@ -11,6 +11,8 @@
         metrics.json        both evaluations, written atomically, then
         DONE                the done-marker: finished jobs are skipped
     OUT/floors/             the evaluation floors, once per dataset (rfmitsuba.eval.floor_cache)
+    OUT/truth/<room>_<task>/  the truth checks beside the main table (ExperimentConfig.truth_positions;
+                            rfmitsuba.experiments.truth): synthetic against exact per-element truth
     OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
 
 Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
@@ -94,6 +96,27 @@ def solver_config(scene: str, data: DataSize):
         return None
     base = gen.default_solver(RoomGeometry.from_xml(resolve_scene(scene)))
     return SolverConfig(samples_per_src=max(int(round(base.samples_per_src * data.samples_scale)), 1000))
+
+
+def truth_checks(cfg: ExperimentConfig) -> list[tuple[str, str]]:
+    """The (room, task) pairs whose truth uncertainty a reproduction of ``cfg`` checks: every room
+    x task of the main table, where the data come from Sionna and ``cfg.truth_positions`` > 0."""
+    if cfg.source != "sionna" or not cfg.truth_positions or "main" not in cfg.tables:
+        return []
+    return [(r, k) for r in cfg.rooms for k in cfg.tasks]
+
+
+def ensure_truth(scene: str, task: str, cfg: ExperimentConfig, out: Path, *, quiet: bool = True) -> dict:
+    """Run (or resume) the truth check of ``scene`` and ``task`` into its folder of ``out``
+    (:func:`rfmitsuba.experiments.truth.truth_folder`): ``cfg.truth_positions`` positions of the
+    empty room traced with the synthetic and the exact array, at the datasets' ray samples
+    (:func:`solver_config`). Returns the PAS SSIM statistics of synthetic against exact."""
+    from .truth import TruthConfig, truth_folder, truth_uncertainty
+
+    solver = solver_config(scene, cfg.data)
+    tc = TruthConfig(scene=scene, task=task, positions=cfg.truth_positions,
+                     samples=solver.samples_per_src if solver is not None else None)
+    return truth_uncertainty(truth_folder(out, scene, task), tc, quiet=quiet)["stats"]["ssim"]
 
 
 def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
@@ -243,8 +266,10 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     t_start = time.perf_counter()
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
-    run_tasks([Task(s.key, ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs], cluster=cluster,
-              desc="datasets", unit="dataset", quiet=quiet)
+    truths = [Task(f"truth/{r}_{k}", ensure_truth, (r, k, cfg, out_arg), {"quiet": True})
+              for r, k in truth_checks(cfg)]
+    run_tasks([Task(s.key, ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs] + truths,
+              cluster=cluster, desc="datasets" + (" and truth checks" if truths else ""), unit="task", quiet=quiet)
     names = [f"{j.dataset.key}/{j.key}" for j in jobs]
     tasks = [Task(n, reproduce_job, (j, out_arg, cfg, data_arg), {"quiet": True, "reevaluate": reevaluate},
                   after=(f"{j.dataset.key}/{j.prior_job().key}",) if j.prior_job() else ())

@@ -114,7 +114,10 @@ class ExperimentConfig:
     the positions table; rx_counts: Baseline's training positions in the Rx-count table beyond
     the main dataset's (from an empty-room dataset of ``max(rx_counts) / 0.8`` positions of the
     same room and task, :attr:`DatasetSpec.static_positions`); tables: which tables to run
-    (``third_stage`` runs only with ``train.model = "coherent_gaussians"``).
+    (``third_stage`` runs only with ``train.model = "coherent_gaussians"``); truth_positions:
+    antenna positions of the truth-uncertainty check beside the main table (each room x task of
+    Sionna data traced again with every array element as its own antenna,
+    :mod:`rfmitsuba.experiments.truth`, at the datasets' ray samples; 0 = skip; at most 200).
     """
 
     size: str = "full"
@@ -130,6 +133,7 @@ class ExperimentConfig:
     position_counts: list[int] = dc_field(default_factory=lambda: [180, 360])
     rx_counts: list[int] = dc_field(default_factory=lambda: [1800, 3600, 6000])
     tables: list[str] = dc_field(default_factory=lambda: list(TABLES))
+    truth_positions: int = 48
 
     def __post_init__(self) -> None:
         if self.source not in ("sionna", "synthetic"):
@@ -141,6 +145,8 @@ class ExperimentConfig:
             raise ConfigError("ExperimentConfig: seeds, rooms and tasks must not be empty")
         if any(n < 1 for n in self.rx_counts):
             raise ConfigError(f"ExperimentConfig.rx_counts must be >= 1, got {self.rx_counts}")
+        if not 0 <= self.truth_positions <= 200:     # rfmitsuba.sim.generate.EXACT_MAX_POSITIONS
+            raise ConfigError(f"ExperimentConfig.truth_positions must be in 0..200, got {self.truth_positions}")
         if any(t not in ("rx", "tx") for t in self.tasks):
             raise ConfigError(f"ExperimentConfig.tasks must be 'rx' / 'tx', got {self.tasks}")
         if self.train.model == "coherent" and self.source == "synthetic":
@@ -163,7 +169,7 @@ SIZES = {
         size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
         train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
                         num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
-        snr_db=[10.0], position_counts=[12], rx_counts=[60]),
+        snr_db=[10.0], position_counts=[12], rx_counts=[60], truth_positions=6),
     # a quarter of each room's default ray samples (DataSize.samples_scale): 2.8x faster solves
     "full": ExperimentConfig(data=DataSize(samples_scale=0.25)),
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
@@ -171,12 +177,12 @@ SIZES = {
         size="demo", seeds=[0], data=DataSize(positions=300, human_positions=8, samples_per_src=20000),
         train=TrainSize(stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
                         max_gaussians=4500, human_gaussians=96, val_every=100, room_order=2, furniture_order=1),
-        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
+        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[], truth_positions=0),
     "demo_tiny": ExperimentConfig(
         size="demo_tiny", seeds=[0], data=DataSize(positions=30, human_positions=5, samples_per_src=20000),
         train=TrainSize(stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
                         max_gaussians=600, human_gaussians=24, val_every=100, room_order=1, furniture_order=1),
-        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[]),
+        rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[], truth_positions=0),
 }
 
 

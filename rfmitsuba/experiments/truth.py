@@ -21,6 +21,7 @@ resumable), ``table.md``, ``summary.json`` (per-PAS values) and ``truth_ssim.png
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,20 @@ from ..rf import bartlett_ref as pas
 
 #: the statistics reported for each measure
 STATS = ("mean", "median", "p10", "min", "max")
+
+#: where ``reproduce`` keeps its truth checks, one folder per room and task (:func:`truth_folder`)
+TRUTH_FOLDER = "truth"
+
+
+def truth_folder(out: str | Path, scene: str, task: str) -> Path:
+    """The truth check of ``scene`` and ``task`` inside the reproduction folder ``out``."""
+    return Path(out) / TRUTH_FOLDER / f"{scene}_{task}"
+
+
+def load_summary(folder: str | Path) -> dict | None:
+    """The ``summary.json`` of a finished :func:`truth_uncertainty` in ``folder``, or None where there is none."""
+    f = Path(folder) / "summary.json"
+    return json.loads(f.read_text()) if f.is_file() else None
 
 
 @dataclass

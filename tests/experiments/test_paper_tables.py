@@ -128,3 +128,32 @@ def test_large_room_table_gives_the_fit_gap_and_where_it_breaks(tmp_path):
         del r["eval"]["static"]["by_distance"]
     assert "Where it breaks" not in "\n".join(table.section(cfg, results, Claims()))
     assert table.figures(tmp_path / "none", cfg, results) == []
+
+
+def test_main_table_places_the_static_figures_against_the_truth_band(tmp_path):
+    """The main table's figures hook reads the truth checks of the reproduction folder: one row per
+    room and task that has one, the methods' static means beside the band, nothing without a check."""
+    import json
+
+    from rfmitsuba.experiments.truth import truth_folder
+
+    cfg = size_config("quick")
+    results = {}
+    for seed in cfg.seeds:
+        for job in MainTable().jobs(cfg, seed):
+            stat = {"baseline": 0.92, "end_to_end": 0.93, "ours": 0.92}[job.method]
+            results.update([_result(job, 0.9, stat)])
+    assert MainTable().figures(tmp_path, cfg, results) == []          # no check has run
+    band = {"mean": 0.925, "median": 0.94, "p10": 0.81, "min": 0.6, "max": 0.99}
+    folder = truth_folder(tmp_path, "bedroom", "rx")
+    folder.mkdir(parents=True)
+    (folder / "summary.json").write_text(json.dumps({
+        "count": 48, "solver": {"samples_per_src": 25000}, "stats": {"ssim": band},
+        "noise": {"stats": {"ssim": dict(band, mean=0.997)}}}))
+    text = "\n".join(MainTable().figures(tmp_path, cfg, results))
+    row = next(line for line in text.splitlines() if line.startswith("| Scene 1 (bedroom) | moving RX"))
+    assert "| 48 | 0.925 / 0.940 / 0.810 | 0.997 | 0.920 / 0.930 / 0.920 | 1 of 3 |" in row, row
+    assert "(truth/bedroom_rx/table.md)" in row
+    assert "25000 ray samples per source" in text
+    assert "differ by at most 0.010" in text and "at least 0.075 below 1" in text
+    assert "moving TX" not in text                                    # its check has not run

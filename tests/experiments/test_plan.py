@@ -136,3 +136,24 @@ def test_datasets_to_generate_are_timed_by_those_generated(tmp_path):
     text = P.format_plan(p)
     assert f"| {spec.key} | {d.pas_left} | " in text and "Estimated total:" in text
     assert not (tmp_path / "out").exists()
+
+
+def test_truth_checks_left_are_listed_and_not_estimated(tmp_path):
+    """A Sionna run's truth checks (one per room x task of the main table) are counted as done once
+    their summary is written; those left make the total 'plus what is not estimated'."""
+    import json
+
+    from rfmitsuba.experiments.sizes import size_config
+    from rfmitsuba.experiments.truth import truth_folder
+
+    cfg = size_config("quick")
+    cfg.rooms, cfg.tasks = ["bedroom"], ["rx", "tx"]
+    f = truth_folder(tmp_path / "out", "bedroom", "rx")
+    f.mkdir(parents=True)
+    (f / "summary.json").write_text(json.dumps({"stats": {}}))
+    p = P.plan(tmp_path / "out", cfg)
+    assert p.truth_checks == ["bedroom_rx", "bedroom_tx"] and p.truth_left == ["bedroom_tx"]
+    text = P.format_plan(p)
+    assert "Truth checks beside the main table: 2 needed, 1 done, 1 to run (not estimated: bedroom_tx)" in text
+    assert "plus what is not estimated" in text
+    assert P.plan(tmp_path / "other", size_config("tiny")).truth_checks == []   # synthetic data

@@ -168,3 +168,40 @@ def test_solver_config_scales_each_rooms_default_samples():
     for bad in (0.0, 1.5, -0.1):
         with pytest.raises(ConfigError, match="samples_scale"):
             DataSize(samples_scale=bad)
+
+
+def test_truth_checks_run_beside_the_main_table_at_the_datasets_samples(monkeypatch, tmp_path):
+    """Every room x task of the main table gets a truth check on Sionna data, at the datasets' ray
+    samples, in its folder of the reproduction; synthetic data and truth_positions = 0 get none."""
+    from rfmitsuba.experiments import truth
+    from rfmitsuba.experiments.reproduce import ensure_truth, truth_checks
+    from rfmitsuba.experiments.sizes import size_config
+
+    full = size_config("full")
+    assert truth_checks(full) == [(r, k) for r in ("bedroom", "living_room", "dining_room") for k in ("rx", "tx")]
+    assert full.truth_positions == 48
+    assert truth_checks(size_config("tiny")) == []                   # synthetic: no ray tracer to check
+    full.tables = ["noise"]
+    assert truth_checks(full) == []                                  # no main table to place it beside
+    calls = []
+
+    def fake(out, cfg, *, quiet):
+        calls.append((out, cfg))
+        return {"stats": {"ssim": {"mean": 0.9}}}
+
+    monkeypatch.setattr(truth, "truth_uncertainty", fake)
+    assert ensure_truth("bedroom", "tx", size_config("full"), tmp_path) == {"mean": 0.9}
+    (out, tc), = calls
+    assert out == tmp_path / "truth" / "bedroom_tx"
+    assert (tc.scene, tc.task, tc.positions, tc.samples) == ("bedroom", "tx", 48, 25_000)
+
+
+def test_truth_positions_are_bounded_by_the_exact_arrays_limit():
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments.sizes import ExperimentConfig
+    from rfmitsuba.sim.generate import EXACT_MAX_POSITIONS
+
+    ExperimentConfig(truth_positions=EXACT_MAX_POSITIONS)
+    for bad in (-1, EXACT_MAX_POSITIONS + 1):
+        with pytest.raises(ConfigError, match="truth_positions"):
+            ExperimentConfig(truth_positions=bad)
