@@ -8,6 +8,7 @@ Output: ``OUT/report.md`` and ``OUT/speed_accuracy.png`` (:mod:`rfmitsuba.experi
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import platform
 import time
@@ -73,6 +74,24 @@ def table_wall_times(cfg, results: dict) -> list[str]:
     return L
 
 
+#: one JSON line per reproduction run into the folder that reached its end
+#: (:func:`rfmitsuba.experiments.reproduce.record_run`)
+RUNS_FILE = "runs.jsonl"
+
+
+def _runs_line(out: Path) -> str:
+    """The wall times of every run into ``out`` that reached its end (``runs.jsonl``, written by
+    :func:`rfmitsuba.experiments.reproduce.record_run`), where there was more than one."""
+    f = Path(out) / RUNS_FILE
+    runs = [json.loads(line) for line in f.read_text().splitlines() if line.strip()] if f.is_file() else []
+    if len(runs) < 2:
+        return ""
+    walls = [float(r["wall_s"]) for r in runs]
+    return (f"; the folder was made by {len(runs)} runs that reached their end, "
+            + " + ".join(f"{w:.0f} s ({r['jobs_run']} jobs)" for w, r in zip(walls, runs))
+            + f" = {sum(walls):.0f} s ({sum(walls) / 3600:.2f} h) of wall time")
+
+
 def _ray_samples(cfg) -> str:
     """The ray samples per source of the configuration's Sionna datasets, as the header states them."""
     if cfg.source != "sionna":
@@ -108,6 +127,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
              if wall_s is not None else
              f"from the {len(results)} of {jobs_total} jobs finished so far (`reproduce --report-only`; "
              "the others show as \"-\")")
+          + _runs_line(out)
           + f" on {platform.machine()} with "
           f"{__import__('os').cpu_count()} cores, load average {load} at the end (the cores are shared).", "",
           "Training budgets (optimizer steps): Baseline = Stage 1 = "

@@ -14,6 +14,7 @@
     OUT/truth/<room>_<task>/  the truth checks beside the main table (ExperimentConfig.truth_positions;
                             rfmitsuba.experiments.truth): synthetic against exact per-element truth
     OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
+    OUT/runs.jsonl          one line per run that reached its end: wall time, jobs run (the report sums them)
 
 Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
 Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
@@ -31,7 +32,7 @@ import time
 from pathlib import Path
 
 from ..core import config as C
-from ..core.atomic import numpy_default, write_json
+from ..core.atomic import numpy_default, write_json, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import PlacementError, RfmError, RunError
 from ..core.folder_lock import folder_lock
@@ -40,7 +41,7 @@ from ..train.config import config_diff
 from .job import Job
 from .methods import FLOORS_FOLDER, config_dict, prior_kwargs, run_job
 from .paper_tables import all_jobs
-from .report import write_report
+from .report import RUNS_FILE, write_report
 from .sizes import DatasetSpec, DataSize, ExperimentConfig, method_config
 
 
@@ -287,8 +288,20 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     results = run_tasks(tasks, cluster=cluster, desc="jobs", unit="job", quiet=quiet, on_result=count)
     wall = time.perf_counter() - t_start
     _write_json(out / "results.json", results)
+    record_run(out, wall_s=wall, jobs_run=len(new), tables=list(cfg.tables))
 
     return write_report(out, cfg, results, wall_s=wall)
+
+
+def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str]) -> None:
+    """Append this run to ``out/runs.jsonl`` (rewritten atomically): when it ended, its wall time
+    [s], the jobs it ran (those not done before it) and the tables it was asked for, so a
+    reproduction resumed over several sessions reports the time of all its runs."""
+    f = Path(out) / RUNS_FILE
+    lines = f.read_text().splitlines() if f.is_file() else []
+    lines.append(json.dumps({"ended_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "wall_s": round(wall_s, 1),
+                             "jobs_run": int(jobs_run), "tables": tables}))
+    write_text(f, "\n".join(lines) + "\n")
 
 
 def _write_json(path: Path, obj) -> None:

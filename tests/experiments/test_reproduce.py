@@ -42,6 +42,9 @@ def test_resume_skips_finished_jobs(tiny_reproduction):
     for p, t in before.items():
         assert p.stat().st_mtime_ns == t  # not recomputed
     assert len(list(out.glob("jobs/*/*/DONE"))) == len(all_jobs(cfg))
+    # the stopped run left no record; the resumed run that reached its end did (later tests may add runs)
+    first = json.loads((out / "runs.jsonl").read_text().splitlines()[0])
+    assert first["jobs_run"] == len(all_jobs(cfg)) - 4 and first["wall_s"] > 0 and first["tables"] == cfg.tables
 
 
 def test_other_configuration_is_refused(tiny_reproduction):
@@ -205,3 +208,15 @@ def test_truth_positions_are_bounded_by_the_exact_arrays_limit():
     for bad in (-1, EXACT_MAX_POSITIONS + 1):
         with pytest.raises(ConfigError, match="truth_positions"):
             ExperimentConfig(truth_positions=bad)
+
+
+def test_runs_into_one_folder_are_summed_in_the_report_header(tmp_path):
+    from rfmitsuba.experiments.report import _runs_line
+    from rfmitsuba.experiments.reproduce import record_run
+
+    assert _runs_line(tmp_path) == ""                                  # no run recorded
+    record_run(tmp_path, wall_s=8874.0, jobs_run=90, tables=["main", "rx_count"])
+    assert _runs_line(tmp_path) == ""                                  # one run: "this run took" says it
+    record_run(tmp_path, wall_s=6958.4, jobs_run=69, tables=["main"])
+    line = _runs_line(tmp_path)
+    assert "made by 2 runs that reached their end, 8874 s (90 jobs) + 6958 s (69 jobs) = 15832 s (4.40 h)" in line
