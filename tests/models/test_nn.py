@@ -139,14 +139,19 @@ def test_em_network_gradient_matches_finite_differences(variant):
         assert abs(fd - grad[j]) < 2e-3 + 2e-2 * abs(fd), (j, fd, grad[j])
 
 
+@pytest.mark.parametrize("block_rows", [2048, 8])
 @pytest.mark.parametrize("pairs", [False, True])
-def test_host_products_match_cooperative_vectors(variant, pairs):
+def test_host_products_match_cooperative_vectors(variant, pairs, block_rows, monkeypatch):
     """The LLVM backend's host matrix products (``_HostMLP``) give the cooperative-vector
-    network's outputs and every gradient: weights, per-item and per-view inputs."""
+    network's outputs and every gradient: weights, per-item and per-view inputs; in one
+    block of rows and in blocks of 8 (37 rows: four full blocks and a partial one per view)."""
     import drjit as dr
 
     from rfmitsuba.core import backend as B
+    from rfmitsuba.models import nn
     from rfmitsuba.models.nn import MLP
+
+    monkeypatch.setattr(nn, "HOST_BLOCK_ROWS", block_rows)
 
     if B.is_cuda():
         pytest.skip("the host products run on the LLVM backend only")
