@@ -71,13 +71,15 @@ class Table:
 
 
 class MainTable(Table):
-    """Every room x task: Baseline, End-to-End and Ours, with the floors (paper Table `tab:generalization_combined_concise`)."""
+    """Every room x task: Baseline, End-to-End and Ours (the paper's columns), then the
+    ablations' Continued, Duplicated and Baseline (human) in every cell too, with the floors
+    (paper Table `tab:generalization_combined_concise`)."""
 
     key = "main"
+    methods = ("baseline", "end_to_end", "ours", "continued", "duplicated", "baseline_human")
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
-        return [Job(DatasetSpec(r, k), m, seed) for r in cfg.rooms for k in cfg.tasks
-                for m in ("baseline", "end_to_end", "ours")]
+        return [Job(DatasetSpec(r, k), m, seed) for r in cfg.rooms for k in cfg.tasks for m in self.methods]
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         L: list[str] = []
@@ -92,7 +94,7 @@ class MainTable(Table):
         for r in cfg.rooms:
             for k in cfg.tasks:
                 ds = DatasetSpec(r, k).key
-                for m in ("baseline", "end_to_end", "ours"):
+                for m in self.methods:
                     rs = select(results, dataset=ds, method=m)
                     L.append(f"| {paper.ROOM_LABELS.get(r, r)} | moving {k.upper()} | {LABEL[m]} | {fmt(rs, DYN)} | "
                              f"{fmt(rs, DYN_MED)} | {fmt(rs, STAT)} | {fmt(rs, AFF)} | {paper_fmt(paper.MAIN.get((r, k, m)))} |")
