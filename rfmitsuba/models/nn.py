@@ -258,8 +258,9 @@ class _HostMLP:
                     views = self.y.shape[0] if self.pairs else 1
                     n_out = layers[-1][1]
                     out = np.empty((views * self.n, n_out), np.float32)
+                    self.blocks = self._blocks(views)
                     self.acts = []         # per row block: each linear layer's input
-                    for b, lo, hi in self._blocks(views):
+                    for b, lo, hi in self.blocks:
                         h = self.x[lo:hi]
                         if self.pairs:
                             h = _leaky(h + self.y[b])
@@ -294,11 +295,10 @@ class _HostMLP:
                 def _backward(self, go):
                     Float = type(go[0])
                     dz_all = host(go)
-                    views = self.y.shape[0] if self.pairs else 1
                     gw = np.zeros(self.size, np.float32)
                     gx = np.zeros_like(self.x)
                     gy = np.zeros_like(self.y) if self.pairs else None
-                    for (b, lo, hi), acts in zip(self._blocks(views), self.acts):
+                    for (b, lo, hi), acts in zip(self.blocks, self.acts):
                         dz = dz_all[b * self.n + lo:b * self.n + hi]
                         for li in range(len(self.layers) - 1, -1, -1):
                             wo, n_out, n_in, st, bo = self.layers[li]
