@@ -14,7 +14,9 @@ shared cores; every timing ends with ``dr.sync_thread()``):
   backward, Dr.Jit against NumPy (BLAS complex matrix products for both passes);
 - ``stage1``: steps per second of a real Stage-1 training (:class:`~rfmitsuba.train.trainer.Trainer`,
   the configuration's batch, full resolution) on a dataset: the given one, or a NeRF2-like folder
-  (:func:`rfmitsuba.sim.nerf2like.make_nerf2like`) made once in the cache folder.
+  (:func:`rfmitsuba.sim.nerf2like.make_nerf2like`) made once in the cache folder; at 90 x 360
+  too where the field trains on block means, and traced every step (``stage1_traced``) beside
+  the recorded step the trainer runs (:mod:`rfmitsuba.train.frozen_step`).
 
 The benchmark field: the direct path plus ``images`` reflections across the six walls of a
 6 x 5 x 3 m room and ``scatterers`` scattering points, 8 moving transmitters, plane wavefront
@@ -231,11 +233,14 @@ def default_dataset() -> Path:
 
 
 def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_gaussians", steps: int = 60,
-                   config: str | Path | None = None, overrides: list[str] | None = None) -> dict:
+                   config: str | Path | None = None, overrides: list[str] | None = None,
+                   freeze: bool = True) -> dict:
     """Steps per second of a Stage-1 training (the configuration's batch, full resolution, no
     validation in the timed span): the trainer's own training clock between its log rows at
     step 10 and at ``steps``, so initialisation and the first steps' compilation are not
-    counted. ``overrides``: ``key=value`` items applied to the training configuration."""
+    counted. ``overrides``: ``key=value`` items applied to the training configuration;
+    ``freeze``: the trainer records its step where the field allows it
+    (:mod:`rfmitsuba.train.frozen_step`), or (False) traces every step."""
     from ..core.config import load, override
     from ..train.config import TrainConfig, training_downsample
     from ..train.trainer import train
@@ -249,7 +254,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
     cfg.time_limit_s = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        summary = train(ds, Path(tmp) / "run", cfg=cfg, quiet=True)
+        summary = train(ds, Path(tmp) / "run", cfg=cfg, quiet=True, freeze=freeze)
         total = time.perf_counter() - t0
         rows = [json.loads(line) for line in (Path(tmp) / "run" / "log.jsonl").read_text().splitlines()]
     rows = [r for r in rows if "time_s" in r]
@@ -260,7 +265,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
             "batch": cfg.batch_views,
             "downsample": training_downsample(dataclasses.replace(cfg, model=summary.get("model", cfg.model))),
             "steps": steps, "steps_per_s": rate,
-            "step_ms": 1e3 / rate, "wall_s": total}
+            "step_ms": 1e3 / rate, "wall_s": total, "freeze": bool(freeze)}
 
 
 def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 40,
@@ -313,6 +318,9 @@ def run(*, quick: bool = False, dataset: str | Path | None = None, stage1_model:
         if out["stage1"]["downsample"] != 1:   # the same training at 90 x 360, the reference of its ratio
             out["stage1_full_res"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=steps,
                                                     overrides=["downsample=1"])
+        # the same training traced every step: what recording the step saves
+        out["stage1_traced"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=steps,
+                                              freeze=False)
     out["threads"] = dr.thread_count()
     out["load_after"] = _load()
     out["cpu_count"] = os.cpu_count()
@@ -352,13 +360,15 @@ def format_report(r: dict) -> str:
         if par:
             lines.append(f"| parity: {name} | PAS max abs {par['pas_max_abs']:.1e}, gradient max rel "
                          f"{par['grad_max_rel']:.1e} |")
-    for key in ("stage1", "stage1_full_res"):
+    for key in ("stage1", "stage1_full_res", "stage1_traced"):
         s = r.get(key)
         if s:
             d = s.get("downsample", 1)
             d0 = r["stage1"].get("downsample", 1)
-            ratio = (f"; at {90 // d0}x{360 // d0} {r['stage1']['steps_per_s'] / max(s['steps_per_s'], 1e-9):.2f}x "
-                     "as many steps/s" if key == "stage1_full_res" else "")
+            gain = r["stage1"]["steps_per_s"] / max(s["steps_per_s"], 1e-9)
+            ratio = {"stage1_full_res": f"; at {90 // d0}x{360 // d0} {gain:.2f}x as many steps/s",
+                     "stage1_traced": f"; every step traced, not recorded: recording gives {gain:.2f}x as many "
+                                      "steps/s"}.get(key, "")
             lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch {s.get('batch', 8)}, "
                          f"{90 // d}x{360 // d} | {s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on "
                          f"`{s['dataset']}`{ratio} |")

@@ -111,6 +111,7 @@ from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
+from ..rf.bartlett import weights as bartlett_weights
 from ..rf.calibration_fit import los_calibration_fit
 from ..rf.frame_fit import los_frame_fit
 from ..rf.images import ImageMaps, scene_image_maps
@@ -677,6 +678,20 @@ def read_out(h_re, h_im, *, readout: str, frequency_hz: float, height: int, widt
     return bartlett(h_re, h_im, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize)
 
 
+def _jit_arrays(tree) -> list:
+    """The Dr.Jit arrays in ``tree`` (dicts, lists and tuples of them, searched depth first;
+    anything else is skipped)."""
+    import drjit as dr
+
+    if dr.is_array_v(tree):
+        return [tree]
+    if isinstance(tree, dict):
+        tree = list(tree.values())
+    if isinstance(tree, (list, tuple)):
+        return [a for v in tree for a in _jit_arrays(v)]
+    return []
+
+
 # ------------------------------------------------------------------------------ the field
 
 def _check_orthogonal(A: np.ndarray, owner: str) -> None:
@@ -1195,6 +1210,38 @@ class CoherentGaussianField(FlatParameterField):
         prep = self._prepare(views)
         hr, hi = self._paths(prep, weight=weight)
         return self._calibrate(prep, hr, hi)
+
+    # ---- a render split in its host part and its device part (recorded once, replayed) -------
+    #: a render is :meth:`prepare` (host: checks, cached ray casts, uploads) then
+    #: :meth:`render_prepared` (Dr.Jit only), so :mod:`rfmitsuba.train.frozen_step` can record
+    #: the device part with its loss and backward pass once and replay it every step
+    freezable = True
+
+    def prepare(self, views: Views) -> dict:
+        """The host part of a render of ``views`` (:meth:`_prepare`): positions checked, ray casts
+        looked up, the views' columns uploaded."""
+        return self._prepare(views)
+
+    def render_prepared(self, prep: dict, *, frequency_hz: float, height: int, width: int,
+                        normalize: bool = True):
+        """The device part of a render: this field alone read out from :meth:`prepare`'s ``prep``,
+        ``TensorXf`` [B, height, width], what ``render([self], views, ...)`` gives."""
+        hr, hi = self._calibrate(prep, *self._paths(prep))
+        return read_out(hr, hi, readout=self.readout, frequency_hz=frequency_hz, height=height, width=width,
+                        normalize=normalize)
+
+    def device_inputs(self, prep: dict, *, frequency_hz: float, height: int, width: int) -> list:
+        """Every Dr.Jit array :meth:`render_prepared` and :meth:`penalty` read: the field's
+        parameters and image maps, ``prep``'s columns and the read-out's beamformer weights (an
+        array missing here makes the recording fail, loudly)."""
+        return (_jit_arrays(self.params) + list(self._A_cols) + _jit_arrays(prep)
+                + list(bartlett_weights(frequency_hz=frequency_hz, height=height, width=width)))
+
+    def structure(self, prep: dict) -> tuple:
+        """What :meth:`render_prepared` takes from Python rather than from arrays (counts, which
+        parts exist, the read-out), hashable: a recording of it is valid while this is unchanged."""
+        return (self.num_images, self.num_scatterers, int(prep["nb"]), float(prep["kw"]), tuple(sorted(prep)),
+                tuple(sorted(self.params)), self.readout, self.wavefront, self.grid_cells, repr(self.cfg))
 
     # ---- the pieces of :meth:`channels`, shared with the Stage-2 person field ----------------
     def _prepare(self, views: Views) -> dict:

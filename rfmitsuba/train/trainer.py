@@ -59,6 +59,7 @@ from ..rf.bartlett_ref import (
 from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff, training_downsample
 from .density import make_strategy
+from .frozen_step import FrozenLoss
 from .pursuit import pursuit_for
 from .select import SELECT_DIR, select_model
 from .loss import loss
@@ -118,8 +119,13 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, data: TrainData, run_dir: str | Path, *, frozen: list | None = None,
                  extra=None, extra_inputs: int = 0, quiet: bool = False, name: str = "bg",
-                 field_factory=None):
+                 field_factory=None, freeze: bool = True):
         self.cfg = cfg
+        #: record a step's render, loss and backward pass once and replay them
+        #: (:mod:`rfmitsuba.train.frozen_step`; bit-identical, faster) where the field allows it
+        #: and it trains alone (no frozen fields, no extra inputs)
+        self.freeze = bool(freeze)
+        self._frozen_loss = None
         self.extra = extra
         self.extra_inputs = int(extra_inputs)
         self.data = data
@@ -551,12 +557,15 @@ class Trainer:
         for k in list(opt.keys()):
             opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
-        pred = self.render(field, fit[pick])
-        loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
-        penalty = field.penalty()
-        if penalty is not None:
-            loss = loss + penalty
-        dr.backward(loss)
+        if self._records(field):
+            loss = self._frozen_loss(field, self.views(fit[pick]), B.TensorXf(gt_fit[pick]), loss_fn)
+        else:
+            pred = self.render(field, fit[pick])
+            loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
+            penalty = field.penalty()
+            if penalty is not None:
+                loss = loss + penalty
+            dr.backward(loss)
         strategy.after_backward(field)
         opt.step()
         self._pull(field, opt)
@@ -567,6 +576,14 @@ class Trainer:
         if strategy.step_end(step + 1, field, opt, rng=rng, probe_views=probe_views):
             self._pull(field, opt)
         return lv
+
+    def _records(self, field) -> bool:
+        """Whether this step of ``field`` goes through :class:`~rfmitsuba.train.frozen_step.FrozenLoss`."""
+        if not (self.freeze and not self.frozen and self.extra is None and FrozenLoss.supports(field)):
+            return False
+        if self._frozen_loss is None:
+            self._frozen_loss = FrozenLoss(height=self.h, width=self.w)
+        return True
 
     def _choose_start(self, field, opt, strategy, rng, n_starts: int, *, split, gt_fit, gt_val, loss_fn,
                       probe_views) -> tuple:
@@ -705,16 +722,17 @@ def start_steps(iterations: int) -> int:
     return int(max(1, min(iterations - 1, max(50, min(1000, round(0.1 * iterations))))))
 
 
-def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False) -> dict:
+def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False,
+          freeze: bool = True) -> dict:
     """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``
     (``cfg.model == "auto"`` first chooses the field, :func:`rfmitsuba.train.select.select_model`).
 
-    Returns the summary dict (also in ``out/final/summary.json``)."""
+    ``freeze``: as :class:`Trainer`. Returns the summary dict (also in ``out/final/summary.json``)."""
     cfg = cfg or TrainConfig()
     data = TrainData.open(dataset, state=cfg.state)
     if cfg.model == "auto":
         cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
-    return Trainer(cfg, data, out, quiet=quiet).run()
+    return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
 
 
 def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | FieldMean]:

@@ -58,6 +58,8 @@ def test_cli_field_quick_writes_every_figure(variant, quick_dataset, tmp_path, c
     # the coherent Gaussian field trains at 45 x 180; the same training at 90 x 360 is the reference
     assert r["stage1"]["downsample"] == 2 and r["stage1_full_res"]["downsample"] == 1
     assert "45x180" in text and "90x360" in text and "as many steps/s" in text
+    # and traced every step: the recorded step's reference
+    assert r["stage1"]["freeze"] and not r["stage1_traced"]["freeze"] and "every step traced" in text
     if r["field"]["parity"] is not None:  # PyTorch installed: the twin renders the same PAS
         assert r["field"]["parity"]["pas_max_abs"] < 1e-3
 

@@ -1,0 +1,153 @@
+"""A training batch's render, loss and backward pass recorded once and replayed (``dr.freeze``).
+
+A training step of a small field is bound by tracing, not arithmetic: the coherent Gaussian
+field's Stage-1 step (73 sources, batch 8, 45 x 180) spends about 18 ms in kernels and about
+12 ms building them again in Python every step (one Dr.Jit thread; docs/measurements.md, issue
+13). :class:`FrozenLoss` traces the device part of a step once per *structure* and then replays
+its kernels with the new batch: the same kernels on the same inputs, so the losses and
+parameters are bit-identical to the traced step's (``tests/train/test_frozen_step.py``).
+
+A field takes part when its class has ``freezable = True`` and these methods (the coherent
+Gaussian field, :class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField`):
+
+=====================================================  ==========================================
+``prepare(views) -> prep``                             the host part of a render (checks, cached
+                                                       ray casts, uploads), run every step
+``render_prepared(prep, *, frequency_hz, height,       the device part: ``TensorXf`` [B, H, W]
+width, normalize)``
+``device_inputs(prep, *, frequency_hz, height, width)`` every Dr.Jit array the device part reads
+``structure(prep)``                                    what it takes from Python (counts, flags),
+                                                       hashable
+``penalty()``                                          as every field
+=====================================================  ==========================================
+
+A new recording is made whenever the structure, the width of any input or the loss function
+changes (a plane pursuit adding sources, another batch size), so a replay never runs kernels
+traced for other sizes. If a recording fails (an array the field did not list), the step is
+traced as usual from then on, with a warning naming the field.
+
+Dr.Jit borrows the memory of a NumPy array it is given, and whether that memory is 64-byte
+aligned is part of what a recording is valid for. NumPy gives no such promise, so the batch's
+uploads (``prep``'s arrays and the target images) are copied into aligned buffers first
+(:func:`aligned`): without that, steps recorded again about one time in 30.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+#: the alignment [bytes] of every buffer a recorded step reads from the host
+ALIGN = 64
+
+
+def aligned(values: np.ndarray) -> np.ndarray:
+    """A C-contiguous copy of ``values`` whose first byte is :data:`ALIGN`-byte aligned (same
+    shape and dtype)."""
+    values = np.ascontiguousarray(values)
+    buf = np.empty(values.nbytes + ALIGN, np.uint8)
+    start = -buf.ctypes.data % ALIGN
+    out = buf[start:start + values.nbytes].view(values.dtype).reshape(values.shape)
+    out[...] = values
+    return out
+
+
+def _realigned(tree):
+    """``tree`` (dicts, lists, tuples) with every Dr.Jit array replaced by one of the same type
+    on an :func:`aligned` copy of its values; anything else kept."""
+    import drjit as dr
+
+    if dr.is_array_v(tree):
+        if dr.is_tensor_v(tree):
+            return type(tree)(aligned(tree.numpy()))
+        return type(tree)(aligned(np.asarray(tree.numpy())))
+    if isinstance(tree, dict):
+        return {k: _realigned(v) for k, v in tree.items()}
+    if isinstance(tree, (list, tuple)):
+        return type(tree)(_realigned(v) for v in tree)
+    return tree
+
+
+class _Hold:
+    """What the recorded function reads from Python: an object Dr.Jit leaves opaque (compared
+    by identity), so changing its attributes never causes a new recording."""
+
+    field = prep = loss_fn = None
+    frequency_hz = 0.0
+    key: tuple = ()
+
+
+class FrozenLoss:
+    """The loss of one batch with its backward pass, recorded by ``dr.freeze`` and replayed.
+
+    Args:
+        height, width: the training images [pixels].
+        limit: recordings kept (least recently used dropped).
+
+    Calling it with ``(field, views, gt, loss_fn)`` runs ``field.prepare(views)`` on the host,
+    then (recorded once per structure, replayed after) renders ``field`` at ``views``, takes
+    ``loss_fn(pred, gt)`` plus ``field.penalty()``, and back-propagates it into the field's
+    parameters; it returns the loss (``Float`` [1]). ``gt`` is a ``TensorXf`` [B, height, width].
+    """
+
+    def __init__(self, *, height: int, width: int, limit: int = 8):
+        import drjit as dr
+
+        self.height, self.width = int(height), int(width)
+        self.disabled = False
+        hold = self._hold = _Hold()
+
+        def step(inputs, gt):
+            field = hold.field
+            pred = field.render_prepared(hold.prep, frequency_hz=hold.frequency_hz, height=height, width=width)
+            loss = hold.loss_fn(pred, gt)
+            penalty = field.penalty()
+            if penalty is not None:
+                loss = loss + penalty
+            dr.backward(loss)
+            return loss
+
+        self._frozen = dr.freeze(step, state_fn=lambda inputs, gt: hold.key, limit=limit)
+
+    @staticmethod
+    def supports(field) -> bool:
+        """Whether ``field`` can take part (its class says ``freezable``; Dr.Jit has ``freeze``)."""
+        import drjit as dr
+
+        return bool(getattr(type(field), "freezable", False)) and hasattr(dr, "freeze")
+
+    @property
+    def recordings(self) -> int:
+        """Recordings made so far (each a traced step; every other call was a replay)."""
+        return int(self._frozen.n_recordings)
+
+    def __call__(self, field, views, gt, loss_fn):
+        import drjit as dr
+
+        prep = field.prepare(views)
+        if self.disabled:
+            return self._traced(field, prep, views, gt, loss_fn)
+        prep, gt = _realigned(prep), _realigned(gt)
+        h = self._hold
+        h.field, h.prep, h.loss_fn, h.frequency_hz = field, prep, loss_fn, float(views.frequency_hz)
+        inputs = field.device_inputs(prep, frequency_hz=h.frequency_hz, height=self.height, width=self.width)
+        h.key = (field.structure(prep), tuple(dr.width(a) for a in inputs), id(loss_fn), h.frequency_hz)
+        try:
+            return self._frozen(inputs, gt)
+        except RuntimeError as e:   # a recording that failed: trace every step from now on
+            self.disabled = True
+            warnings.warn(f"{type(field).__name__}: its training step cannot be recorded ({e}); "
+                          "tracing it every step instead", RuntimeWarning, stacklevel=2)
+            return self._traced(field, prep, views, gt, loss_fn)
+
+    def _traced(self, field, prep, views, gt, loss_fn):
+        import drjit as dr
+
+        pred = field.render_prepared(prep, frequency_hz=float(views.frequency_hz), height=self.height,
+                                     width=self.width)
+        loss = loss_fn(pred, gt)
+        penalty = field.penalty()
+        if penalty is not None:
+            loss = loss + penalty
+        dr.backward(loss)
+        return loss

@@ -1,0 +1,126 @@
+"""Tests of rfmitsuba.train.frozen_step: a recorded training step equals the traced one."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+
+def _cfg(**over):
+    from rfmitsuba.core import config as C
+    from rfmitsuba.train.config import TrainConfig
+
+    sets = ["model=\"coherent_gaussians\"", "iterations=12", "batch_views=4", "val_every=6", "checkpoint_every=6",
+            "log_every=1", "coherent.room_order=2", "coherent.furniture_order=1"]
+    return C.override(TrainConfig(), sets + [f"{k}={v}" for k, v in over.items()])
+
+
+def _losses(run):
+    return [json.loads(ln)["loss"] for ln in (run / "log.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def quick_data(quick_dataset):
+    from rfmitsuba.data.views import TrainData
+
+    return TrainData.open(quick_dataset.path)
+
+
+def test_a_recorded_run_is_bit_identical_to_a_traced_one(quick_data, tmp_path, one_thread):
+    """12 steps of the coherent Gaussian field with and without recording: the same loss at every
+    step and the same trained parameters to the last bit; the recorded run replayed most steps."""
+    from rfmitsuba.train.trainer import Trainer
+
+    traced = Trainer(_cfg(), quick_data, tmp_path / "traced", quiet=True, freeze=False)
+    traced.run()
+    rec = Trainer(_cfg(), quick_data, tmp_path / "recorded", quiet=True)
+    rec.run()
+    assert traced._frozen_loss is None
+    assert 1 <= rec._frozen_loss.recordings < 12 and not rec._frozen_loss.disabled
+    assert _losses(tmp_path / "recorded") == _losses(tmp_path / "traced")
+    with np.load(tmp_path / "traced" / "final" / "field.npz") as a, \
+            np.load(tmp_path / "recorded" / "final" / "field.npz") as b:
+        assert sorted(a.files) == sorted(b.files)
+        for k in a.files:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+@pytest.fixture(scope="module")
+def trained(quick_data, tmp_path_factory):
+    """A coherent Gaussian field after 6 traced steps, and the trainer that made it."""
+    from rfmitsuba.train.trainer import Trainer
+
+    tr = Trainer(_cfg(iterations=6), quick_data, tmp_path_factory.mktemp("frozen") / "run", quiet=True, freeze=False)
+    tr.run()
+    return tr
+
+
+def _loss_and_grads(frozen, field, views, gt):
+    """The loss of ``views`` (recorded by ``frozen``, or traced where it is None) and the gradient
+    of every parameter, as NumPy; gradients cleared first and after."""
+    import drjit as dr
+
+    from rfmitsuba.train.loss import loss as loss_fn
+
+    params = {k: dr.detach(v) for k, v in field.params.items()}
+    for v in params.values():
+        dr.enable_grad(v)
+    field.params.update(params)
+    if frozen is None:
+        from rfmitsuba.train.frozen_step import FrozenLoss
+
+        loss = FrozenLoss(height=gt.shape[1], width=gt.shape[2])._traced(field, field.prepare(views), views, gt,
+                                                                         loss_fn)
+    else:
+        loss = frozen(field, views, gt, loss_fn)
+    grads = {k: np.array(dr.grad(v).numpy()) for k, v in params.items()}
+    field.params.update({k: dr.detach(v) for k, v in params.items()})
+    return float(loss.numpy()[0]), grads
+
+
+def test_a_new_batch_size_is_recorded_anew_and_replays_match_tracing(trained, quick_data, one_thread):
+    """Batches of 4, 4, 2 and 4 views: the 2-view batch makes a new recording (its inputs are
+    narrower), the second 4-view batch replays the first's; every loss and gradient equals the
+    traced step's."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.base import Views
+    from rfmitsuba.train.frozen_step import FrozenLoss
+
+    field = trained.field
+    frozen = FrozenLoss(height=trained.h, width=trained.w)
+    fit = np.arange(len(quick_data.antenna_pos))
+    counts = []
+    for rows in (fit[:4], fit[4:8], fit[8:10], fit[10:14]):
+        views = Views.of(quick_data, rows)
+        gt = B.TensorXf(quick_data.pas(rows, d=trained.d))
+        lf, gf = _loss_and_grads(frozen, field, views, gt)
+        lt, gt_ = _loss_and_grads(None, field, views, gt)
+        assert lf == lt
+        for k in gf:
+            np.testing.assert_array_equal(gf[k], gt_[k], err_msg=k)
+        counts.append(frozen.recordings)
+    assert counts[1] == counts[0] and counts[2] == counts[1] + 1 and counts[3] == counts[2], counts
+
+
+def test_a_field_that_cannot_be_recorded_is_traced_with_a_warning(trained, quick_data, monkeypatch, one_thread):
+    """A field that leaves an array it reads out of ``device_inputs`` (here the beamformer
+    weights) cannot be recorded: the step says so once and is traced, with the same loss."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.base import Views
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
+    from rfmitsuba.train.frozen_step import FrozenLoss
+
+    full = CoherentGaussianField.device_inputs
+    monkeypatch.setattr(CoherentGaussianField, "device_inputs",
+                        lambda self, prep, **kw: full(self, prep, **kw)[:-32])
+    field = trained.field
+    frozen = FrozenLoss(height=trained.h, width=trained.w)
+    rows = np.arange(4)
+    views = Views.of(quick_data, rows)
+    gt = B.TensorXf(quick_data.pas(rows, d=trained.d))
+    with pytest.warns(RuntimeWarning, match="CoherentGaussianField: its training step cannot be recorded"):
+        lf, _ = _loss_and_grads(frozen, field, views, gt)
+    assert frozen.disabled
+    lt, _ = _loss_and_grads(None, field, views, gt)
+    assert lf == lt
