@@ -7,7 +7,9 @@ Stage-2 steps of :class:`MethodConfig`):
 name                what it trains                                                    steps
 ==================  ================================================================  ===========
 baseline            one field on the empty-room data                                  n1
-continued           the baseline trained longer (same data)                           n1 + n2
+continued           Baseline's field trained n2 steps more on the same empty-room     n1 + n2
+                    data, at Stage 1's final learning rates (the paper's "continue
+                    training the baseline")
 duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
 baseline_human      one field on empty + human-present data, no human position        n1 + n2
 end_to_end          one field on empty + human-present data, human position as input  n1 + n2
@@ -21,7 +23,8 @@ refined             Ours, then Stage 3: background and person field trained toge
 ==================  ================================================================  ===========
 
 So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
-stage. The end-to-end and human-data baselines see the same samples as Ours (empty room +
+stage and Continued's start (before 2026-11-27 Continued trained n1 + n2 steps from scratch on one
+schedule). The end-to-end and human-data baselines see the same samples as Ours (empty room +
 human-present data at training antenna and training human positions).
 
 Evaluations (:func:`evaluate`), both by the metric protocol (docs/conventions.md) with both floors:
@@ -76,7 +79,8 @@ class Method:
 
 METHODS: dict[str, Method] = {m.name: m for m in [
     Method("baseline", "Baseline", "trained on empty-room data", "empty", long_budget=False),
-    Method("continued", "Continued baseline", "baseline trained longer on empty-room data", "empty"),
+    Method("continued", "Continued baseline", "baseline trained longer on empty-room data", "empty",
+           builds_on="baseline"),
     Method("duplicated", "Baseline (duplicated)", "trained on duplicated empty-room data", "empty", duplicate=True),
     Method("baseline_human", "Baseline (human)", "trained on human-present data, no human position", "all"),
     Method("end_to_end", "End-to-End", "one model on human-present data with the human position as input", "all",
@@ -188,8 +192,8 @@ def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
 
 
 def stage3_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
-    """Stage-3 training configuration: n2 steps, no density control, Stage 1's learning rates held
-    at their final values (a refinement of a trained background, not a new fit)."""
+    """Stage-3 (and Continued's) training configuration: n2 steps, no density control, Stage 1's
+    learning rates held at their final values (a refinement of a trained background, not a new fit)."""
     s1 = mcfg.stage1
     o = s1.optim
     optim = dataclasses.replace(o, lr_means=o.lr_means_final, lr_net=o.lr_net_final, lr_amp=o.lr_amp_final)
@@ -200,7 +204,7 @@ def stage3_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
 def prior_kwargs(name: str, prior_job: str | Path | None) -> dict:
     """The :func:`train_method` / :func:`run_job` keyword that hands method ``name`` the finished
     job folder of the method it builds on (``Method.builds_on``): ``stage1_dir`` (its Baseline's
-    run) for Ours, ``ours_dir`` for Stage 3; {} without one."""
+    run) for Ours and Continued, ``ours_dir`` for Stage 3; {} without one."""
     m = get_method(name)
     if prior_job is None or m.builds_on is None:
         return {}
@@ -243,6 +247,37 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
             "runs": [str(ours_dir / "stage2"), str(out / "stage3")]}
 
 
+def _baseline_run(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
+                  stage1_dir: str | Path | None, quiet: bool) -> tuple[Path, dict]:
+    """The finished Baseline run a method builds on (``stage1_dir``, or one trained into
+    ``out/stage1_job``) and its summary. RunError when ``stage1_dir`` has not finished."""
+    if stage1_dir is None:
+        train_method("baseline", dataset, out / "stage1_job", mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                     train_antennas=train_antennas, quiet=quiet)
+        stage1_dir = out / "stage1_job" / "train"
+    stage1_dir = Path(stage1_dir)
+    if not (stage1_dir / "final" / "summary.json").is_file():
+        raise RunError(f"Stage 1 run {stage1_dir} has not finished (no final/summary.json)")
+    return stage1_dir, json.loads((stage1_dir / "final" / "summary.json").read_text())
+
+
+def _train_continued(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
+                     stage1_dir: str | Path | None, quiet: bool) -> dict:
+    """Continued: the Baseline's trained field (``stage1_dir``) trained n2 steps more on the same
+    empty-room data at Stage 1's final learning rates (:func:`stage3_config`), into ``out/train``."""
+    stage1_dir, s1 = _baseline_run(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                                   train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+    start = load_field(stage1_dir / "final" / "field.npz")
+    data = open_data(dataset, get_method("continued"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                     seed=seed)
+    _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    s = Trainer(stage3_config(mcfg, seed=seed), data, out / "train", quiet=quiet,
+                field_factory=lambda tr, rng: start).run()
+    return {"train_time_s": s1["train_time_s"] + s["train_time_s"], "steps": s1["steps"] + s["steps"],
+            "stage1_train_time_s": s1["train_time_s"], "val_ssim": s["val_ssim"], "stage1_val_ssim": s1["val_ssim"],
+            "runs": [str(stage1_dir), str(out / "train")]}
+
+
 def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
                  noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
                  ours_dir: str | Path | None = None, quiet: bool = True) -> dict:
@@ -251,8 +286,9 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     Args:
         name: a key of :data:`METHODS`.
         dataset: dataset folder.
-        out: job folder; single-field methods train into ``out/train``, Ours into
-            ``out/stage2`` on top of ``stage1_dir`` (default: trains its own ``out/stage1``).
+        out: job folder; single-field methods train into ``out/train`` (Continued from the
+            field of ``stage1_dir``), Ours into ``out/stage2`` on top of ``stage1_dir`` (default for
+            both: trains its own Baseline into ``out/stage1_job``).
         mcfg: sizes; seed: training (and noise) seed; noise_snr_db: noise on the training data;
         train_antennas: number of training antenna positions (0 = all).
         ours_dir: Stage 3 ("refined") starts from this finished Ours job folder (default: trains
@@ -260,7 +296,7 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         quiet: no progress bars.
 
     Returns:
-        {"train_time_s": total training wall time (Stage 1 included for Ours), "steps": total
+        {"train_time_s": total training wall time (Stage 1 included for Ours and Continued), "steps": total
         steps, "val_ssim": final validation SSIM of the last stage, "runs": [run folders]}.
     """
     m = get_method(name)
@@ -273,6 +309,9 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         return _train_stage3(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                              train_antennas=train_antennas, ours_dir=ours_dir, quiet=quiet)
     out.mkdir(parents=True, exist_ok=True)
+    if m.builds_on == "baseline" and not m.two_stage:
+        return _train_continued(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                                train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
     if not m.two_stage:
         data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
         cfg = stage1_config(mcfg, m, seed=seed)
@@ -286,16 +325,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()
         return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
                 "runs": [str(out / "train")]}
-    if stage1_dir is None:
-        stage1_dir = out / "stage1"
-        train_method("baseline", dataset, out / "stage1_job", mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                     train_antennas=train_antennas, quiet=quiet)
-        stage1_dir = out / "stage1_job" / "train"
-    stage1_dir = Path(stage1_dir)
-    s1 = json.loads((stage1_dir / "final" / "summary.json").read_text()) \
-        if (stage1_dir / "final" / "summary.json").is_file() else None
-    if s1 is None:
-        raise RunError(f"Stage 1 run {stage1_dir} has not finished (no final/summary.json)")
+    stage1_dir, s1 = _baseline_run(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
+                                   train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
     bg = load_field(stage1_dir / "final" / "field.npz")
     bg.freeze()
     data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)

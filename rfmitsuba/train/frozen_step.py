@@ -23,8 +23,11 @@ width, normalize)``
 
 A new recording is made whenever the structure, the width of any input or the loss function
 changes (a plane pursuit adding sources, another batch size), so a replay never runs kernels
-traced for other sizes. If a recording fails (an array the field did not list), the step is
-traced as usual from then on, with a warning naming the field.
+traced for other sizes. If a recording raises, the step is traced as usual from then on, with a
+warning naming the field. An array the device part reads but ``device_inputs`` leaves out is an
+error Dr.Jit may not survive (it aborts the process where a symbolic loop reads it), so
+``device_inputs`` must be complete: ``tests/train/test_frozen_step.py`` checks recorded runs
+against traced ones bit for bit.
 
 Dr.Jit borrows the memory of a NumPy array it is given, and whether that memory is 64-byte
 aligned is part of what a recording is valid for. NumPy gives no such promise, so the batch's
@@ -130,7 +133,10 @@ class FrozenLoss:
         prep, gt = _realigned(prep), _realigned(gt)
         h = self._hold
         h.field, h.prep, h.loss_fn, h.frequency_hz = field, prep, loss_fn, float(views.frequency_hz)
-        inputs = field.device_inputs(prep, frequency_hz=h.frequency_hz, height=self.height, width=self.width)
+        # an empty array (a field without scatterers) is read by no kernel, and Dr.Jit's recording
+        # aborts the process on one: it is left out
+        inputs = [a for a in field.device_inputs(prep, frequency_hz=h.frequency_hz, height=self.height,
+                                                 width=self.width) if dr.width(a) > 0]
         h.key = (field.structure(prep), tuple(dr.width(a) for a in inputs), id(loss_fn), h.frequency_hz)
         try:
             return self._frozen(inputs, gt)

@@ -26,7 +26,8 @@ def test_registry_and_budgets():
     from rfmitsuba.experiments.methods import METHODS, get_method, stage1_config
 
     assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_human", "end_to_end", "ours", "refined"}
-    assert [get_method(m).builds_on for m in ("baseline", "ours", "refined")] == [None, "baseline", "ours"]
+    assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "refined")] == \
+        [None, "baseline", "baseline", "ours"]
     mc = _mcfg(30, 20)
     assert stage1_config(mc, get_method("baseline"), seed=0).iterations == 30
     for m in ("continued", "duplicated", "baseline_human", "end_to_end"):
@@ -140,8 +141,31 @@ def test_missing_stage1(synthetic_ds, tmp_path):
     from rfmitsuba.core.errors import RunError
     from rfmitsuba.experiments import methods
 
-    with pytest.raises(RunError, match="has not finished"):
-        methods.train_method("ours", synthetic_ds, tmp_path / "o", mcfg=_mcfg(5, 5), stage1_dir=tmp_path / "nothing")
+    for m in ("ours", "continued"):
+        with pytest.raises(RunError, match="has not finished"):
+            methods.train_method(m, synthetic_ds, tmp_path / m, mcfg=_mcfg(5, 5), stage1_dir=tmp_path / "nothing")
+
+
+def test_continued_trains_the_baselines_field_further(trained, synthetic_ds, tmp_path):
+    """Continued starts from its Baseline's trained field (not from scratch): n2 more steps on the
+    empty room, its first loss near the Baseline's last, the Baseline's run untouched; with no
+    Baseline given it trains its own first."""
+    import json
+
+    from rfmitsuba.experiments import methods
+
+    mc = _mcfg(150, 150)
+    base = trained / "baseline" / "train"
+    before = (base / "final" / "field.npz").read_bytes()
+    r = methods.train_method("continued", synthetic_ds, tmp_path / "c", mcfg=mc, seed=0, stage1_dir=base)
+    assert r["steps"] == 300 and r["runs"] == [str(base), str(tmp_path / "c" / "train")]
+    assert (base / "final" / "field.npz").read_bytes() == before
+    rows = lambda run: [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]  # noqa: E731
+    first, last_base = rows(tmp_path / "c" / "train")[0]["loss"], rows(base)[-1]["loss"]
+    assert first < 1.5 * last_base < rows(base)[0]["loss"], (first, last_base)
+    assert isinstance(methods.load_model("continued", tmp_path / "c"), FieldSet)
+    own = methods.train_method("continued", synthetic_ds, tmp_path / "own", mcfg=_mcfg(5, 5), seed=0)
+    assert own["steps"] == 10 and (tmp_path / "own" / "stage1_job" / "train" / "final" / "summary.json").is_file()
 
 
 def _coherent_mcfg(stage1, stage2, kind="perturb"):
