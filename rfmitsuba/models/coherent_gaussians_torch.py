@@ -93,6 +93,10 @@ def channels(params: dict, field, views) -> tuple:
     c, sn = torch.cos(phase), torch.sin(phase)
     hr = (w * (ar * c - ai * sn)).sum(-1)                                                  # [B, M]
     hi = (w * (ar * sn + ai * c)).sum(-1)
+    if "coupling" in params:   # mutual coupling h + K h, K [M, M] complex: (K h)_m = sum_n K[m, n] h_n
+        K = params["coupling"].reshape(hr.shape[1], hr.shape[1], 2)
+        kr, ki = K[..., 0], K[..., 1]
+        hr, hi = hr + hr @ kr.T - hi @ ki.T, hi + hi @ kr.T + hr @ ki.T
     cal = params["cal"].reshape(-1, 2)
     return hr * cal[:, 0] - hi * cal[:, 1], hr * cal[:, 1] + hi * cal[:, 0]
 
