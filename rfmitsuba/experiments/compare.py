@@ -191,7 +191,7 @@ def report(results: list[dict], *, dataset: Path, cfg: CompareConfig, out: Path 
                 f" | {_ms((r['eval']['render_ms_per_pas'] for r in rs), 1)} | {rs[0]['eval']['num_gaussians']} |")
         lines.append("")
     lines += _affected_lines(results, cfg)
-    lines += ["Training time of Ours includes its Stage 1 (the Baseline of the same seed).", ""]
+    lines += ["Training time of Ours and Continued includes their Stage 1 (the Baseline of the same seed).", ""]
     if out is not None:
         lines += ["## Speed against accuracy", ""]
         lines += speed_accuracy(Path(out) / "speed_accuracy.png",

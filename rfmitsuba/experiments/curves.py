@@ -3,9 +3,9 @@
 The trainer validates every ``val_every`` steps and logs ``{step, val_ssim, time_s}`` to its
 run folder's ``log.jsonl`` (``time_s``: training wall time so far, validation excluded). A job's
 curve (:func:`job_curve`) joins the logs of its runs in order of stages (``train.runs`` of its
-metrics) on **cumulative** training time: a two-stage method's Stage-2 samples are shifted by
-its Stage 1's training time, so its curve starts where its Stage 1 (the Baseline of the same
-seed) starts.
+metrics) on **cumulative** training time: the samples of a method that builds on Baseline (Ours'
+Stage 2, Continued's further steps) are shifted by its Stage 1's training time, so its curve
+starts where its Stage 1 (the Baseline of the same seed) starts.
 
 What the SSIM is: the trainer's validation SSIM (metric protocol, at 90 x 360 whatever the training resolution)
 on held-out views of the *training* split of the data the stage trains on, not the test set:
@@ -187,12 +187,13 @@ def speed_accuracy(path: Path, groups: dict[str, list[tuple[str, int, dict]]]) -
          "whatever the training resolution), not the test set: empty-room views for Baseline and Stage 1, human-present views for "
          "Stage 2 and the methods trained on human-present data. Thin lines: seeds; thick line: their mean on a "
          "common time grid, stage by stage, from when every seed has a sample (a seed that finished holds its "
-         "final value); band: min-max over seeds. The time axis is **cumulative** training time: a two-stage "
-         "method's curve is its Stage 1 (the Baseline of the same seed) and then its Stage 2 (dotted lines: where "
-         "each seed's Stage 2 starts). Stars: the final "
+         "final value); band: min-max over seeds. The time axis is **cumulative** training time: the curve of a "
+         "method that builds on Baseline (Ours, Continued) is its Stage 1 (the Baseline of the same seed) and then "
+         "its own run (dotted lines: where each seed's own run starts). Stars: the final "
          "dynamic test mean SSIM; grey lines: the nearest-neighbour and mean-image floors of the dynamic test set.", "",
          f"Time to within {TOL} of the final validation SSIM: the first validation from which every later one "
-         f"is at least final - {TOL} (per seed; for a two-stage method within its last stage, on the cumulative "
+         f"is at least final - {TOL} (per seed; for a method that builds on another, within its last run, on the "
+         "cumulative "
          "clock). Mean ± std over seeds.", ""]
     if missing:
         L += [f"{missing} job(s) left out: their run folders (`train.runs` of the metrics) or training logs were "

@@ -133,7 +133,9 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
           f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "
           f"Baseline (duplicated) and Continued baseline = {t.stage1_iterations + t.stage2_iterations} "
-          f"(equal budgets). {_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the metric "
+          f"(equal budgets; Ours and Continued go on from the Baseline of their seed: Stage 2, or "
+          f"{t.stage2_iterations} more steps on the empty room at Stage 1's final learning rates). "
+          f"{_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the metric "
           "protocol.", "",
           "Two evaluations: **dynamic** = unseen antenna x unseen human positions against the human-present "
           "ground truth (floors: nearest neighbour over antenna + human position, mean image); **static** = "
@@ -148,7 +150,8 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
     # ---------------------------------------------------------------- speed
     L += ["## Speed against accuracy", "", "Every dataset's clean jobs (all training positions, no added noise):", ""]
     L += speed_accuracy(out / "speed_accuracy.png", speed_groups(results))
-    L += ["Every job: training wall time (Ours includes its Stage 1), render time and dynamic test mean SSIM.", "",
+    L += ["Every job: training wall time (Ours and Continued include their Stage 1, the Baseline of the same "
+          "seed), render time and dynamic test mean SSIM.", "",
           "| method | jobs | training wall time (s) | render time per PAS (ms, 90x360) | sources / Gaussians | "
           "dynamic mean |",
           "|---|---|---|---|---|---|"]
