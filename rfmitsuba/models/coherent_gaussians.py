@@ -1232,8 +1232,8 @@ class CoherentGaussianField(FlatParameterField):
 
     def device_inputs(self, prep: dict, *, frequency_hz: float, height: int, width: int) -> list:
         """Every Dr.Jit array :meth:`render_prepared` and :meth:`penalty` read: the field's
-        parameters and image maps, ``prep``'s columns and the read-out's beamformer weights (an
-        array missing here makes the recording fail, loudly)."""
+        parameters and image maps, ``prep``'s columns and the read-out's beamformer weights. One
+        missing here fails the recording, and may abort the process (:mod:`rfmitsuba.train.frozen_step`)."""
         return (_jit_arrays(self.params) + list(self._A_cols) + _jit_arrays(prep)
                 + list(bartlett_weights(frequency_hz=frequency_hz, height=height, width=width)))
 

@@ -30,7 +30,7 @@ def test_registry_and_budgets():
         [None, "baseline", "baseline", "ours"]
     mc = _mcfg(30, 20)
     assert stage1_config(mc, get_method("baseline"), seed=0).iterations == 30
-    for m in ("continued", "duplicated", "baseline_human", "end_to_end"):
+    for m in ("duplicated", "baseline_human", "end_to_end"):   # from scratch (Continued: Baseline's n1 + n2)
         assert stage1_config(mc, get_method(m), seed=0).iterations == 50  # = Ours' two stages
     ens = dataclasses.replace(mc, stage1=dataclasses.replace(mc.stage1, members=2))
     with pytest.raises(ConfigError, match="stage1.members = 2"):   # Stage 2 builds on one field
