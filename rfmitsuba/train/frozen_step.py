@@ -2,7 +2,8 @@
 
 A small field's training step spends much of its time tracing: the coherent Gaussian field's
 Stage-1 step (73 sources, batch 8, 45 x 180) spends about 18 ms in kernels and about 12 ms
-building and generating them again every step (one Dr.Jit thread; docs/measurements.md, issue 13). :class:`FrozenLoss` traces the device part of a step once per *structure* and then replays
+building and generating them again every step (one Dr.Jit thread; docs/measurements.md, issue
+13). :class:`FrozenLoss` traces the device part of a step once per *structure* and then replays
 its kernels with the new batch: the same kernels on the same inputs, so the losses and
 parameters are bit-identical to the traced step's (``tests/train/test_frozen_step.py``).
 
@@ -31,7 +32,8 @@ against traced ones bit for bit.
 Dr.Jit borrows the memory of a NumPy array it is given, and whether that memory is 64-byte
 aligned is part of what a recording is valid for. NumPy gives no such promise, so the batch's
 uploads (``prep``'s arrays and the target images) are copied into aligned buffers first
-(:func:`aligned`; LLVM only): without that, a 1500-step run recorded 9 times; with it, a 3000-step run twice.
+(:func:`aligned`; LLVM only): without that, a 1500-step run recorded 9 times; with it, a
+3000-step run twice.
 """
 from __future__ import annotations
 
