@@ -1212,36 +1212,42 @@ class CoherentGaussianField(FlatParameterField):
         return self._calibrate(prep, hr, hi)
 
     # ---- a render split in its host part and its device part (recorded once, replayed) -------
-    #: a render is :meth:`prepare` (host: checks, cached ray casts, uploads) then
-    #: :meth:`render_prepared` (Dr.Jit only), so :mod:`rfmitsuba.train.frozen_step` can record
-    #: the device part with its loss and backward pass once and replay it every step
+    #: :meth:`channels` is :meth:`prepare` (host: checks, cached ray casts, uploads) then
+    #: :meth:`channels_prepared` (Dr.Jit only), so :mod:`rfmitsuba.train.frozen_step` can record
+    #: the device part with the read-out, loss and backward pass once and replay it every step
     freezable = True
 
     def prepare(self, views: Views) -> dict:
-        """The host part of a render of ``views`` (:meth:`_prepare`): positions checked, ray casts
+        """The host part of :meth:`channels` (:meth:`_prepare`): positions checked, ray casts
         looked up, the views' columns uploaded."""
         return self._prepare(views)
 
-    def render_prepared(self, prep: dict, *, frequency_hz: float, height: int, width: int,
-                        normalize: bool = True):
-        """The device part of a render: this field alone read out from :meth:`prepare`'s ``prep``,
-        ``TensorXf`` [B, height, width], what ``render([self], views, ...)`` gives."""
-        hr, hi = self._calibrate(prep, *self._paths(prep))
-        return read_out(hr, hi, readout=self.readout, frequency_hz=frequency_hz, height=height, width=width,
-                        normalize=normalize)
+    def channels_prepared(self, prep: dict) -> tuple:
+        """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``: (re, im) ``Float`` [B*16]."""
+        return self._calibrate(prep, *self._paths(prep))
 
-    def device_inputs(self, prep: dict, *, frequency_hz: float, height: int, width: int) -> list:
-        """Every Dr.Jit array :meth:`render_prepared` and :meth:`penalty` read: the field's
-        parameters and image maps, ``prep``'s columns and the read-out's beamformer weights. One
-        missing here fails the recording, and may abort the process (:mod:`rfmitsuba.train.frozen_step`)."""
-        return (_jit_arrays(self.params) + list(self._A_cols) + _jit_arrays(prep)
-                + list(bartlett_weights(frequency_hz=frequency_hz, height=height, width=width)))
+    def device_inputs(self, prep: dict) -> list:
+        """Every Dr.Jit array :meth:`channels_prepared` and :meth:`penalty` read: the field's
+        parameters and image maps and ``prep``'s columns. One missing here fails the recording,
+        and may abort the process (:mod:`rfmitsuba.train.frozen_step`)."""
+        return _jit_arrays(self.params) + list(self._A_cols) + _jit_arrays(prep)
 
     def structure(self, prep: dict) -> tuple:
-        """What :meth:`render_prepared` takes from Python rather than from arrays (counts, which
+        """What :meth:`channels_prepared` takes from Python rather than from arrays (counts, which
         parts exist, the read-out), hashable: a recording of it is valid while this is unchanged."""
         return (self.num_images, self.num_scatterers, int(prep["nb"]), float(prep["kw"]), tuple(sorted(prep)),
                 tuple(sorted(self.params)), self.readout, self.wavefront, self.grid_cells, repr(self.cfg))
+
+    def read_out_channels(self, h_re, h_im, *, frequency_hz: float, height: int, width: int,
+                          normalize: bool = True):
+        """The family's read-out of summed channels (:func:`read_out` with this field's ``readout``):
+        ``TensorXf`` [B, height, width]."""
+        return read_out(h_re, h_im, readout=self.readout, frequency_hz=frequency_hz, height=height, width=width,
+                        normalize=normalize)
+
+    def read_out_inputs(self, *, frequency_hz: float, height: int, width: int) -> list:
+        """The Dr.Jit arrays :meth:`read_out_channels` reads: the beamformer weights."""
+        return list(bartlett_weights(frequency_hz=frequency_hz, height=height, width=width))
 
     # ---- the pieces of :meth:`channels`, shared with the Stage-2 person field ----------------
     def _prepare(self, views: Views) -> dict:

@@ -205,13 +205,46 @@ class CoherentGaussianJointField(Field):
     def channels(self, views: Views) -> tuple:
         """Calibrated channels at the 16 elements (see the module docstring): (re, im) ``Float``
         [B*16], differentiable in both parts' parameters."""
+        return self.channels_prepared(self.prepare(views))
+
+    # ---- :meth:`channels` in its host part and its device part (rfmitsuba.train.frozen_step) ---
+    freezable = True
+
+    def prepare(self, views: Views) -> dict:
+        """The host part of :meth:`channels`: the background's alone (``"bg"``) where nobody is
+        present in any view, else the person field's with the presence (``"person"``)."""
         e = self.person_inputs(views)
         present = self.presence(e)
         if not present.any():
-            return self.bg.channels(views)
+            return {"bg": self.bg.prepare(views)}
         # one pass over the background's sources: each term weighted 1 + presence * (blockage - 1)
         pv = dataclasses.replace(views, inputs=lambda field: e)
-        return self.person_field.channels(pv, with_background=present)
+        return {"person": self.person_field.prepare(pv, with_background=present)}
+
+    def channels_prepared(self, prep: dict) -> tuple:
+        """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``."""
+        if "bg" in prep:
+            return self.bg.channels_prepared(prep["bg"])
+        return self.person_field.channels_prepared(prep["person"])
+
+    def device_inputs(self, prep: dict) -> list:
+        """Every Dr.Jit array :meth:`channels_prepared` and :meth:`penalty` read."""
+        if "bg" in prep:
+            return self.bg.device_inputs(prep["bg"])
+        return self.person_field.device_inputs(prep["person"])
+
+    def structure(self, prep: dict) -> tuple:
+        """The background's or the person field's structure, and which."""
+        if "bg" in prep:
+            return ("joint", "bg", self.bg.structure(prep["bg"]))
+        return ("joint", "person", self.person_field.structure(prep["person"]))
+
+    def read_out_channels(self, h_re, h_im, **kw):
+        """The background's read-out (:meth:`CoherentGaussianField.read_out_channels`)."""
+        return self.bg.read_out_channels(h_re, h_im, **kw)
+
+    def read_out_inputs(self, **kw) -> list:
+        return self.bg.read_out_inputs(**kw)
 
     @classmethod
     def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):

@@ -56,7 +56,7 @@ from ..core.errors import ConfigError, RunError
 from ..data.samples import num_human_features
 from .base import FlatParameterField, Views, register
 from .coherent import _columns, _write_points_ply
-from .coherent_gaussians import CoherentGaussianField
+from .coherent_gaussians import CoherentGaussianField, _jit_arrays
 
 FORMAT = "rfmitsuba-coherent-gaussians-person/1"
 
@@ -301,16 +301,46 @@ class CoherentGaussianPersonField(FlatParameterField):
         ``with_background``: None, or float [B] person presence (1 present, 0 absent): then the
         channels are the background's plus, where present, the person's change, in one pass over
         the background's sources (each term weighted ``1 + presence * (blockage - 1)``), not two."""
+        return self.channels_prepared(self.prepare(views, with_background=with_background))
+
+    # ---- :meth:`channels` in its host part and its device part (rfmitsuba.train.frozen_step) ---
+    freezable = True
+
+    def prepare(self, views: Views, *, with_background: np.ndarray | None = None) -> dict:
+        """The host part of :meth:`channels`: the background's (``"bg"``), the person's position
+        columns (``"h"``) and, with ``with_background``, the presence (``"pres"``, ``Float`` [B])."""
+        prep = {"bg": self.bg.prepare(views)}
+        prep["h"] = _columns(self.person_position(views))
+        if with_background is not None:
+            prep["pres"] = B.Float(np.asarray(with_background, np.float32).reshape(prep["bg"]["nb"]))
+        return prep
+
+    def device_inputs(self, prep: dict) -> list:
+        """Every Dr.Jit array :meth:`channels_prepared` and :meth:`penalty` read: this field's
+        parameters, the background's (its blockage reads them) and ``prep``'s arrays."""
+        return (_jit_arrays(self.params) + [self._two_legs] + self.bg.device_inputs(prep["bg"])
+                + _jit_arrays([prep["h"], prep.get("pres")]))
+
+    def structure(self, prep: dict) -> tuple:
+        """As :meth:`CoherentGaussianField.structure`, with this field's own settings."""
+        return ("person", self.bg.structure(prep["bg"]), "pres" in prep, tuple(sorted(self.params)), repr(self.cfg))
+
+    def read_out_channels(self, h_re, h_im, **kw):
+        """The background's read-out (:meth:`CoherentGaussianField.read_out_channels`)."""
+        return self.bg.read_out_channels(h_re, h_im, **kw)
+
+    def read_out_inputs(self, **kw) -> list:
+        return self.bg.read_out_inputs(**kw)
+
+    def channels_prepared(self, prep: dict) -> tuple:
+        """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``: (re, im) ``Float`` [B*16]."""
         import drjit as dr
 
         bg, c = self.bg, self.cfg
-        prep = bg._prepare(views)
-        h = self.person_position(views)
-        hc = _columns(h)
+        hc = prep["h"]
+        prep, pres = prep["bg"], prep.get("pres")
         weight = self._blockage(hc)
-        pres = None
-        if with_background is not None:
-            pres = B.Float(np.asarray(with_background, np.float32).reshape(prep["nb"]))
+        if pres is not None:
             change = weight
 
             def weight(group, ln, s):

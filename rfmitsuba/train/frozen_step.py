@@ -7,19 +7,23 @@ building and generating them again every step (one Dr.Jit thread; docs/measureme
 its kernels with the new batch: the same kernels on the same inputs, so the losses and
 parameters are bit-identical to the traced step's (``tests/train/test_frozen_step.py``).
 
-A field takes part when its class has ``freezable = True`` and these methods (the coherent
-Gaussian field, :class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField`):
+The fields of a step (frozen ones first, the trained one last, one family) take part when each
+class has ``freezable = True`` and these methods (the coherent Gaussian family:
+:class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField`, its Stage-2 person field and
+the joint field of End-to-End and Stage 3):
 
-=====================================================  ==========================================
-``prepare(views) -> prep``                             the host part of a render (checks, cached
-                                                       ray casts, uploads), run every step
-``render_prepared(prep, *, frequency_hz, height,       the device part: ``TensorXf`` [B, H, W]
-width, normalize)``
-``device_inputs(prep, *, frequency_hz, height, width)`` every Dr.Jit array the device part reads
-``structure(prep)``                                    what it takes from Python (counts, flags),
-                                                       hashable
-``penalty()``                                          as every field
-=====================================================  ==========================================
+===============================================  ===============================================
+``prepare(views) -> prep``                       the host part of the field's channels (checks,
+                                                 cached ray casts, uploads), run every step
+``channels_prepared(prep) -> (re, im)``          the device part: its channels at the elements
+``device_inputs(prep) -> list``                  every Dr.Jit array the device part reads
+``structure(prep) -> tuple``                     what it takes from Python (counts, flags)
+``read_out_channels(re, im, *, frequency_hz,     the family's read-out of the summed channels
+height, width)`` (first field)                   (``TensorXf`` [B, H, W])
+``read_out_inputs(*, frequency_hz, height,       the Dr.Jit arrays the read-out reads
+width)`` (first field)
+``penalty()`` (trained field)                    as every field
+===============================================  ===============================================
 
 A new recording is made whenever the structure, the width of any input or the loss function
 changes (a plane pursuit adding sources, another batch size), so a replay never runs kernels
@@ -78,9 +82,29 @@ class _Hold:
     """What the recorded function reads from Python: an object Dr.Jit leaves opaque (compared
     by identity), so changing its attributes never causes a new recording."""
 
-    field = prep = loss_fn = None
+    fields: list = []
+    preps: list = []
+    loss_fn = None
     frequency_hz = 0.0
     key: tuple = ()
+
+
+def _loss(fields: list, preps: list, gt, loss_fn, *, frequency_hz: float, height: int, width: int):
+    """The batch's loss from the fields' prepared parts, back-propagated: the channels summed, read
+    out once, ``loss_fn`` plus the trained field's penalty (``Float`` [1])."""
+    import drjit as dr
+
+    hr = hi = None
+    for f, prep in zip(fields, preps):
+        fr, fi = f.channels_prepared(prep)
+        hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+    pred = fields[0].read_out_channels(hr, hi, frequency_hz=frequency_hz, height=height, width=width)
+    loss = loss_fn(pred, gt)
+    penalty = fields[-1].penalty()
+    if penalty is not None:
+        loss = loss + penalty
+    dr.backward(loss)
+    return loss
 
 
 class FrozenLoss:
@@ -90,9 +114,10 @@ class FrozenLoss:
         height, width: the training images [pixels].
         limit: recordings kept (least recently used dropped).
 
-    Calling it with ``(field, views, gt, loss_fn)`` runs ``field.prepare(views)`` on the host,
-    then (recorded once per structure, replayed after) renders ``field`` at ``views``, takes
-    ``loss_fn(pred, gt)`` plus ``field.penalty()``, and back-propagates it into the field's
+    Calling it with ``(fields, views, gt, loss_fn)`` (``fields`` rendered together: the frozen
+    ones, then the trained one) runs each field's ``prepare(views)`` on the host, then (recorded
+    once per structure, replayed after) sums their channels, reads them out, takes
+    ``loss_fn(pred, gt)`` plus the trained field's ``penalty()`` and back-propagates it into the
     parameters; it returns the loss (``Float`` [1]). ``gt`` is a ``TensorXf`` [B, height, width].
     """
 
@@ -104,60 +129,48 @@ class FrozenLoss:
         hold = self._hold = _Hold()
 
         def step(inputs, gt):
-            field = hold.field
-            pred = field.render_prepared(hold.prep, frequency_hz=hold.frequency_hz, height=height, width=width)
-            loss = hold.loss_fn(pred, gt)
-            penalty = field.penalty()
-            if penalty is not None:
-                loss = loss + penalty
-            dr.backward(loss)
-            return loss
+            return _loss(hold.fields, hold.preps, gt, hold.loss_fn, frequency_hz=hold.frequency_hz, height=height,
+                         width=width)
 
         self._frozen = dr.freeze(step, state_fn=lambda inputs, gt: hold.key, limit=limit)
 
     @staticmethod
-    def supports(field) -> bool:
-        """Whether ``field`` can take part (its class says ``freezable``; Dr.Jit has ``freeze``)."""
+    def supports(fields: list) -> bool:
+        """Whether ``fields`` can take part: every class says ``freezable``, one family, and
+        Dr.Jit has ``freeze``."""
         import drjit as dr
 
-        return bool(getattr(type(field), "freezable", False)) and hasattr(dr, "freeze")
+        return (bool(fields) and all(getattr(type(f), "freezable", False) for f in fields)
+                and len({f.family for f in fields}) == 1 and hasattr(dr, "freeze"))
 
     @property
     def recordings(self) -> int:
         """Recordings made so far (each a traced step; every other call was a replay)."""
         return int(self._frozen.n_recordings)
 
-    def __call__(self, field, views, gt, loss_fn):
+    def __call__(self, fields: list, views, gt, loss_fn):
         import drjit as dr
 
-        prep = field.prepare(views)
+        fields = list(fields)
+        preps = [f.prepare(views) for f in fields]
+        size = {"frequency_hz": float(views.frequency_hz), "height": self.height, "width": self.width}
         if self.disabled:
-            return self._traced(field, prep, views, gt, loss_fn)
+            return _loss(fields, preps, gt, loss_fn, **size)
         if not B.is_cuda():   # a CUDA upload is a copy into the device's own memory
-            prep, gt = _realigned(prep), _realigned(gt)
+            preps, gt = _realigned(preps), _realigned(gt)
         h = self._hold
-        h.field, h.prep, h.loss_fn, h.frequency_hz = field, prep, loss_fn, float(views.frequency_hz)
+        h.fields, h.preps, h.loss_fn, h.frequency_hz = fields, preps, loss_fn, size["frequency_hz"]
         # an empty array (a field without scatterers) is read by no kernel, and Dr.Jit's recording
         # aborts the process on one: it is left out
-        inputs = [a for a in field.device_inputs(prep, frequency_hz=h.frequency_hz, height=self.height,
-                                                 width=self.width) if dr.width(a) > 0]
-        h.key = (field.structure(prep), tuple(dr.width(a) for a in inputs), id(loss_fn), h.frequency_hz)
+        arrays = [a for f, prep in zip(fields, preps) for a in f.device_inputs(prep)]
+        arrays += fields[0].read_out_inputs(**size)
+        inputs = [a for a in arrays if dr.width(a) > 0]
+        h.key = (tuple(f.structure(prep) for f, prep in zip(fields, preps)), tuple(dr.width(a) for a in inputs),
+                 id(loss_fn), size["frequency_hz"])
         try:
             return self._frozen(inputs, gt)
         except RuntimeError as e:   # a recording that failed: trace every step from now on
             self.disabled = True
-            warnings.warn(f"{type(field).__name__}: its training step cannot be recorded ({e}); "
+            warnings.warn(f"{type(fields[-1]).__name__}: its training step cannot be recorded ({e}); "
                           "tracing it every step instead", RuntimeWarning, stacklevel=2)
-            return self._traced(field, prep, views, gt, loss_fn)
-
-    def _traced(self, field, prep, views, gt, loss_fn):
-        import drjit as dr
-
-        pred = field.render_prepared(prep, frequency_hz=float(views.frequency_hz), height=self.height,
-                                     width=self.width)
-        loss = loss_fn(pred, gt)
-        penalty = field.penalty()
-        if penalty is not None:
-            loss = loss + penalty
-        dr.backward(loss)
-        return loss
+            return _loss(fields, preps, gt, loss_fn, **size)

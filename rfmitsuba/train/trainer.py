@@ -122,8 +122,7 @@ class Trainer:
                  field_factory=None, freeze: bool = True):
         self.cfg = cfg
         #: record a step's render, loss and backward pass once and replay them
-        #: (:mod:`rfmitsuba.train.frozen_step`; bit-identical, faster) where the field allows it
-        #: and it trains alone (no frozen fields, no extra inputs)
+        #: (:mod:`rfmitsuba.train.frozen_step`; bit-identical, faster) where the fields allow it
         self.freeze = bool(freeze)
         self._frozen_loss = None
         self.extra = extra
@@ -558,7 +557,7 @@ class Trainer:
             opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
         if self._records(field):
-            loss = self._frozen_loss(field, self.views(fit[pick]), B.TensorXf(gt_fit[pick]), loss_fn)
+            loss = self._frozen_loss(self.frozen + [field], self.views(fit[pick]), B.TensorXf(gt_fit[pick]), loss_fn)
         else:
             pred = self.render(field, fit[pick])
             loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
@@ -578,8 +577,9 @@ class Trainer:
         return lv
 
     def _records(self, field) -> bool:
-        """Whether this step of ``field`` goes through :class:`~rfmitsuba.train.frozen_step.FrozenLoss`."""
-        if not (self.freeze and not self.frozen and self.extra is None and FrozenLoss.supports(field)):
+        """Whether this step of ``field`` (with the frozen fields) goes through
+        :class:`~rfmitsuba.train.frozen_step.FrozenLoss`."""
+        if not (self.freeze and FrozenLoss.supports(self.frozen + [field])):
             return False
         if self._frozen_loss is None:
             self._frozen_loss = FrozenLoss(height=self.h, width=self.w)
