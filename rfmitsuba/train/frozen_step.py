@@ -68,8 +68,6 @@ def _realigned(tree):
     import drjit as dr
 
     if dr.is_array_v(tree):
-        if dr.is_tensor_v(tree):
-            return type(tree)(aligned(tree.numpy()))
         return type(tree)(aligned(np.asarray(tree.numpy())))
     if isinstance(tree, dict):
         return {k: _realigned(v) for k, v in tree.items()}
