@@ -325,13 +325,6 @@ class CoherentGaussianPersonField(FlatParameterField):
         """As :meth:`CoherentGaussianField.structure`, with this field's own settings."""
         return ("person", self.bg.structure(prep["bg"]), "pres" in prep, tuple(sorted(self.params)), repr(self.cfg))
 
-    def read_out_channels(self, h_re, h_im, **kw):
-        """The background's read-out (:meth:`CoherentGaussianField.read_out_channels`)."""
-        return self.bg.read_out_channels(h_re, h_im, **kw)
-
-    def read_out_inputs(self, **kw) -> list:
-        return self.bg.read_out_inputs(**kw)
-
     def channels_prepared(self, prep: dict) -> tuple:
         """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``: (re, im) ``Float`` [B*16]."""
         import drjit as dr

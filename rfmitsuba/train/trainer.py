@@ -556,11 +556,11 @@ class Trainer:
         for k in list(opt.keys()):
             opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
+        gt = B.TensorXf(gt_fit[pick])
         if self._records(field):
-            loss = self._frozen_loss(self.frozen + [field], self.views(fit[pick]), B.TensorXf(gt_fit[pick]), loss_fn)
+            loss = self._frozen_loss(self.frozen + [field], self.views(fit[pick]), gt, loss_fn)
         else:
-            pred = self.render(field, fit[pick])
-            loss = loss_fn(pred, B.TensorXf(gt_fit[pick]))
+            loss = loss_fn(self.render(field, fit[pick]), gt)
             penalty = field.penalty()
             if penalty is not None:
                 loss = loss + penalty
