@@ -221,23 +221,24 @@ class CoherentGaussianJointField(Field):
         pv = dataclasses.replace(views, inputs=lambda field: e)
         return {"person": self.person_field.prepare(pv, with_background=present)}
 
+    def _part(self, prep: dict) -> tuple:
+        """The field :meth:`prepare` handed the views to and its ``prep``: (field, prep)."""
+        return (self.bg, prep["bg"]) if "bg" in prep else (self.person_field, prep["person"])
+
     def channels_prepared(self, prep: dict) -> tuple:
         """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``."""
-        if "bg" in prep:
-            return self.bg.channels_prepared(prep["bg"])
-        return self.person_field.channels_prepared(prep["person"])
+        field, sub = self._part(prep)
+        return field.channels_prepared(sub)
 
     def device_inputs(self, prep: dict) -> list:
         """Every Dr.Jit array :meth:`channels_prepared` and :meth:`penalty` read."""
-        if "bg" in prep:
-            return self.bg.device_inputs(prep["bg"])
-        return self.person_field.device_inputs(prep["person"])
+        field, sub = self._part(prep)
+        return field.device_inputs(sub)
 
     def structure(self, prep: dict) -> tuple:
         """The background's or the person field's structure, and which."""
-        if "bg" in prep:
-            return ("joint", "bg", self.bg.structure(prep["bg"]))
-        return ("joint", "person", self.person_field.structure(prep["person"]))
+        field, sub = self._part(prep)
+        return ("joint", type(field).__name__, field.structure(sub))
 
     def read_out_channels(self, h_re, h_im, **kw):
         """The background's read-out (:meth:`CoherentGaussianField.read_out_channels`)."""
