@@ -13,10 +13,13 @@ atomic scatter or a materialised [B, pixels, 16] array:
 * forward: lanes ``[pixel]``, the views unrolled. Each lane reads its 32 weights directly and
   each view's 16 channel values as scalars, so the 16-term sum is plain vector arithmetic
   (no gathers); the views' images are laid end to end.
-* backward: lanes ``[chunk]`` (``CHUNKS`` of them); lane ``c`` loops over pixels ``c, c + C,
+* backward: lanes ``[chunk]`` (:func:`chunks` of them); lane ``c`` loops over pixels ``c, c + C,
   c + 2C, ...`` (neighbouring lanes read neighbouring pixels), reads each pixel's 32 weights once
   and accumulates the 16 complex sums of every view (up to ``UNROLL`` views per kernel); the
-  chunks' partial sums are then added. The pixel count is compiled
+  chunks' partial sums are then laid end to end and added. On the CPU few chunks are best: the
+  partial sums (2 x 16 x views per chunk) are written out, and with 4096 chunks writing them
+  took as long as the loop (8 views, 45 x 180, one thread: the backward pass's kernels
+  5.4 ms -> 2.6 ms with 128 chunks; ``docs/measurements.md``); a GPU needs the lanes. The pixel count is compiled
   in as a literal, so index division is a multiplication, and the kernels compile once per grid
   and batch size (up to ``UNROLL``).
 
@@ -56,10 +59,16 @@ def weights(*, frequency_hz: float, height: int = 90, width: int = 360) -> tuple
     return _cache[key]
 
 
-#: lanes of the backward pass's reduction over pixels (each sums every CHUNKS-th pixel)
-CHUNKS = 4096
+#: lanes of the backward pass's reduction over pixels (each sums every C-th pixel), per backend
+CHUNKS_CPU = 128
+CHUNKS_GPU = 4096
 #: views per kernel (both passes unroll their views)
 UNROLL = 16
+
+
+def chunks() -> int:
+    """Lanes of the backward pass's reduction over pixels on the current backend."""
+    return CHUNKS_GPU if B.is_cuda() else CHUNKS_CPU
 
 
 def _op_class():
@@ -125,17 +134,18 @@ def _op_class():
             scale = gp / dr.maximum(self.p, 1e-30)
             gyr, gyi = scale * self.yr, scale * self.yi
             dr.eval(gyr, gyi)
-            # dL/dh_m = sum_pixel gy * conj(w_m): lanes [c] (CHUNKS of them); lane c loops over
+            # dL/dh_m = sum_pixel gy * conj(w_m): lanes [c] (C of them); lane c loops over
             # pixels c, c + C, c + 2C, ... (neighbouring lanes read neighbouring pixels), reads the
             # 32 weights once per pixel and accumulates the 16 complex sums of up to UNROLL views
-            run = -(-pixels // CHUNKS)
-            c = dr.arange(B.UInt32, CHUNKS)
+            C = chunks()
+            run = -(-pixels // C)
+            c = dr.arange(B.UInt32, C)
             w, parts = self.w, []
             for b0 in range(0, views, UNROLL):
                 group = range(b0, min(views, b0 + UNROLL))
 
                 def body(j, *acc, group=group):
-                    pix = j * CHUNKS + c
+                    pix = j * C + c
                     ok = pix < pixels
                     wr = [dr.gather(B.Float, w[m], pix, ok) for m in range(M)]
                     wi = [dr.gather(B.Float, w[M + m], pix, ok) for m in range(M)]
@@ -148,12 +158,12 @@ def _op_class():
                             out += [acc[k] + (ar * wr[m] + ai * wi[m]), acc[k + 1] + (ai * wr[m] - ar * wi[m])]
                     return (j + 1, *out)
 
-                state = dr.while_loop((B.UInt32(0), *(dr.zeros(B.Float, CHUNKS) for _ in range(2 * M * len(group)))),
+                state = dr.while_loop((B.UInt32(0), *(dr.zeros(B.Float, C) for _ in range(2 * M * len(group)))),
                                       lambda j, *acc: j < run, body)
                 dr.eval(state[1:])                               # the loop: one kernel per group
                 parts += state[1:]
             # the partial sums laid end to end ([b, m, re/im, c]), summed over the chunks
-            sums = dr.block_sum(dr.concat(parts), CHUNKS)         # [b*16 + m] * 2 + (0: re, 1: im)
+            sums = dr.block_sum(dr.concat(parts), C)         # [b*16 + m] * 2 + (0: re, 1: im)
             out = dr.arange(B.UInt32, views * M)
             g_re, g_im = dr.gather(B.Float, sums, 2 * out), dr.gather(B.Float, sums, 2 * out + 1)
             self.set_grad_in("h_re", g_re)
