@@ -87,11 +87,19 @@ def _op_class():
             # views' images are then laid end to end ([b, pixel])
             yrs, yis = [], []
             for b0 in range(0, views, UNROLL):
+                # the group's channel values, each its own one-element array made in one small
+                # kernel, which the pixel kernel reads once and broadcasts. Gathered there at a
+                # literal index instead, a recorded step (dr.freeze) made every read a vector
+                # gather (8 views, 45 x 180, one thread, load 3: the pixel kernel 2.8 ms, 0.44 ms
+                # like this)
+                hv = {(b, m, part): dr.gather(B.Float, h, B.UInt32(b * M + m))
+                      for b in range(b0, min(views, b0 + UNROLL)) for m in range(M)
+                      for part, h in (("re", h_re), ("im", h_im))}
+                dr.eval(list(hv.values()))
                 for b in range(b0, min(views, b0 + UNROLL)):
                     yr = yi = 0.0
                     for m in range(M):
-                        at = B.UInt32(b * M + m)
-                        hr, hi = dr.gather(B.Float, h_re, at), dr.gather(B.Float, h_im, at)
+                        hr, hi = hv[b, m, "re"], hv[b, m, "im"]
                         yr, yi = yr + (w[m] * hr - w[M + m] * hi), yi + (w[m] * hi + w[M + m] * hr)
                     yrs.append(yr)
                     yis.append(yi)
