@@ -461,6 +461,25 @@ def default_vis_grid(*, init: str, num_positions: int) -> tuple[int, int, int]:
 
 # ------------------------------------------------------------------------------ initialisation
 
+def pas_pixels(shape: tuple, u: np.ndarray) -> np.ndarray:
+    """Flat pixel index (``row * W + col``) of each arrival direction on a PAS grid.
+
+    Args:
+        shape: (H, W) of the grid (:mod:`rfmitsuba.rf.grid`, any 90/d x 360/d).
+        u: float [..., 3] unit directions in the array frame; arrivals from below fold onto the
+            upper hemisphere, as the horizontal array folds them.
+    Returns:
+        int64 [...].
+    """
+    h, w = shape
+    res = 90.0 / h
+    el = np.degrees(np.arcsin(np.clip(np.abs(u[..., 2]), 0.0, 1.0)))
+    az = np.degrees(np.arctan2(u[..., 1], u[..., 0])) % 360.0
+    row = np.clip(np.rint((el - (res + 1.0) / 2.0) / res).astype(np.int64), 0, h - 1)   # rfmitsuba.rf.grid
+    col = np.rint((az - (res - 1.0) / 2.0) / res).astype(np.int64) % w
+    return row * w + col
+
+
 def pas_lookup(pas: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Value of each view's PAS in the arrival direction ``u``.
 
@@ -472,12 +491,7 @@ def pas_lookup(pas: np.ndarray, u: np.ndarray) -> np.ndarray:
         float64 [N, C].
     """
     n, h, w = pas.shape
-    res = 90.0 / h
-    el = np.degrees(np.arcsin(np.clip(np.abs(u[..., 2]), 0.0, 1.0)))
-    az = np.degrees(np.arctan2(u[..., 1], u[..., 0])) % 360.0
-    row = np.clip(np.rint((el - (res + 1.0) / 2.0) / res).astype(np.int64), 0, h - 1)   # rfmitsuba.rf.grid
-    col = np.rint((az - (res - 1.0) / 2.0) / res).astype(np.int64) % w
-    return np.asarray(pas, np.float64)[np.arange(n)[:, None], row, col]
+    return np.asarray(pas, np.float64).reshape(n, -1)[np.arange(n)[:, None], pas_pixels((h, w), u)]
 
 
 def _unit(d: np.ndarray) -> np.ndarray:
@@ -506,6 +520,11 @@ class _Residual:
         """u: float [N, C, 3] array-frame directions -> float [C]."""
         return pas_lookup(self.pas, u).mean(0)
 
+    def score_pixels(self, pixels: np.ndarray) -> np.ndarray:
+        """:meth:`score` of directions already turned into pixels (:func:`pas_pixels`, int [N, C])."""
+        n = len(self.pas)
+        return self.pas.reshape(n, -1)[np.arange(n)[:, None], pixels].mean(0)
+
     def explain(self, u: np.ndarray) -> None:
         """u: float [N, 3], one chosen source's direction at every view."""
         n, h, w = self.pas.shape
@@ -519,10 +538,11 @@ def _greedy(res: _Residual, dirs: np.ndarray, count: int, *, allowed: np.ndarray
     dirs: float [N, C, 3] directions of every candidate at every view."""
     chosen: list[int] = []
     ok = np.ones(dirs.shape[1], bool) if allowed is None else allowed.copy()
+    pixels = pas_pixels(res.pas.shape[1:], dirs) if count else None   # the directions stay; the residual changes
     for _ in range(count):
         if not ok.any():
             break
-        sc = np.where(ok, res.score(dirs), -np.inf)
+        sc = np.where(ok, res.score_pixels(pixels), -np.inf)
         i = int(np.argmax(sc))
         if not np.isfinite(sc[i]) or sc[i] <= 0:
             break
