@@ -954,3 +954,22 @@ def test_pas_lookup_reads_the_pixel_of_its_own_direction(h):
     pas = np.arange(h * 4 * h, dtype=np.float64).reshape(1, h, 4 * h)
     u = directions(resolution_deg=d).reshape(1, -1, 3)
     np.testing.assert_array_equal(pas_lookup(pas, u), pas.reshape(1, -1))
+
+
+def test_greedy_picks_as_scoring_every_direction_at_every_pick():
+    """The scan's greedy pursuit turns candidate directions into pixels once; its picks match
+    scoring every candidate's directions anew at every pick (the definition)."""
+    from rfmitsuba.models.coherent_gaussians import _greedy, _Residual, _unit
+
+    rng = np.random.default_rng(7)
+    pas = rng.random((12, 45, 180))
+    dirs = _unit(rng.normal(size=(12, 300, 3)))
+    allowed = rng.random(300) > 0.2
+    want, res, ok = [], _Residual(pas, 12.0), allowed.copy()
+    for _ in range(10):
+        sc = np.where(ok, res.score(dirs), -np.inf)
+        i = int(np.argmax(sc))
+        want.append(i)
+        ok[i] = False
+        res.explain(dirs[:, i])
+    assert _greedy(_Residual(pas, 12.0), dirs, 10, allowed=allowed) == want
