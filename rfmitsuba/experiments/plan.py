@@ -14,10 +14,10 @@ PAS, ``timing.json``) of complete datasets in the data folder and in the referen
 already written are not counted again (:func:`generation_rates`).
 
 With ``workers`` > 1 (``reproduce --plan --workers N``) the plan also gives the wall time of a
-run on N single-thread workers (:func:`makespan`): the datasets first, each to the worker free
-first, then the jobs in submission order, each to the worker free first but not before the job
-it builds on (Ours after its Baseline) has finished, as ``reproduce`` submits them. It is
-as good as its job times: those of a run on the same number of workers time it best.
+run on N single-thread workers (:func:`makespan`): the datasets to generate, then the jobs, in
+submission order, each to the first free worker once what it waits for has finished (its
+datasets; Ours also its Baseline), as ``reproduce`` submits them. It is as good as its job
+times: those of a run on the same number of workers time it best.
 
 Nothing is written: a plan of a folder that does not exist creates none.
 """
@@ -138,7 +138,7 @@ class Plan:
     sources: list[str] = dc_field(default_factory=list)
     #: workers of the wall-time estimate (1: one task at a time, the sums above)
     workers: int = 1
-    #: estimated wall time [s] on ``workers`` workers, datasets then jobs (:func:`makespan`);
+    #: estimated wall time [s] on ``workers`` workers, datasets and jobs as submitted (:func:`makespan`);
     #: what is not estimated counts as 0
     makespan_s: float = 0.0
     #: the truth checks the run needs ("room_task"; :func:`rfmitsuba.experiments.reproduce.truth_checks`)
@@ -147,15 +147,15 @@ class Plan:
     truth_left: list[str] = dc_field(default_factory=list)
 
 
-def makespan(durations: list[float], *, workers: int, after: list[int | None] | None = None,
-             start: float = 0.0) -> float:
-    """When the last of ``durations`` [s] ends on ``workers`` workers, each task given in turn to the
-    worker free first (list scheduling, the order Dask runs tasks submitted together).
+def makespan(durations: list[float], *, workers: int, after: list | None = None, start: float = 0.0) -> float:
+    """When the last of ``durations`` [s] ends on ``workers`` workers: whenever a worker is free it
+    takes the first task in submission order whose tasks in ``after`` have ended (as Dask runs
+    tasks submitted together in priority order), or waits until one has.
 
     Args:
         durations: task durations [s], in submission order.
         workers: number of workers (>= 1).
-        after: per task, the index of an earlier task it must wait for, or None.
+        after: per task, what it waits for: the index of an earlier task, a tuple of them, or None.
         start: when every worker becomes free [s].
 
     Returns:
@@ -163,18 +163,24 @@ def makespan(durations: list[float], *, workers: int, after: list[int | None] | 
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    deps = [() if a is None else (a,) if isinstance(a, int) else tuple(a)
+            for a in (after if after is not None else [None] * len(durations))]
     free = [float(start)] * workers
     heapq.heapify(free)
-    end = [0.0] * len(durations)
+    end: list[float | None] = [None] * len(durations)
+    pending = list(range(len(durations)))
     last = float(start)
-    for i, d in enumerate(durations):
+    while pending:
         t = heapq.heappop(free)
-        dep = after[i] if after is not None else None
-        if dep is not None:
-            t = max(t, end[dep])
-        end[i] = t + float(d)
-        heapq.heappush(free, end[i])
-        last = max(last, end[i])
+        ready = next((i for i in pending if all(end[d] is not None and end[d] <= t for d in deps[i])), None)
+        if ready is None:   # wait for the next task to end after t (one always will: deps come earlier)
+            t = min(e for e in end if e is not None and e > t)
+            heapq.heappush(free, t)
+            continue
+        pending.remove(ready)
+        end[ready] = t + float(durations[ready])
+        heapq.heappush(free, end[ready])
+        last = max(last, end[ready])
     return last
 
 
@@ -237,11 +243,18 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
         datasets.append(DatasetPlan(spec.key, str(path), False, left,
                                     None if by is None else statistics.median(rates[by]) * left, by))
     measured = sum(len(v) for k, v in times.items() if k.startswith("method:"))
-    data_end = makespan([d.estimate_s or 0.0 for d in datasets if not d.complete], workers=workers)
+    # one graph as reproduce submits it: the datasets to generate, then the jobs, each job after
+    # its datasets (those still to generate) and the job it builds on (if still to run)
+    gen = [(spec, d) for spec, d in zip(specs, datasets) if not d.complete]
     todo = [j for j in jobs if not (j.folder(out) / "DONE").is_file()]
-    index = {j: i for i, j in enumerate(todo)}
-    wall = makespan([_estimate(j, times) or 0.0 for j in todo], workers=workers, start=data_end,
-                    after=[index.get(j.prior_job()) if j.prior_job() else None for j in todo])
+    index = {spec: i for i, (spec, _) in enumerate(gen)}
+    index.update({j: len(gen) + i for i, j in enumerate(todo)})
+
+    def needs(j: Job) -> tuple:
+        return tuple(index[x] for x in (j.dataset, j.eval_dataset, j.prior_job()) if x is not None and x in index)
+
+    wall = makespan([d.estimate_s or 0.0 for _, d in gen] + [_estimate(j, times) or 0.0 for j in todo],
+                    workers=workers, after=[None] * len(gen) + [needs(j) for j in todo])
     checks = {f"{r}_{k}": truth_folder(out, r, k) for r, k in truth_checks(cfg)}
     return Plan(tables, table("all", jobs), datasets, measured, [str(s) for s in sources], workers=workers,
                 makespan_s=wall, truth_checks=list(checks),
@@ -277,6 +290,7 @@ def format_plan(p: Plan) -> str:
                                                                              if unknown else "") + "."]
     if p.workers > 1:
         L += [f"On {p.workers} single-thread workers (`--workers {p.workers}`): about {p.makespan_s / 3600:.2f} h "
-              "wall time" + (" plus what is not estimated" if unknown else "") + " (datasets first, then the "
-              "jobs, each to the worker free first; as good as the job times are for one thread)."]
+              "wall time" + (" plus what is not estimated" if unknown else "") + " (each dataset and job to the "
+              "first free worker once its datasets and the job it builds on are done; as good as the job "
+              "times are for one thread)."]
     return "\n".join(L)

@@ -237,7 +237,9 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
         reevaluate: evaluate finished jobs again (after the evaluation changed; no retraining).
         quiet: no progress bars.
         cluster: where datasets (one task each) and jobs run (:mod:`rfmitsuba.core.cluster`;
-            default here, one after another; on Dask, Ours waits for its Baseline job).
+            default here, one after another: the datasets, then the jobs; on Dask each job
+            waits for its datasets, and Ours for its Baseline job, and then takes the first
+            free worker, so jobs start while another worker still generates a dataset).
 
     Returns:
         path of ``report.md``.
@@ -269,11 +271,15 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
     truths = [Task(f"truth/{r}_{k}", ensure_truth, (r, k, cfg, out_arg), {"quiet": True})
               for r, k in truth_checks(cfg)]
-    run_tasks([Task(s.key, ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs] + truths,
-              cluster=cluster, desc="datasets" + (" and truth checks" if truths else ""), unit="task", quiet=quiet)
+    data_tasks = [Task(f"data/{s.key}", ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs]
     names = [f"{j.dataset.key}/{j.key}" for j in jobs]
+    # one graph: a job waits for its datasets (and Ours for its Baseline), not for every dataset,
+    # so a worker starts jobs while the other still generates a long dataset; datasets and truth
+    # checks come first in the list, which on Dask is also their priority among tasks ready to run
     tasks = [Task(n, reproduce_job, (j, out_arg, cfg, data_arg), {"quiet": True, "reevaluate": reevaluate},
-                  after=(f"{j.dataset.key}/{j.prior_job().key}",) if j.prior_job() else ())
+                  after=tuple(dict.fromkeys(
+                      [f"data/{j.dataset.key}"] + ([f"data/{j.eval_dataset.key}"] if j.eval_dataset else [])
+                      + ([f"{j.dataset.key}/{j.prior_job().key}"] if j.prior_job() else []))))
              for n, j in zip(names, jobs)]
     new = {n for n, j in zip(names, jobs) if not (j.folder(out) / "DONE").is_file()}
     done_new = 0
@@ -285,7 +291,10 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
             if stop_after is not None and done_new >= stop_after:
                 raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
 
-    results = run_tasks(tasks, cluster=cluster, desc="jobs", unit="job", quiet=quiet, on_result=count)
+    done = run_tasks(data_tasks + truths + tasks, cluster=cluster,
+                     desc="datasets" + (", truth checks" if truths else "") + " and jobs", unit="task", quiet=quiet,
+                     on_result=count)
+    results = {n: done[n] for n in names}
     wall = time.perf_counter() - t_start
     _write_json(out / "results.json", results)
     record_run(out, wall_s=wall, jobs_run=len(new), tables=list(cfg.tables))

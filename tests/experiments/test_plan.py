@@ -60,6 +60,10 @@ def test_makespan_is_list_scheduling_with_dependencies():
     # task 2 builds on task 0: it waits for it although worker 2 is free at 1
     assert P.makespan([3.0, 1.0, 2.0], workers=2, after=[None, None, 0]) == 5.0
     assert P.makespan([], workers=4, start=7.0) == 7.0
+    # a free worker takes the first task that is ready: the two jobs on the short dataset 1 run
+    # while dataset 0 is generated (strictly in list order they would wait behind job 2: 14)
+    assert P.makespan([10.0, 1.0, 2.0, 2.0, 2.0], workers=2, after=[None, None, 0, 1, (1,)]) == 12.0
+    assert P.makespan([10.0, 1.0, 2.0], workers=2, after=[None, None, (0, 1)]) == 12.0
     with pytest.raises(ValueError, match="workers"):
         P.makespan([1.0], workers=0)
 

@@ -220,3 +220,36 @@ def test_runs_into_one_folder_are_summed_in_the_report_header(tmp_path):
     record_run(tmp_path, wall_s=6958.4, jobs_run=69, tables=["main"])
     line = _runs_line(tmp_path)
     assert "made by 2 runs that reached their end, 8874 s (90 jobs) + 6958 s (69 jobs) = 15832 s (4.40 h)" in line
+
+
+def test_each_job_waits_for_its_own_datasets_not_for_all(monkeypatch, tmp_path):
+    """reproduce submits one graph: the datasets (and truth checks) first, then each job after its
+    own dataset(s) and the job it builds on, so on a cluster a job starts while another
+    dataset is still being generated."""
+    from rfmitsuba.experiments import reproduce as R
+    from rfmitsuba.experiments.sizes import size_config
+
+    seen = []
+
+    def fake_run(tasks, *, cluster=None, desc="", unit="", quiet=False, on_result=None):
+        seen.append(list(tasks))
+        return {t.name: {"fake": t.name} for t in tasks}
+
+    monkeypatch.setattr(R, "run_tasks", fake_run)
+    monkeypatch.setattr(R, "write_report", lambda out, cfg, results, *, wall_s: out / "report.md")
+    cfg = size_config("tiny")
+    R.reproduce(tmp_path / "out", cfg, quiet=True)
+    (tasks,) = seen                                                   # one submission
+    names = [t.name for t in tasks]
+    jobs = R.all_jobs(cfg)
+    data = [n for n in names if n.startswith("data/")]
+    assert names[:len(data)] == data                                  # datasets first
+    by_name = {t.name: t for t in tasks}
+    for j in jobs:
+        after = by_name[f"{j.dataset.key}/{j.key}"].after
+        want = {f"data/{j.dataset.key}"} | ({f"data/{j.eval_dataset.key}"} if j.eval_dataset else set())
+        assert want <= set(after) and set(after) - want == (
+            {f"{j.dataset.key}/{j.prior_job().key}"} if j.prior_job() else set())
+    assert any(j.prior_job() for j in jobs) and any(j.eval_dataset for j in jobs)
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert set(results) == {f"{j.dataset.key}/{j.key}" for j in jobs}   # jobs only
