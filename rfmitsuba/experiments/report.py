@@ -80,15 +80,19 @@ RUNS_FILE = "runs.jsonl"
 
 
 def _runs_line(out: Path) -> str:
-    """The wall times of every run into ``out`` that reached its end (``runs.jsonl``, written by
-    :func:`rfmitsuba.experiments.reproduce.record_run`), where there was more than one."""
+    """The wall times of every run into ``out`` (``runs.jsonl``, written by
+    :func:`rfmitsuba.experiments.reproduce.record_run`; runs stopped early included and marked),
+    where there was more than one."""
     f = Path(out) / RUNS_FILE
     runs = [json.loads(line) for line in f.read_text().splitlines() if line.strip()] if f.is_file() else []
     if len(runs) < 2:
         return ""
     walls = [float(r["wall_s"]) for r in runs]
-    return (f"; the folder was made by {len(runs)} runs that reached their end, "
-            + " + ".join(f"{w:.0f} s ({r['jobs_run']} jobs)" for w, r in zip(walls, runs))
+    stopped = sum(bool(r.get("stopped")) for r in runs)
+    return (f"; the folder was made by {len(runs)} runs"
+            + (f" ({stopped} stopped early)" if stopped else " that reached their end") + ", "
+            + " + ".join(f"{w:.0f} s ({r['jobs_run']} jobs" + (f", stopped: {r['stopped']}" if r.get("stopped") else "")
+                         + ")" for w, r in zip(walls, runs))
             + f" = {sum(walls):.0f} s ({sum(walls) / 3600:.2f} h) of wall time")
 
 

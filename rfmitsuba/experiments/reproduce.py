@@ -14,7 +14,8 @@
     OUT/truth/<room>_<task>/  the truth checks beside the main table (ExperimentConfig.truth_positions;
                             rfmitsuba.experiments.truth): synthetic against exact per-element truth
     OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
-    OUT/runs.jsonl          one line per run that reached its end: wall time, jobs run (the report sums them)
+    OUT/runs.jsonl          one line per run: wall time, jobs run, and why it stopped early if it did
+                            (an error, Ctrl-C, SIGTERM); the report sums them
 
 Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
 Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
@@ -27,7 +28,10 @@ no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 core
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -254,9 +258,28 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     out = Path(out)
     cluster = cluster or ClusterConfig()
     check_experiment(out, cfg)
-    with folder_lock(out, what="reproduce"):   # a second reproduce into out stops here, naming this one
+    with folder_lock(out, what="reproduce"), _sigterm_as_exit():   # a second reproduce into out stops at the lock
         return _reproduce(out, cfg, data_dir=data_dir, stop_after=stop_after, reevaluate=reevaluate, quiet=quiet,
                           cluster=cluster)
+
+
+@contextlib.contextmanager
+def _sigterm_as_exit():
+    """SIGTERM (``kill``) raises SystemExit here, so that a killed run unwinds and records its wall
+    time (:func:`record_run`) like one stopped by Ctrl-C; only in the main thread, where Python
+    delivers signals."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, _frame):
+        raise SystemExit(128 + signum)
+
+    old = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reevaluate: bool, quiet: bool,
@@ -291,9 +314,14 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
             if stop_after is not None and done_new >= stop_after:
                 raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
 
-    done = run_tasks(data_tasks + truths + tasks, cluster=cluster,
-                     desc="datasets" + (", truth checks" if truths else "") + " and jobs", unit="task", quiet=quiet,
-                     on_result=count)
+    try:
+        done = run_tasks(data_tasks + truths + tasks, cluster=cluster,
+                         desc="datasets" + (", truth checks" if truths else "") + " and jobs", unit="task",
+                         quiet=quiet, on_result=count)
+    except BaseException as e:   # an error, Stopped, Ctrl-C or SIGTERM: the time spent still counts
+        record_run(out, wall_s=time.perf_counter() - t_start, jobs_run=done_new, tables=list(cfg.tables),
+                   stopped=type(e).__name__)
+        raise
     results = {n: done[n] for n in names}
     wall = time.perf_counter() - t_start
     _write_json(out / "results.json", results)
@@ -302,14 +330,19 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     return write_report(out, cfg, results, wall_s=wall)
 
 
-def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str]) -> None:
+def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str], stopped: str | None = None) -> None:
     """Append this run to ``out/runs.jsonl`` (rewritten atomically): when it ended, its wall time
-    [s], the jobs it ran (those not done before it) and the tables it was asked for, so a
-    reproduction resumed over several sessions reports the time of all its runs."""
+    [s], the jobs it finished (those not done before it), the tables it was asked for and, for a
+    run that stopped early, why (the exception's name: ``KeyboardInterrupt``, ``SystemExit`` for
+    SIGTERM, ``Stopped``, ``JobsFailed``, ...), so a reproduction resumed over several sessions
+    reports the time of all its runs."""
     f = Path(out) / RUNS_FILE
     lines = f.read_text().splitlines() if f.is_file() else []
-    lines.append(json.dumps({"ended_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "wall_s": round(wall_s, 1),
-                             "jobs_run": int(jobs_run), "tables": tables}))
+    row = {"ended_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "wall_s": round(wall_s, 1),
+           "jobs_run": int(jobs_run), "tables": tables}
+    if stopped:
+        row["stopped"] = stopped
+    lines.append(json.dumps(row))
     write_text(f, "\n".join(lines) + "\n")
 
 

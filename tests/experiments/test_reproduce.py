@@ -42,9 +42,12 @@ def test_resume_skips_finished_jobs(tiny_reproduction):
     for p, t in before.items():
         assert p.stat().st_mtime_ns == t  # not recomputed
     assert len(list(out.glob("jobs/*/*/DONE"))) == len(all_jobs(cfg))
-    # the stopped run left no record; the resumed run that reached its end did (later tests may add runs)
-    first = json.loads((out / "runs.jsonl").read_text().splitlines()[0])
-    assert first["jobs_run"] == len(all_jobs(cfg)) - 4 and first["wall_s"] > 0 and first["tables"] == cfg.tables
+    # both runs are recorded: the stopped one with its 4 jobs and why it stopped, then the resumed
+    # one that reached its end (later tests may add runs)
+    first, second = (json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()[:2])
+    assert first["jobs_run"] == 4 and first["stopped"] == "Stopped" and first["wall_s"] > 0
+    assert second["jobs_run"] == len(all_jobs(cfg)) - 4 and second["wall_s"] > 0 and second["tables"] == cfg.tables
+    assert "stopped" not in second
 
 
 def test_other_configuration_is_refused(tiny_reproduction):
@@ -220,6 +223,32 @@ def test_runs_into_one_folder_are_summed_in_the_report_header(tmp_path):
     record_run(tmp_path, wall_s=6958.4, jobs_run=69, tables=["main"])
     line = _runs_line(tmp_path)
     assert "made by 2 runs that reached their end, 8874 s (90 jobs) + 6958 s (69 jobs) = 15832 s (4.40 h)" in line
+    record_run(tmp_path, wall_s=3600.0, jobs_run=7, tables=["main"], stopped="SystemExit")
+    line = _runs_line(tmp_path)
+    assert ("made by 3 runs (1 stopped early), 8874 s (90 jobs) + 6958 s (69 jobs) + 3600 s (7 jobs, stopped: "
+            "SystemExit) = 19432 s (5.40 h)") in line
+
+
+def test_a_killed_run_records_its_time(monkeypatch, tmp_path):
+    """SIGTERM (kill) stops reproduce like Ctrl-C: the run unwinds, and runs.jsonl keeps its wall
+    time and the jobs it finished, marked as stopped."""
+    import os
+    import signal
+
+    from rfmitsuba.experiments import reproduce as R
+    from rfmitsuba.experiments.sizes import size_config
+
+    def killed(tasks, *, cluster=None, desc="", unit="", quiet=False, on_result=None):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not stop the run")
+
+    monkeypatch.setattr(R, "run_tasks", killed)
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(SystemExit):
+        R.reproduce(tmp_path / "out", size_config("tiny"), quiet=True)
+    (row,) = (json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines())
+    assert row["stopped"] == "SystemExit" and row["jobs_run"] == 0 and row["wall_s"] >= 0
+    assert signal.getsignal(signal.SIGTERM) == before                 # the handler is restored
 
 
 def test_each_job_waits_for_its_own_datasets_not_for_all(monkeypatch, tmp_path):
