@@ -300,9 +300,8 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     # so a worker starts jobs while the other still generates a long dataset; datasets and truth
     # checks come first in the list, which on Dask is also their priority among tasks ready to run
     tasks = [Task(n, reproduce_job, (j, out_arg, cfg, data_arg), {"quiet": True, "reevaluate": reevaluate},
-                  after=tuple(dict.fromkeys(
-                      [f"data/{j.dataset.key}"] + ([f"data/{j.eval_dataset.key}"] if j.eval_dataset else [])
-                      + ([f"{j.dataset.key}/{j.prior_job().key}"] if j.prior_job() else []))))
+                  after=(f"data/{j.dataset.key}",) + ((f"data/{j.eval_dataset.key}",) if j.eval_dataset else ())
+                  + ((f"{j.dataset.key}/{j.prior_job().key}",) if j.prior_job() else ()))
              for n, j in zip(names, jobs)]
     new = {n for n, j in zip(names, jobs) if not (j.folder(out) / "DONE").is_file()}
     done_new = 0
