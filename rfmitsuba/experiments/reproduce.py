@@ -15,7 +15,9 @@
                             rfmitsuba.experiments.truth): synthetic against exact per-element truth
     OUT/report.md, OUT/speed_accuracy.png, OUT/results.json
     OUT/runs.jsonl          one line per run: wall time, jobs run, and why it stopped early if it did
-                            (an error, Ctrl-C, SIGTERM); the report sums them
+                            (an error, Ctrl-C, SIGTERM); kept current while a run lasts, so a run
+                            killed outright (SIGKILL) keeps its time to within a minute; the report
+                            sums them
 
 Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reuses the
 Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import threading
 import time
@@ -289,7 +292,6 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     data_dir = Path(data_dir) if data_dir else out / "data"
     # workers elsewhere resolve relative paths against their own folder
     out_arg, data_arg = (out, data_dir) if cluster.serial else (out.resolve(), data_dir.resolve())
-    t_start = time.perf_counter()
     jobs = all_jobs(cfg)
     specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
     truths = [Task(f"truth/{r}_{k}", ensure_truth, (r, k, cfg, out_arg), {"quiet": True})
@@ -306,43 +308,106 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     new = {n for n, j in zip(names, jobs) if not (j.folder(out) / "DONE").is_file()}
     done_new = 0
 
-    def count(name: str, _metrics: dict) -> None:
-        nonlocal done_new
-        if name in new:
-            done_new += 1
-            if stop_after is not None and done_new >= stop_after:
-                raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
+    with _RunRecord(out, tables=list(cfg.tables)) as record:
+        def count(name: str, _metrics: dict) -> None:
+            nonlocal done_new
+            if name in new:
+                done_new += 1
+                record.update(jobs_run=done_new)
+                if stop_after is not None and done_new >= stop_after:
+                    raise Stopped(f"stopped after {done_new} jobs (stop_after); run again to resume")
 
-    try:
-        done = run_tasks(data_tasks + truths + tasks, cluster=cluster,
-                         desc="datasets" + (", truth checks" if truths else "") + " and jobs", unit="task",
-                         quiet=quiet, on_result=count)
-    except BaseException as e:   # an error, Stopped, Ctrl-C or SIGTERM: the time spent still counts
-        record_run(out, wall_s=time.perf_counter() - t_start, jobs_run=done_new, tables=list(cfg.tables),
-                   stopped=type(e).__name__)
-        raise
-    results = {n: done[n] for n in names}
-    wall = time.perf_counter() - t_start
+        try:
+            done = run_tasks(data_tasks + truths + tasks, cluster=cluster,
+                             desc="datasets" + (", truth checks" if truths else "") + " and jobs", unit="task",
+                             quiet=quiet, on_result=count)
+        except BaseException as e:   # an error, Stopped, Ctrl-C or SIGTERM: the time spent still counts
+            record.end(jobs_run=done_new, stopped=type(e).__name__)
+            raise
+        results = {n: done[n] for n in names}
+        wall = record.end(jobs_run=len(new))
     _write_json(out / "results.json", results)
-    record_run(out, wall_s=wall, jobs_run=len(new), tables=list(cfg.tables))
 
     return write_report(out, cfg, results, wall_s=wall)
 
 
-def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str], stopped: str | None = None) -> None:
-    """Append this run to ``out/runs.jsonl`` (rewritten atomically): when it ended, its wall time
+#: marks a run's row in runs.jsonl until the run ends: a run killed without unwinding (SIGKILL,
+#: a lost machine, a session's end) keeps it, with its time up to its row's last rewrite
+NO_END = "no end recorded (running, or killed)"
+
+#: how often a running reproduction rewrites its row of runs.jsonl [s]
+HEARTBEAT_S = 60.0
+
+
+def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str], stopped: str | None = None,
+               run_id: str | None = None) -> None:
+    """Write a run's row in ``out/runs.jsonl`` (rewritten atomically): when it ended, its wall time
     [s], the jobs it finished (those not done before it), the tables it was asked for and, for a
     run that stopped early, why (the exception's name: ``KeyboardInterrupt``, ``SystemExit`` for
-    SIGTERM, ``Stopped``, ``JobsFailed``, ...), so a reproduction resumed over several sessions
-    reports the time of all its runs."""
+    SIGTERM, ``Stopped``, ``JobsFailed``, ...; :data:`NO_END` while it runs), so a reproduction
+    resumed over several sessions reports the time of all its runs. A row with the same
+    ``run_id`` is replaced; without one, or with a new one, the row is appended."""
     f = Path(out) / RUNS_FILE
     lines = f.read_text().splitlines() if f.is_file() else []
     row = {"ended_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "wall_s": round(wall_s, 1),
            "jobs_run": int(jobs_run), "tables": tables}
     if stopped:
         row["stopped"] = stopped
+    if run_id is not None:
+        row["run"] = run_id
+        lines = [line for line in lines if not line.strip() or json.loads(line).get("run") != run_id]
     lines.append(json.dumps(row))
     write_text(f, "\n".join(lines) + "\n")
+
+
+class _RunRecord:
+    """This run's row of ``runs.jsonl``, kept current while the run lasts: written when it starts,
+    rewritten as each job finishes and every :data:`HEARTBEAT_S` seconds by a daemon thread, each
+    time marked :data:`NO_END`; :meth:`end` writes its last form. A run killed where Python cannot
+    unwind keeps its time up to the last rewrite."""
+
+    def __init__(self, out: Path, *, tables: list[str]):
+        self.out, self.tables = Path(out), tables
+        self.run_id = f"{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}"
+        self.t_start = time.perf_counter()
+        self.jobs_run = 0
+        self._lock = threading.Lock()             # the heartbeat and the main thread write the same file
+        self._ended = threading.Event()
+        self._beat = threading.Thread(target=self._heartbeat, name="runs.jsonl heartbeat", daemon=True)
+
+    def __enter__(self) -> "_RunRecord":
+        self._write(NO_END)
+        self._beat.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._ended.set()
+        self._beat.join()
+
+    def update(self, *, jobs_run: int) -> None:
+        """A job finished: ``jobs_run`` jobs are done by this run so far."""
+        self.jobs_run = jobs_run
+        self._write(NO_END)
+
+    def end(self, *, jobs_run: int, stopped: str | None = None) -> float:
+        """The run's last row: ``stopped`` names why it stopped early, None if it reached its end;
+        returns its wall time [s]."""
+        self._ended.set()
+        self.jobs_run = jobs_run
+        return self._write(stopped)
+
+    def _heartbeat(self) -> None:
+        while not self._ended.wait(HEARTBEAT_S):
+            self._write(NO_END)
+
+    def _write(self, stopped: str | None) -> float:
+        with self._lock:
+            if stopped == NO_END and self._ended.is_set():
+                return time.perf_counter() - self.t_start   # the last row is written or being written
+            wall = time.perf_counter() - self.t_start
+            record_run(self.out, wall_s=wall, jobs_run=self.jobs_run, tables=self.tables, stopped=stopped,
+                       run_id=self.run_id)
+            return wall
 
 
 def _write_json(path: Path, obj) -> None:

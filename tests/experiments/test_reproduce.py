@@ -227,6 +227,13 @@ def test_runs_into_one_folder_are_summed_in_the_report_header(tmp_path):
     line = _runs_line(tmp_path)
     assert ("made by 3 runs (1 stopped early), 8874 s (90 jobs) + 6958 s (69 jobs) + 3600 s (7 jobs, stopped: "
             "SystemExit) = 19432 s (5.40 h)") in line
+    # a running run's row is rewritten in place (by its id), not appended again
+    record_run(tmp_path, wall_s=60.0, jobs_run=1, tables=["main"], stopped="no end recorded", run_id="r4")
+    record_run(tmp_path, wall_s=120.0, jobs_run=2, tables=["main"], stopped="no end recorded", run_id="r4")
+    assert "+ 120 s (2 jobs, stopped: no end recorded) = 19552 s" in _runs_line(tmp_path)
+    record_run(tmp_path, wall_s=150.0, jobs_run=3, tables=["main"], run_id="r4")
+    assert "made by 4 runs (1 stopped early)" in _runs_line(tmp_path)
+    assert "+ 150 s (3 jobs) = 19582 s" in _runs_line(tmp_path)
 
 
 def test_a_killed_run_records_its_time(monkeypatch, tmp_path):
@@ -249,6 +256,47 @@ def test_a_killed_run_records_its_time(monkeypatch, tmp_path):
     (row,) = (json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines())
     assert row["stopped"] == "SystemExit" and row["jobs_run"] == 0 and row["wall_s"] >= 0
     assert signal.getsignal(signal.SIGTERM) == before                 # the handler is restored
+
+
+def test_a_run_killed_outright_keeps_its_time(tmp_path):
+    """SIGKILL (or a lost machine) gives Python no chance to unwind: the run's row of runs.jsonl,
+    written at its start and kept current by a heartbeat, still holds its time, marked."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    script = f"""
+import time
+from rfmitsuba.experiments import reproduce as R
+from rfmitsuba.experiments.sizes import size_config
+R.HEARTBEAT_S = 0.2
+def busy(tasks, *, cluster=None, desc="", unit="", quiet=False, on_result=None):
+    time.sleep(120)
+R.run_tasks = busy
+R.reproduce({str(out)!r}, size_config("tiny"), quiet=True)
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        row, deadline = None, time.monotonic() + 300
+        while time.monotonic() < deadline:
+            f = out / "runs.jsonl"
+            rows = [json.loads(line) for line in f.read_text().splitlines()] if f.is_file() else []
+            if rows and rows[-1]["wall_s"] >= 1.0:
+                row = rows[-1]
+                break
+            assert proc.poll() is None, "the run ended by itself"
+            time.sleep(0.1)
+        assert row is not None, "no heartbeat within 300 s"
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    (kept,) = (json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines())
+    from rfmitsuba.experiments.reproduce import NO_END
+
+    assert kept["stopped"] == NO_END and kept["wall_s"] >= 1.0 and kept["jobs_run"] == 0
 
 
 def test_each_job_waits_for_its_own_datasets_not_for_all(monkeypatch, tmp_path):
