@@ -27,7 +27,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
 from .store import open_dataset
-from .views import TrainData, normalised_pas
+from .views import PasRows, TrainData, normalised_pas
 
 STATE_SETS = ("empty", "human", "all")
 
@@ -230,6 +230,11 @@ class SampleData(TrainData):
         """
         return normalised_pas(idx, self.raw, d=d, bad=lambda k: f"{self.path}: PAS of antenna position "
                               f"{int(self.antennas[k])} (state {int(self.states[k])}) contains NaN or infinite values")
+
+    def pas_rows(self, idx: np.ndarray) -> PasRows:
+        """The PAS of :meth:`pas` for samples ``idx`` (int [M]), read only when indexed
+        (:class:`rfmitsuba.data.views.PasRows`)."""
+        return PasRows(rows=np.asarray(idx, np.int64), read=self.pas)
 
     def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False) -> np.ndarray:
         """:func:`human_features` of samples ``idx``: float32 [K, num_human_features(octaves)];

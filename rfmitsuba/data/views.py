@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -53,6 +54,31 @@ def normalised_pas(idx: np.ndarray, raw, *, d: int, bad) -> np.ndarray:
             raise DatasetError(bad(int(part[int(np.flatnonzero(~finite)[0])])))
         out[c0:c0 + len(part)] = minmax(downsample(x, d))
     return out
+
+
+@dataclass(frozen=True)
+class PasRows:
+    """The normalised PAS of some samples, read when indexed: ``len(r)`` samples, ``r[i]``
+    (int [k] positions into ``rows``) gives float32 [k, H, W] from ``read(rows[i])``. Code that
+    needs a few of many PAS (the neighbour floors) or all of them one chunk at a time (the mean
+    image) takes one instead of the whole array.
+
+    Attributes:
+        rows: int64 [M] the samples, in order.
+        read: callable (int64 [k] samples) -> float32 [k, H, W] normalised PAS.
+    """
+
+    rows: np.ndarray
+    read: Callable[[np.ndarray], np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i) -> np.ndarray:
+        i = np.asarray(i, np.int64)
+        if i.ndim != 1:
+            raise IndexError(f"PasRows: index with an int array [k], not shape {i.shape}")
+        return self.read(self.rows[i])
 
 
 def downsample(x: np.ndarray, d: int) -> np.ndarray:

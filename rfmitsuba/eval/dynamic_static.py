@@ -110,7 +110,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
                  "test_human": data.human_pos[test] if use_human else None}
         fl = floor_cache.cached(
             floors_cache, {"floors": part, "dataset": fp},
-            lambda: floors(data.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+            lambda: floors(data.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
             length=len(test))
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
                "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
@@ -126,7 +126,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
             fn = floor_cache.cached(
                 floors_cache, {"floors_noisy_training": part, "dataset": fp, "snr_db": float(noise_snr_db),
                                "noise_seed": int(noise_seed)},
-                lambda: floors(noisy.pas(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+                lambda: floors(noisy.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
                 length=len(test))
             res["floors_noisy_training"] = {k: stats(fn[k]) for k in ("nearest_neighbour", "idw3", "mean_image")}
         if keep:

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from ..core.ssim import ssim_images
+from ..data.views import PAS_CHUNK
 from ..rf.bartlett_ref import normalize as minmax
 
 
@@ -96,17 +97,52 @@ def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndar
         float32 [K, H, W] in [0, 1].
     """
     idx, w = neighbour_weights(train_pos, query_pos, k=k, train_human=train_human, query_human=query_human)
-    tp = np.asarray(train_pas, np.float32)
-    out = np.einsum("kn,knhw->khw", w.astype(np.float32), tp[idx])
+    return _idw_images(train_pas, idx, w)
+
+
+def _idw_images(train_pas, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Min-max normalised weighted means of training rows ``idx`` (int [K, k]) with weights ``w``
+    ([K, k]), reading only those rows of ``train_pas`` (an array or a row reader): float32 [K, H, W]."""
+    rows, inverse = np.unique(idx.ravel(), return_inverse=True)
+    near = np.asarray(train_pas[rows], np.float32)[inverse.reshape(idx.shape)]
+    out = np.einsum("kn,knhw->khw", w.astype(np.float32), near)
     return minmax(out).astype(np.float32)
 
 
-def floors(train_pas: np.ndarray, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.ndarray, *,
+def mean_training_image(train_pas) -> np.ndarray:
+    """The mean of the training PAS, min-max normalised: float64 [1, H, W].
+
+    Args:
+        train_pas: float [M, H, W] normalised PAS, or a row reader (``len()``, and ``[idx]`` for
+            int64 [k] giving [k, H, W]), read :data:`~rfmitsuba.data.views.PAS_CHUNK` rows at a time.
+
+    The rows are added one after another in float64, the order of ``mean(axis=0)``, so the result
+    equals the mean of the whole array held at once, without holding it (a walk dataset's 20 000
+    training PAS are 2.6 GB as float32, 5.2 GB as float64).
+    """
+    m = len(train_pas)
+    if m == 0:
+        raise ValueError("mean_training_image: no training samples")
+    acc = None
+    for a in range(0, m, PAS_CHUNK):
+        for row in np.asarray(train_pas[np.arange(a, min(a + PAS_CHUNK, m))], np.float64):
+            if acc is None:
+                acc = row.copy()
+            else:
+                np.add(acc, row, out=acc)
+    return minmax((acc / m)[None])
+
+
+def floors(train_pas, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.ndarray, *,
            train_human=None, test_human=None) -> dict:
     """Model-free baselines on one split.
 
     Args:
-        train_pas: float [M, H, W] normalised training PAS; train_pos: float [M, 3] metres.
+        train_pas: float [M, H, W] normalised training PAS, or a row reader of them (``len()``, and
+            ``[idx]`` for int64 [k] giving [k, H, W]: :meth:`rfmitsuba.data.samples.SampleData.pas_rows`),
+            of which only the rows the neighbour floors use are read, and all rows once in chunks
+            for the mean image.
+        train_pos: float [M, 3] metres.
         test_pas: float [K, H, W] normalised test PAS; test_pos: float [K, 3] metres.
         train_human / test_human: optional human positions [M, 3] / [K, 3].
 
@@ -115,9 +151,11 @@ def floors(train_pas: np.ndarray, train_pos: np.ndarray, test_pas: np.ndarray, t
          "idw3": float64 [K] SSIM of :func:`idw_predict` (k = 3), "mean_image": float64 [K] SSIM}.
     """
     idx = nearest_index(train_pos, test_pos, train_human=train_human, query_human=test_human)
-    nn_pred = np.asarray(train_pas)[idx]
-    mean_img = minmax(np.asarray(train_pas, np.float64).mean(axis=0)[None])
-    idw = idw_predict(train_pas, train_pos, test_pos, k=3, train_human=train_human, query_human=test_human)
+    idw_idx, idw_w = neighbour_weights(train_pos, test_pos, k=3, train_human=train_human, query_human=test_human)
+    rows, inverse = np.unique(idx, return_inverse=True)
+    nn_pred = np.asarray(train_pas[rows])[inverse]
+    idw = _idw_images(train_pas, idw_idx, idw_w)
+    mean_img = mean_training_image(train_pas)
     return {"nearest_neighbour": ssim_images(nn_pred, test_pas), "nearest_index": idx,
             "idw3": ssim_images(idw, test_pas),
             "mean_image": ssim_images(np.repeat(mean_img, len(test_pas), axis=0), test_pas)}

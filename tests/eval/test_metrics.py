@@ -91,6 +91,41 @@ def test_idw3_weights_by_inverse_distance():
     np.testing.assert_allclose(f["idw3"], 1.0)  # test positions on training ones: exact
 
 
+def test_floors_from_a_row_reader_equal_floors_from_the_array(monkeypatch):
+    """A row reader (PasRows) gives the same floors bit for bit as the whole array: the neighbour
+    floors read only their rows, and the mean image reads every row once, a chunk at a time, adding
+    rows in the order of mean(axis=0); a person position joins the distance either way."""
+    from rfmitsuba.data.views import PasRows
+    from rfmitsuba.eval import metrics
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
+
+    rng = np.random.default_rng(3)
+    m, k = 37, 6
+    train = minmax(rng.random((m, 9, 12)).astype(np.float32))
+    test = minmax(rng.random((k, 9, 12)).astype(np.float32))
+    pos, qpos = rng.random((m, 3)), rng.random((k, 3))
+    hum, qhum = rng.random((m, 3)), rng.random((k, 3))
+    rows = np.arange(100, 100 + m)            # the reader's samples are not 0..m-1
+    reads = []
+
+    def read(samples):
+        reads.append(np.asarray(samples).copy())
+        return train[samples - 100]
+
+    monkeypatch.setattr(metrics, "PAS_CHUNK", 8)
+    whole = metrics.floors(train, pos, test, qpos, train_human=hum, test_human=qhum)
+    lazy = metrics.floors(PasRows(rows=rows, read=read), pos, test, qpos, train_human=hum, test_human=qhum)
+    for key in whole:
+        np.testing.assert_array_equal(lazy[key], whole[key])
+    np.testing.assert_array_equal(metrics.mean_training_image(train), minmax(train.astype(np.float64).mean(0)[None]))
+    sizes = [len(r) for r in reads]
+    assert max(sizes) <= max(8, 3 * k)                     # never the whole array at once
+    assert sum(sizes[-5:]) == m and sizes[-5:] == [8, 8, 8, 8, 5]   # the mean image's chunks
+    assert sum(sizes[:-5]) <= k + 3 * k                     # the neighbour floors' rows
+    with pytest.raises(IndexError, match="int array"):
+        PasRows(rows=rows, read=read)[3]
+
+
 def test_best_floor_names_the_higher_neighbour_floor():
     from rfmitsuba.eval.metrics import best_floor
 
