@@ -104,7 +104,12 @@ def _idw_images(train_pas, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Min-max normalised weighted means of training rows ``idx`` (int [K, k]) with weights ``w``
     ([K, k]), reading only those rows of ``train_pas`` (an array or a row reader): float32 [K, H, W]."""
     rows, inverse = np.unique(idx.ravel(), return_inverse=True)
-    near = np.asarray(train_pas[rows], np.float32)[inverse.reshape(idx.shape)]
+    return _weighted_images(np.asarray(train_pas[rows], np.float32)[inverse.reshape(idx.shape)], w)
+
+
+def _weighted_images(near: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Min-max normalised weighted means of ``near`` (float [K, k, H, W]) with weights ``w``
+    ([K, k]): float32 [K, H, W]."""
     out = np.einsum("kn,knhw->khw", w.astype(np.float32), near)
     return minmax(out).astype(np.float32)
 
@@ -152,9 +157,11 @@ def floors(train_pas, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.
     """
     idx = nearest_index(train_pos, test_pos, train_human=train_human, query_human=test_human)
     idw_idx, idw_w = neighbour_weights(train_pos, test_pos, k=3, train_human=train_human, query_human=test_human)
-    rows, inverse = np.unique(idx, return_inverse=True)
-    nn_pred = np.asarray(train_pas[rows])[inverse]
-    idw = _idw_images(train_pas, idw_idx, idw_w)
+    # the nearest neighbour is one of the three: their rows are read once for both floors
+    rows, inverse = np.unique(np.concatenate([idx, idw_idx.ravel()]), return_inverse=True)
+    near = np.asarray(train_pas[rows])[inverse]
+    nn_pred = near[:len(idx)]
+    idw = _weighted_images(near[len(idx):].astype(np.float32).reshape(*idw_idx.shape, *near.shape[1:]), idw_w)
     mean_img = mean_training_image(train_pas)
     return {"nearest_neighbour": ssim_images(nn_pred, test_pas), "nearest_index": idx,
             "idw3": ssim_images(idw, test_pas),
