@@ -4,6 +4,7 @@
 # The GPU machine has Python 3.12 with PyTorch, NumPy, SciPy, matplotlib, scikit-image and pytest,
 # but no network: Dr.Jit, Mitsuba (stripped to the CUDA polarised variant), Sionna RT and the
 # pure-Python packages Sionna imports travel in an ignored folder (default .dev):
+# (made by scripts/device_wheels.sh):
 #   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, ipywidgets, pythreejs, ... (cp312);
 #                              for the data and train tests also hypothesis, sortedcontainers, PyYAML,
 #                              tqdm and threadpoolctl
