@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 from job_metrics import age_metrics
@@ -77,10 +78,41 @@ def _no_times(x):
     return x
 
 
+def _flat(x, key=""):
+    """``{path: leaf}`` of a nested JSON value."""
+    if isinstance(x, dict):
+        return {k2: v for k, v in x.items() for k2, v in _flat(v, f"{key}/{k}").items()}
+    if isinstance(x, list):
+        return {k2: v for i, v in enumerate(x) for k2, v in _flat(v, f"{key}/{i}").items()}
+    return {key: x}
+
+
+def _assert_same_results(actual, desired):
+    """Equal to the last bit on LLVM. On CUDA, where gradients are summed with atomics in no fixed
+    order so that a job differs from itself between runs (README, Known limits), every count and
+    name equal and every float within 1e-4 (absolute) or 1e-3 (relative); two seeds differ by far
+    more (the test checks that too)."""
+    from rfmitsuba.core import backend as B
+
+    a, d = _flat(_no_times(actual)), _flat(_no_times(desired))
+    if not B.is_cuda():
+        assert a == d
+        return
+    assert a.keys() == d.keys()
+    worst = max((abs(a[k] - d[k]) for k in a if isinstance(a[k], float)), default=0.0)
+    print(f"CUDA: largest difference of a result from the serial run's: {worst:.3g}")
+    for k in a:
+        if isinstance(a[k], float) and isinstance(d[k], float):
+            assert math.isclose(a[k], d[k], rel_tol=1e-3, abs_tol=1e-4), (k, a[k], d[k])
+        else:
+            assert a[k] == d[k], k
+
+
 def test_compare_on_local_cluster_matches_serial(quick_dataset, one_thread, tmp_path):
     """The tiny comparison of tests/experiments/test_compare.py, serially (Dr.Jit on one
     thread, as in each worker) and on a LocalCluster of 2 single-thread workers: the same
-    metrics to the last bit, every job done once, and a second run resumes (trains nothing)."""
+    metrics to the last bit (on LLVM; see :func:`_assert_same_results`), every job done once, and a
+    second run resumes (trains nothing)."""
     from rfmitsuba.core.cluster import ClusterConfig
     from rfmitsuba.experiments.compare import compare
 
@@ -90,7 +122,7 @@ def test_compare_on_local_cluster_matches_serial(quick_dataset, one_thread, tmp_
     ser = json.loads((tmp_path / "serial" / "results.json").read_text())
     par = json.loads((tmp_path / "dask" / "results.json").read_text())
     assert [(r["method"], r["seed"]) for r in par] == [("baseline", 0), ("ours", 0), ("baseline", 1), ("ours", 1)]
-    assert _no_times(par) == _no_times(ser)
+    _assert_same_results(par, ser)
     assert par[0]["eval"]["dynamic"]["model"]["mean"] != par[2]["eval"]["dynamic"]["model"]["mean"]  # seeds differ
     done = {p: p.stat().st_mtime_ns for p in (tmp_path / "dask").glob("seed*/*/DONE")}
     assert len(done) == 4

@@ -21,6 +21,29 @@ def _losses(run):
     return [json.loads(ln)["loss"] for ln in (run / "log.jsonl").read_text().splitlines()]
 
 
+def _same(actual, desired, what):
+    """Bit for bit on LLVM. On CUDA, within 1e-4 (absolute or relative): CUDA sums gradients with
+    atomics in no fixed order, so a traced run differs from itself there too (README, Known
+    limits), and Adam turns a rounding-level difference of a near-zero gradient into up to a
+    learning rate (1e-2) per step. Measured on an H100 (2026-11-27, 8 to 12 steps): losses within
+    5e-8, parameters within 2.7e-5."""
+    from rfmitsuba.core import backend as B
+
+    kind = np.asarray(desired).dtype.kind
+    if B.is_cuda() and kind == "f":
+        np.testing.assert_allclose(actual, desired, rtol=1e-4, atol=1e-4, err_msg=what)
+    elif B.is_cuda() and kind == "U" and np.ndim(desired) == 0:   # a field's JSON meta: its floats too
+        a, d = json.loads(str(actual)), json.loads(str(desired))
+        assert a.keys() == d.keys(), what
+        for k in d:
+            if isinstance(d[k], float):
+                np.testing.assert_allclose(a[k], d[k], rtol=1e-4, atol=1e-4, err_msg=f"{what}: {k}")
+            else:
+                assert a[k] == d[k], f"{what}: {k}"
+    else:   # names and counts stay exact
+        np.testing.assert_array_equal(actual, desired, err_msg=what)
+
+
 @pytest.mark.parametrize("shape, dtype", [((7,), np.float32), ((3, 5, 9), np.float32), ((4,), np.uint32)])
 def test_aligned_copies_start_on_the_alignment_and_keep_the_values(shape, dtype):
     from rfmitsuba.train.frozen_step import ALIGN, aligned
@@ -50,12 +73,12 @@ def test_a_recorded_run_is_bit_identical_to_a_traced_one(quick_data, tmp_path, o
     rec.run()
     assert traced._frozen_loss is None
     assert 1 <= rec._frozen_loss.recordings < 12 and not rec._frozen_loss.disabled
-    assert _losses(tmp_path / "recorded") == _losses(tmp_path / "traced")
+    _same(_losses(tmp_path / "recorded"), _losses(tmp_path / "traced"), "losses")
     with np.load(tmp_path / "traced" / "final" / "field.npz") as a, \
             np.load(tmp_path / "recorded" / "final" / "field.npz") as b:
         assert sorted(a.files) == sorted(b.files)
         for k in a.files:
-            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+            _same(b[k], a[k], k)
 
 
 def test_a_field_without_scatterers_is_recorded(quick_data, tmp_path, one_thread, recwarn):
@@ -121,9 +144,9 @@ def test_a_new_batch_size_is_recorded_anew_and_replays_match_tracing(trained, qu
         gt = B.TensorXf(quick_data.pas(rows, d=trained.d))
         lf, gf = _loss_and_grads(frozen, field, views, gt)
         lt, gt_ = _loss_and_grads(None, field, views, gt)
-        assert lf == lt
+        _same(lf, lt, "loss")
         for k in gf:
-            np.testing.assert_array_equal(gf[k], gt_[k], err_msg=k)
+            _same(gf[k], gt_[k], k)
         counts.append(frozen.recordings)
     assert counts[1] == counts[0] and counts[2] == counts[1] + 1 and counts[3] == counts[2], counts
 
@@ -160,7 +183,8 @@ def test_a_step_whose_recording_fails_is_traced_with_a_warning(trained, quick_da
 
 def _equal_jobs(method, quick_dataset, tmp_path, monkeypatch):
     """Method ``method`` of the coherent Gaussian family trained twice (recorded, then traced with
-    recording switched off): the same losses at every logged step and the same fields, bit for bit."""
+    recording switched off): the same losses at every logged step and the same fields, bit for bit
+    (on LLVM; see :func:`_same`)."""
     from rfmitsuba.core import config as C
     from rfmitsuba.experiments import methods
     from rfmitsuba.train.frozen_step import FrozenLoss
@@ -187,10 +211,10 @@ def _equal_jobs(method, quick_dataset, tmp_path, monkeypatch):
             if method == "ours" else [("CoherentGaussianJointField",)] * 16)
     assert [k for k, _ in kinds] == want and not any(disabled for _, disabled in kinds)
     for a, b in zip(runs["recorded"], runs["traced"]):
-        assert _losses(a) == _losses(b), a.name
+        _same(_losses(a), _losses(b), f"{a.name}: losses")
         with np.load(a / "final" / "field.npz") as za, np.load(b / "final" / "field.npz") as zb:
             for k in za.files:
-                np.testing.assert_array_equal(za[k], zb[k], err_msg=f"{a.name}: {k}")
+                _same(za[k], zb[k], f"{a.name}: {k}")
 
 
 @pytest.mark.parametrize("method", ["ours", "end_to_end"])
