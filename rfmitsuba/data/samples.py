@@ -185,12 +185,15 @@ class SampleData(TrainData):
         out = np.zeros((len(idx), *PAS_SHAPE), np.float32)
         st = self.states[idx]
         an = self.antennas[idx]
-        for s in np.unique(st):
-            sel = np.flatnonzero(st == s)
+        rows = (np.flatnonzero(np.isin(idx, self.train)) if self.noise_snr_db is not None
+                else np.empty(0, np.int64))   # noisy training samples: made from the channels, not read
+        clean = np.ones(len(idx), bool)
+        clean[rows] = False
+        for s in np.unique(st[clean]):
+            sel = np.flatnonzero(clean & (st == s))
             order = np.argsort(an[sel])
             out[sel[order]] = np.asarray(self._ds.pas(int(s))[an[sel][order]], dtype=np.float32)
         if self.noise_snr_db is not None:
-            rows = np.flatnonzero(np.isin(idx, self.train))
             for s in np.unique(st[rows]):
                 sel = rows[st[rows] == s]
                 self._make_noisy(int(s), an[sel])

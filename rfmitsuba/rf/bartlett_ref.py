@@ -89,9 +89,11 @@ def normalize(pas: np.ndarray) -> np.ndarray:
     """Per-image min-max to [0, 1]: float32 of the same shape [..., H, W]; constant images give 0."""
     p = np.asarray(pas, np.float32)
     lo = p.min(axis=(-2, -1), keepdims=True)
-    hi = p.max(axis=(-2, -1), keepdims=True)
-    span = hi - lo
-    return np.where(span > 0, (p - lo) / np.where(span > 0, span, 1), 0).astype(np.float32)
+    span = p.max(axis=(-2, -1), keepdims=True) - lo
+    out = np.subtract(p, lo)   # (p - lo) / span in float32, written into one new array
+    np.divide(out, np.where(span > 0, span, np.float32(1)), out=out)
+    out[np.broadcast_to(~(span > 0), out.shape)] = 0   # constant (or NaN) images: 0
+    return out
 
 
 def peak_direction(pas: np.ndarray, *, resolution_deg: float = 1.0) -> tuple[float, float]:

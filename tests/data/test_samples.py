@@ -47,6 +47,35 @@ def test_noise_only_on_training_samples(synthetic_ds):
     assert np.array_equal(again.raw(again.train[:3]), noisy.raw(noisy.train[:3]))
 
 
+def test_noisy_training_samples_are_not_read_from_the_clean_pas(synthetic_ds, monkeypatch):
+    """With noise, a training sample's PAS is made apart (from its channels, or here, a dataset
+    without channels, from its PAS once): no PAS of a mixed batch is read twice, and its test
+    rows are the clean ones."""
+    from rfmitsuba.data.samples import SampleData
+
+    noisy = SampleData.open_samples(synthetic_ds, states="all", noise_snr_db=5.0, noise_seed=3)
+    clean = SampleData.open_samples(synthetic_ds, states="all")
+    idx = np.concatenate([noisy.train[:5], noisy.test[:4], noisy.train[5:7]])
+    read = []
+    real = noisy._ds.pas
+
+    def counted(state):
+        store = real(state)
+
+        class Rows:
+            def __getitem__(self, rows):
+                read.extend((state, int(a)) for a in np.atleast_1d(rows))
+                return store[rows]
+        return Rows()
+
+    monkeypatch.setattr(noisy._ds, "pas", counted)
+    out = noisy.raw(idx)
+    assert len(read) == len(set(read)) == len(idx)
+    assert {(int(noisy.states[k]), int(noisy.antennas[k])) for k in noisy.test[:4]} <= set(read)
+    np.testing.assert_array_equal(out[5:9], clean.raw(noisy.test[:4]))
+    assert not np.allclose(out[:5], clean.raw(noisy.train[:5]))
+
+
 def test_noise_does_not_depend_on_the_batch(synthetic_ds):
     """Noisy PAS are made a state at a time; each sample's noise is its own, however it is asked for."""
     from rfmitsuba.data.samples import SampleData

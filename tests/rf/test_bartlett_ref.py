@@ -66,6 +66,22 @@ def test_bad_channels():
         pas.bartlett(np.ones(16), frequency_hz=F)
 
 
+def test_normalize_is_the_min_max_formula_and_leaves_its_input_alone():
+    """(p - min) / (max - min) per image in float32, bit for bit; a constant or NaN image gives 0;
+    the caller's array is not written to."""
+    rng = np.random.default_rng(4)
+    x = (rng.random((4, 9, 11), np.float32) * 4 - 1).astype(np.float32)
+    x[1] = 7.0
+    x[2, 3, 4] = np.nan
+    keep = x.copy()
+    n = pas.normalize(x)
+    np.testing.assert_array_equal(x, keep)
+    for i in (0, 3):
+        lo, hi = x[i].min(), x[i].max()
+        np.testing.assert_array_equal(n[i], (x[i] - lo) / (hi - lo))
+    assert np.all(n[1] == 0) and np.all(n[2] == 0) and n.dtype == np.float32
+
+
 def test_normalize_per_image():
     x = np.stack([np.linspace(2, 5, 90 * 360).reshape(90, 360), np.full((90, 360), 3.0)])
     n = pas.normalize(x)
