@@ -26,6 +26,7 @@ from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
+from .pas_cache import state_images
 from .store import open_dataset
 from .views import PasRows, TrainData, normalised_pas
 
@@ -226,13 +227,32 @@ class SampleData(TrainData):
 
     def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
         """Min-max normalised PAS of samples ``idx``: float32 [K, 90/d, 360/d]
-        (:func:`rfmitsuba.data.views.normalised_pas`).
+        (:func:`rfmitsuba.data.views.normalised_pas`). Block means (``d > 1``) without noise are
+        read from the dataset's cache of training images (:mod:`rfmitsuba.data.pas_cache`, made
+        per state on first use), bit-identical to computing them.
 
         Raises:
             DatasetError: a PAS with NaN/inf values (naming state and antenna).
         """
-        return normalised_pas(idx, self.raw, d=d, bad=lambda k: f"{self.path}: PAS of antenna position "
-                              f"{int(self.antennas[k])} (state {int(self.states[k])}) contains NaN or infinite values")
+        def bad(k):
+            return (f"{self.path}: PAS of antenna position {int(self.antennas[k])} (state {int(self.states[k])}) "
+                    "contains NaN or infinite values")
+
+        if d == 1 or self.noise_snr_db is not None:
+            return normalised_pas(idx, self.raw, d=d, bad=bad)
+        idx = np.asarray(idx, np.int64)
+        out = np.empty((len(idx), PAS_SHAPE[0] // d, PAS_SHAPE[1] // d), np.float32)
+        st, an = self.states[idx], self.antennas[idx]
+        ok = np.ones(len(idx), bool)
+        for s in np.unique(st):
+            sel = np.flatnonzero(st == s)
+            images, finite = state_images(self._ds, int(s), d=d)
+            order = np.argsort(an[sel], kind="stable")   # rows in file order: one pass over the memmap
+            out[sel[order]] = images[an[sel][order]]
+            ok[sel] = finite[an[sel]]
+        if not ok.all():
+            raise DatasetError(bad(int(idx[int(np.flatnonzero(~ok)[0])])))
+        return out
 
     def pas_rows(self, idx: np.ndarray) -> PasRows:
         """The PAS of :meth:`pas` for samples ``idx`` (int [M]), read only when indexed

@@ -108,10 +108,11 @@ def test_human_features():
 
 
 def test_pas_in_chunks_is_the_pas_at_once_and_names_a_bad_sample(synthetic_ds, monkeypatch):
-    """SampleData.pas reads, checks, block-averages and normalises views.PAS_CHUNK samples at a time (a
-    walk dataset's training samples are 2.6 GB at 90 x 360): with chunks of 7 the result equals the
-    normalised block means of all raw PAS at once, and a NaN in a later chunk names its own antenna
-    position and state."""
+    """views.normalised_pas reads, checks, block-averages and normalises views.PAS_CHUNK samples at a
+    time (a walk dataset's training samples are 2.6 GB at 90 x 360): with chunks of 7 the result
+    equals the normalised block means of all raw PAS at once, and through SampleData.pas (full
+    resolution; block means come from the dataset's cache, tests/data/test_pas_cache.py) a NaN in a
+    later chunk names its own antenna position and state."""
     from rfmitsuba.core.errors import DatasetError
     from rfmitsuba.data import views
     from rfmitsuba.data.samples import SampleData
@@ -122,13 +123,14 @@ def test_pas_in_chunks_is_the_pas_at_once_and_names_a_bad_sample(synthetic_ds, m
     idx = d.train[::-1][:40]
     whole = normalize(downsample(d.raw(idx), 2))
     monkeypatch.setattr(views, "PAS_CHUNK", 7)
-    np.testing.assert_allclose(d.pas(idx, d=2), whole, atol=1e-6)
+    np.testing.assert_array_equal(views.normalised_pas(idx, d.raw, d=2, bad=str), whole)
+    np.testing.assert_array_equal(d.pas(idx, d=1), normalize(d.raw(idx)))
     assert d.pas(idx[:0], d=3).shape == (0, 30, 120)
     raw = d.raw
     k = int(idx[30])
     monkeypatch.setattr(d, "raw", lambda part: np.where(np.asarray(part)[:, None, None] == k, np.nan, raw(part)))
     with pytest.raises(DatasetError, match=f"antenna position {int(d.antennas[k])} \\(state {int(d.states[k])}\\)"):
-        d.pas(idx, d=2)
+        d.pas(idx, d=1)
 
 
 def test_downsample_is_the_block_mean():
