@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # CUDA check and GPU timings on a lent GPU machine (issue 13), as one prepared script.
 #
-# The GPU machine has Python 3.12 with PyTorch, NumPy, SciPy, matplotlib, scikit-image and pytest,
-# but no network: Dr.Jit, Mitsuba (stripped to the CUDA polarised variant), Sionna RT and the
-# pure-Python packages Sionna imports travel in an ignored folder (default .dev):
-# (made by scripts/device_wheels.sh):
-#   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, ipywidgets, pythreejs, ... (cp312);
-#                              for the data and train tests also hypothesis, sortedcontainers, PyYAML,
-#                              tqdm and threadpoolctl
-#   .dev/mitsuba_strip.tar.xz  the mitsuba 3.9.1 cp312 wheel's files without the LLVM/spectral variants
+# The GPU machine has Python 3.12 with PyTorch, NumPy, SciPy, matplotlib, scikit-image, PyYAML,
+# tqdm, threadpoolctl, hypothesis and pytest, but no network: Dr.Jit, Mitsuba (stripped to the CUDA
+# polarised variant), Sionna RT, Dask and the pure-Python packages they import travel in an ignored
+# folder (default .dev), made here by scripts/device_wheels.sh:
+#   .dev/whl/*.whl             drjit, sionna-rt, trimesh, tomli_w, dask, distributed, ipywidgets,
+#                              pythreejs, ... (cp312)
+#   .dev/mitsuba_strip.tar.xz  the mitsuba 3.9.1 cp312 wheel's files with only the scalar_rgb and
+#                              cuda_ad_mono_polarized variants and without render-only plugins
 # Usage (from the repository root, on the GPU machine):  bash scripts/device_bench.sh OUTDIR
 # SKIP="step ..." leaves steps out; TESTS="paths" replaces the test modules of the CUDA test step and
 # PYTEST_LIMIT its time limit in seconds (default 150).
