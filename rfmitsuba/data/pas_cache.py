@@ -16,9 +16,11 @@ One entry is one state at one block size, in the dataset's own folder::
 Each is written atomically on first use, so two processes making the same entry (Dask workers)
 both leave a whole file. An entry whose chunk has changed (a regenerated state), of another
 version or shape, or that cannot be read is made again. A dataset folder that cannot be written
-to is read as before, without a cache. The images are computed by exactly the code of
-:func:`rfmitsuba.data.views.normalised_pas` (block means, then min-max per image), one image at a
-time in the same arithmetic, so a cached read is bit-identical to an uncached one.
+to is read as before, without a cache. The images are computed by the functions
+:func:`rfmitsuba.data.views.normalised_pas` uses (block means, then min-max), whose arithmetic is
+image by image, so a cached read is bit-identical to an uncached one. Only dataset folders
+(:class:`~rfmitsuba.data.store.Dataset`) have chunks to key an entry by: a NeRF2 folder is read
+without a cache.
 """
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
 from .pas_cache import state_images
-from .store import open_dataset
+from .store import Dataset, open_dataset
 from .views import PasRows, TrainData, normalised_pas
 
 STATE_SETS = ("empty", "human", "all")
@@ -227,8 +227,8 @@ class SampleData(TrainData):
 
     def pas(self, idx: np.ndarray, *, d: int = 1) -> np.ndarray:
         """Min-max normalised PAS of samples ``idx``: float32 [K, 90/d, 360/d]
-        (:func:`rfmitsuba.data.views.normalised_pas`). Block means (``d > 1``) without noise are
-        read from the dataset's cache of training images (:mod:`rfmitsuba.data.pas_cache`, made
+        (:func:`rfmitsuba.data.views.normalised_pas`). Block means (``d > 1``) of a dataset folder
+        (not a NeRF2 folder) without noise are read from its cache of training images (:mod:`rfmitsuba.data.pas_cache`, made
         per state on first use), bit-identical to computing them.
 
         Raises:
@@ -238,7 +238,7 @@ class SampleData(TrainData):
             return (f"{self.path}: PAS of antenna position {int(self.antennas[k])} (state {int(self.states[k])}) "
                     "contains NaN or infinite values")
 
-        if d == 1 or self.noise_snr_db is not None:
+        if d == 1 or self.noise_snr_db is not None or not isinstance(self._ds, Dataset):   # a NeRF2 folder: no chunks
             return normalised_pas(idx, self.raw, d=d, bad=bad)
         idx = np.asarray(idx, np.int64)
         out = np.empty((len(idx), PAS_SHAPE[0] // d, PAS_SHAPE[1] // d), np.float32)

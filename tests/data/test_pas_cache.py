@@ -103,3 +103,17 @@ def test_a_non_finite_pas_is_named_when_asked_for_and_only_then(own_ds, monkeypa
     assert d.pas(others, d=2).shape == (len(others), 45, 180)
     with pytest.raises(DatasetError, match=f"antenna position {a} \\(state {s}\\) contains NaN"):
         d.pas(np.concatenate([others, [k]]), d=2)
+
+
+def test_a_nerf2_folder_is_read_without_a_cache(synthetic_ds, tmp_path):
+    """A NeRF2 spectrum folder has no chunks to key an entry by: its block means are computed, and
+    nothing is written into it."""
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.data.store import Dataset
+
+    folder = nerf2.write(Dataset(synthetic_ds), tmp_path / "n", state=0)
+    d = SampleData.open_samples(folder, states="empty")
+    idx = d.train[:6]
+    np.testing.assert_array_equal(d.pas(idx, d=2), _computed(d, idx, 2))
+    assert not (folder / "cache").exists()
