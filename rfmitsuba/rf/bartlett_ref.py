@@ -22,6 +22,8 @@ because its measured phases have the opposite sign to Sionna's channel; applied 
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from threadpoolctl import threadpool_limits
 
@@ -37,6 +39,15 @@ def beamformer(*, frequency_hz: float, positions: np.ndarray | None = None,
     k = 2.0 * np.pi / antenna.wavelength(frequency_hz)
     d = directions(resolution_deg=resolution_deg).reshape(-1, 3)
     return (np.exp(-1j * k * (d @ pos.T)) / pos.shape[0]).astype(np.complex64)
+
+
+@functools.lru_cache(maxsize=8)
+def _default_weights(frequency_hz: float, resolution_deg: float) -> np.ndarray:
+    """:func:`beamformer` of the default array, kept read-only between calls of :func:`bartlett`
+    (a dataset calls it once per state; the weights took 77 ms of a 900-channel state's 0.35 s)."""
+    w = beamformer(frequency_hz=frequency_hz, resolution_deg=resolution_deg)
+    w.flags.writeable = False
+    return w
 
 
 def unit_modulus(channels: np.ndarray) -> np.ndarray:
@@ -69,7 +80,8 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
         raise ConfigError("channels contain NaN or inf")
     if phase_only:
         h = unit_modulus(h)
-    B = beamformer(frequency_hz=frequency_hz, positions=positions, resolution_deg=resolution_deg)
+    B = (_default_weights(float(frequency_hz), float(resolution_deg)) if positions is None else
+         beamformer(frequency_hz=frequency_hz, positions=positions, resolution_deg=resolution_deg))
     if h.shape[1] != B.shape[1]:
         raise ConfigError(f"channels have {h.shape[1]} elements, the array has {B.shape[1]}")
     el, _ = angle_grid(resolution_deg=resolution_deg)
@@ -81,7 +93,9 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     with threadpool_limits(limits=1, user_api="blas"):
         for s in range(0, h.shape[0], batch):
             blk = B @ hc[s:s + batch].T  # [pixels, 16] x [16, k]
-            out[s:s + batch] = np.abs(blk).T.reshape(-1, *el.shape)
+            # the magnitudes go straight into the images through a transposed view: no
+            # [pixels, k] temporary and no strided copy (the copy was 3x the product's time)
+            np.abs(blk, out=out[s:s + batch].reshape(blk.shape[1], -1).T)
     return out
 
 

@@ -1,6 +1,7 @@
 """Tests of rfmitsuba.rf.bartlett_ref: SPEC layout, Bartlett beamformer, normalisation."""
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_limits
 
 from rfmitsuba.core.errors import ConfigError
 from rfmitsuba.rf import array as antenna
@@ -55,6 +56,26 @@ def test_batching_does_not_change_result():
     a, b = pas.bartlett(h, frequency_hz=F, batch=3), pas.bartlett(h, frequency_hz=F, batch=100)
     assert np.allclose(a, b, rtol=1e-5, atol=1e-7)
     assert np.array_equal(a, pas.bartlett(h, frequency_hz=F, batch=3))  # same input, same bits
+
+
+def test_images_are_the_former_product_bit_for_bit_and_the_cached_weights_read_only():
+    """bartlett() writes |B h^T| straight into its images through a transposed view and keeps the
+    default array's weights between calls; the images stay the bits of the former
+    ``np.abs(B @ h.T).T`` (a dataset's PAS must not change), explicit element positions still give
+    their own weights, and nobody can write into the cached ones."""
+    rng = np.random.default_rng(5)
+    h = (rng.normal(size=(300, 16)) + 1j * rng.normal(size=(300, 16))).astype(np.complex64)
+    B = pas.beamformer(frequency_hz=F)
+    with threadpool_limits(limits=1, user_api="blas"):   # as bartlett() runs its products
+        former = np.concatenate([np.abs(B @ h[s:s + 128].T).T for s in range(0, 300, 128)]).reshape(-1, 90, 360)
+    for _ in range(2):   # the second call uses the cached weights
+        assert np.array_equal(pas.bartlett(h, frequency_hz=F, batch=128), former)
+    cached = pas._default_weights(F, 1.0)
+    assert np.array_equal(cached, B) and not cached.flags.writeable
+    with pytest.raises(ValueError):
+        cached[0, 0] = 0
+    moved = antenna.element_positions(F) + np.array([0.01, 0.0, 0.0])   # not the default array
+    assert not np.array_equal(pas.bartlett(h[:2], frequency_hz=F, positions=moved), former[:2])
 
 
 def test_bad_channels():
