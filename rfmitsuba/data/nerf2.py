@@ -161,17 +161,20 @@ def read_positions(path: Path) -> np.ndarray:
     return out
 
 
+#: An image number as NeRF2's index files and spectrum names write it: ASCII digits, an optional '+'.
+_NUMBER = re.compile(r"\+?[0-9]+", re.ASCII)
+
+
 def _read_index(path: Path, count: int) -> np.ndarray:
     """0-based indices, sorted int64, of a 1-based index file (whitespace or comma separated)."""
     tokens = re.split(r"[\s,]+", _read_text(path).strip())
     tokens = [t for t in tokens if t]
     if not tokens:
         raise DatasetError(f"{path}: no image numbers")
-    try:
-        vals = np.asarray([int(t) for t in tokens], np.int64)
-    except ValueError:
-        bad = next(t for t in tokens if not t.lstrip("+").isdigit())
-        raise DatasetError(f"{path}: entries must be 1-based image numbers, found {bad[:40]!r}") from None
+    bad = next((t for t in tokens if not _NUMBER.fullmatch(t)), None)
+    if bad is not None:   # ASCII digits only: str.isdigit() and int() take '²' or '٣' too
+        raise DatasetError(f"{path}: entries must be 1-based image numbers, found {bad[:40]!r}")
+    vals = np.asarray([int(t) for t in tokens], np.int64)
     if vals.min() < 1 or vals.max() > count:
         raise DatasetError(f"{path}: image numbers outside 1..{count} (found {int(vals.min())}..{int(vals.max())})")
     if len(np.unique(vals)) != len(vals):
@@ -244,7 +247,7 @@ class NerfDataset:
             raise DatasetError(f"{spec}: no PNG images")
         numbers = []
         for f in files:
-            if not f.stem.isdigit():
+            if not (f.stem.isascii() and f.stem.isdigit()):   # not "².png"
                 raise DatasetError(f"{f}: image names must be 1-based numbers like 00001.png")
             numbers.append(int(f.stem))
         A = len(files)

@@ -100,6 +100,12 @@ def test_bad_folders(small, tmp_path):
     (out / "test_index.txt").write_text("00001\nfoo\n")
     with pytest.raises(DatasetError, match="test_index.txt: entries must be 1-based image numbers, found 'foo'"):
         nerf2.read(out)
+    # digits Python's int() and str.isdigit() take but an index file does not hold (found by the
+    # fuzz test below: '²' raised a bare ValueError)
+    for token in ("\u00b2", "\u0663", "1_0", "-1"):
+        (out / "test_index.txt").write_text(f"00001\n{token}\n", encoding="utf-8")
+        with pytest.raises(DatasetError, match=f"test_index.txt: entries must be 1-based image numbers, found '{token}'"):
+            nerf2.read(out)
     (out / "test_index.txt").write_text((out / "train_index.txt").read_text().split()[0] + "\n")
     with pytest.raises(DatasetError, match="share images"):
         nerf2.read(out)
@@ -111,6 +117,10 @@ def test_bad_folders(small, tmp_path):
         nerf2.read(out)
     (out / "spectrum" / "00003.png").unlink()
     with pytest.raises(DatasetError, match="without gaps"):
+        nerf2.read(out)
+    (out / "spectrum" / "00003.png").write_bytes((out / "spectrum" / "00002.png").read_bytes())
+    (out / "spectrum" / "\u00b2.png").write_bytes(b"")
+    with pytest.raises(DatasetError, match="image names must be 1-based numbers"):
         nerf2.read(out)
 
 
