@@ -161,7 +161,7 @@ def read_positions(path: Path) -> np.ndarray:
     return out
 
 
-#: An image number as NeRF2's index files and spectrum names write it: ASCII digits, an optional '+'.
+#: An image number as NeRF2's index files write it: ASCII digits, an optional '+'.
 _NUMBER = re.compile(r"\+?[0-9]+", re.ASCII)
 
 

@@ -57,7 +57,8 @@ def lanes_per_tile() -> int:
     """
     env = os.environ.get("RFMITSUBA_SPLAT_LANES", "").strip()
     if env:
-        return checked_lanes(int(env) if env.isdigit() else env, what="RFMITSUBA_SPLAT_LANES")
+        # ASCII digits only: str.isdigit() is true for "²", which int() refuses
+        return checked_lanes(int(env) if env.isascii() and env.isdigit() else env, what="RFMITSUBA_SPLAT_LANES")
     if B.is_cuda():
         return 16
     return 16 if _cpu_has_avx512() else 8

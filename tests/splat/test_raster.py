@@ -93,7 +93,7 @@ def test_lane_layout_errors(variant, monkeypatch):
         rasterize(p, views=1, height=8, width=16, tile_lanes=12)
     with pytest.raises(ValueError, match="tile_lanes must be one of"):
         rasterize(p, views=1, height=8, width=16, tile_lanes=True)
-    for bad in ("4", "sixteen"):
+    for bad in ("4", "sixteen", "\u00b2"):   # "²" passes str.isdigit() but not int()
         monkeypatch.setenv("RFMITSUBA_SPLAT_LANES", bad)
         with pytest.raises(ValueError, match=f"RFMITSUBA_SPLAT_LANES must be one of .*{bad}"):
             rasterize(p, views=1, height=8, width=16)
