@@ -35,6 +35,7 @@ from ..data.store import (
     write_chunk,
 )
 from ..rf import bartlett_ref as _pas
+from ..rf.grid import PAS_SHAPE
 from . import person as human
 from .geometry import RoomGeometry
 from .simulate import ARRAYS, Simulator, SolverConfig, versions
@@ -288,6 +289,9 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
         # positions as float32, the precision they are stored with
         sim.set_positions(job.antenna_pos.astype(np.float64))
         faces = None
+        # one image array for every state (written out before the next): fresh pages per state
+        # cost more than the beamforming (rfmitsuba.rf.bartlett_ref.bartlett)
+        images = np.empty((len(job.antenna_pos), *PAS_SHAPE), np.float32)
         with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
             for s in states:
                 if s == 0:
@@ -304,7 +308,7 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
                 h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0
                 t1 = time.perf_counter()
-                img = _pas.bartlett(h, frequency_hz=job.frequency_hz)
+                img = _pas.bartlett(h, frequency_hz=job.frequency_hz, out=images)
                 t2 = time.perf_counter()
                 write_chunk(job.root, s, pas=img, channel=h)
                 timing["write_s"] += time.perf_counter() - t2

@@ -70,6 +70,12 @@ def test_images_are_the_former_product_bit_for_bit_and_the_cached_weights_read_o
         former = np.concatenate([np.abs(B @ h[s:s + 128].T).T for s in range(0, 300, 128)]).reshape(-1, 90, 360)
     for _ in range(2):   # the second call uses the cached weights
         assert np.array_equal(pas.bartlett(h, frequency_hz=F, batch=128), former)
+    # the reused work array (default batch 64, and 32) and a caller's reused ``out``: the same bits
+    out = np.full((300, 90, 360), np.nan, np.float32)
+    for batch in (64, 32, 64):
+        assert pas.bartlett(h, frequency_hz=F, batch=batch, out=out) is out
+        assert np.array_equal(out, former)
+    assert np.array_equal(pas.bartlett(h, frequency_hz=F), former)
     cached = pas._default_weights(F, 1.0)
     assert np.array_equal(cached, B) and not cached.flags.writeable
     with pytest.raises(ValueError):
@@ -85,6 +91,27 @@ def test_bad_channels():
         pas.bartlett(np.full((1, 16), np.nan), frequency_hz=F)
     with pytest.raises(ConfigError, match=r"\[K, M\]"):
         pas.bartlett(np.ones(16), frequency_hz=F)
+    with pytest.raises(ConfigError, match="batch must be >= 1"):
+        pas.bartlett(np.ones((2, 16)), frequency_hz=F, batch=0)
+
+
+@pytest.mark.parametrize("out", [np.empty((3, 90, 360), np.float32), np.empty((2, 90, 360), np.float64),
+                                 np.empty((2, 360, 90), np.float32).transpose(0, 2, 1), [[0.0]]])
+def test_out_of_the_wrong_kind_is_named(out):
+    with pytest.raises(ConfigError, match=r"out must be a writeable C-contiguous float32 array of shape \(2, 90, 360\)"):
+        pas.bartlett(np.ones((2, 16)), frequency_hz=F, out=out)
+
+
+def test_threads_keep_their_own_work_array():
+    """Two threads beamforming at once each use their own work array: each gets its own images."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(8)
+    hs = [(rng.normal(size=(150, 16)) + 1j * rng.normal(size=(150, 16))).astype(np.complex64) for _ in range(4)]
+    want = [pas.bartlett(h, frequency_hz=F) for h in hs]
+    with ThreadPoolExecutor(2) as ex:
+        got = list(ex.map(lambda h: pas.bartlett(h, frequency_hz=F), hs * 3))
+    assert all(np.array_equal(g, want[i % 4]) for i, g in enumerate(got))
 
 
 def test_normalize_is_the_min_max_formula_and_leaves_its_input_alone():
