@@ -8,8 +8,10 @@ name, a function of plain data, the names of the tasks it needs first) and hand 
 * ``workers=N``: a Dask ``LocalCluster`` of N worker processes with one thread each is
   started for the call and shut down after it;
 * ``scheduler="tcp://host:8786"``: the tasks go to a running Dask scheduler (start it with
-  ``dask scheduler``, workers with ``dask worker ADDRESS --nthreads 1 --nworkers K``). The
-  workers must import rfmitsuba and see the same file system: tasks get absolute paths.
+  ``DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION=inf dask scheduler``, so that tasks run in
+  the order of their priority (:data:`WORKER_SATURATION`), workers with ``dask worker ADDRESS
+  --nthreads 1 --nworkers K``). The workers must import rfmitsuba and see the same file
+  system: tasks get absolute paths.
 
 Every task writes its own folder and skips work a finished earlier run did, so a run on a
 cluster resumes exactly as a serial one. A task runs in a worker with Dr.Jit on as many
@@ -103,6 +105,18 @@ def from_cli(args) -> ClusterConfig:
     return ClusterConfig(scheduler=getattr(args, "scheduler", None), workers=getattr(args, "workers", 0) or 0)
 
 
+#: ``distributed.scheduler.worker-saturation`` of the ``LocalCluster`` that ``--workers N`` starts:
+#: "inf", no queue. Dask's default (1.1) keeps tasks without dependencies (datasets, truth
+#: checks) in a queue on the scheduler until a worker runs fewer tasks than it has threads, which
+#: never happens while jobs are ready: a full reproduction ran every job of its first four
+#: datasets, about 100, before it generated a fifth, and risked ending on one worker generating the
+#: large room's dataset (1506 s) while the other idled. Without the queue the tasks' priorities
+#: (datasets, then truth checks, then jobs, :func:`run_tasks`) decide, on either worker
+#: (tests/core/test_cluster.py). A scheduler of your own (``--scheduler``) keeps its setting:
+#: start it with ``DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION=inf``.
+WORKER_SATURATION = "inf"
+
+
 class Session:
     """An open Dask client (and the ``LocalCluster`` it started, if any); see :func:`session`."""
 
@@ -182,10 +196,15 @@ def session(cfg: ClusterConfig) -> Iterator[Session]:
         except OSError as e:
             raise RunError(f"no Dask scheduler answers at {cfg.scheduler}: {e}") from None
     else:
+        import dask
+
         # no memory limit: a job is one long process that manages its own memory, and Dask's
-        # pausing / killing at a fraction of RAM / N would stall or restart training jobs
-        cluster = LocalCluster(n_workers=cfg.workers, threads_per_worker=1, processes=True, memory_limit=0,
-                               dashboard_address=None)
+        # pausing / killing at a fraction of RAM / N would stall or restart training jobs.
+        # No queue of root tasks (WORKER_SATURATION): every task goes to a worker at once, and
+        # each worker runs its ready tasks in the order of their priority
+        with dask.config.set({"distributed.scheduler.worker-saturation": WORKER_SATURATION}):
+            cluster = LocalCluster(n_workers=cfg.workers, threads_per_worker=1, processes=True, memory_limit=0,
+                                   dashboard_address=None)
         client = Client(cluster)
     s = Session(client, cluster)
     try:
