@@ -96,7 +96,9 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     dataset worker beside another (900 channels per state, 2 cores), a state's images took
     0.36-0.99 s with 0.18-0.69 s of it in the kernel (page faults), against 0.16-0.18 s with the
     memory reused; the images are bit-identical (batch 256, 64 or 32 alike:
-    tests/rf/test_bartlett_ref.py).
+    tests/rf/test_bartlett_ref.py). Calls from several threads at once each use their own work
+    array; their images may differ from a lone call's in the last float bit (BLAS's thread limit
+    is process-wide).
     """
     h = np.asarray(channels)
     if h.ndim != 2:
