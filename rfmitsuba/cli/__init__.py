@@ -38,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from ..core.memory import keep_freed_memory
+
+    keep_freed_memory()
     try:
         if args.variant:
             from ..core import backend

@@ -291,6 +291,9 @@ def _run_in_worker(variant: str, fn: Callable[..., Any], args: tuple, kwargs: di
         import drjit as dr
 
         from . import backend
+        from .memory import keep_freed_memory
+
+        keep_freed_memory()
 
         if backend._variant != variant:
             backend.set_variant(variant)
