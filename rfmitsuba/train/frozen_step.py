@@ -41,6 +41,8 @@ uploads (``prep``'s arrays and the target images) are copied into aligned buffer
 """
 from __future__ import annotations
 
+import gc
+
 import warnings
 
 import numpy as np
@@ -165,6 +167,12 @@ class FrozenLoss:
         inputs = [a for a in arrays if dr.width(a) > 0]
         h.key = (tuple(f.structure(prep) for f, prep in zip(fields, preps)), tuple(dr.width(a) for a in inputs),
                  id(loss_fn), size["frequency_hz"])
+        # no cyclic garbage collection inside the call: a collection that freed Dr.Jit arrays
+        # while a step was being recorded aborted the process once (tests/cli/test_cli_demo.py,
+        # 2026-11-28; "Fatal Python error: Aborted ... Garbage-collecting" in the person field's
+        # _lanes); reference counting still frees everything else at once
+        collecting = gc.isenabled()
+        gc.disable()
         try:
             return self._frozen(inputs, gt)
         except RuntimeError as e:   # a recording that failed: trace every step from now on
@@ -172,3 +180,6 @@ class FrozenLoss:
             warnings.warn(f"{type(fields[-1]).__name__}: its training step cannot be recorded ({e}); "
                           "tracing it every step instead", RuntimeWarning, stacklevel=2)
             return _loss(fields, preps, gt, loss_fn, **size)
+        finally:
+            if collecting:
+                gc.enable()

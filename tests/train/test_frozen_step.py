@@ -181,6 +181,37 @@ def test_a_step_whose_recording_fails_is_traced_with_a_warning(trained, quick_da
     assert lf == lt and len(calls) == 3
 
 
+def test_no_garbage_collection_inside_a_step(trained, quick_data, monkeypatch, one_thread):
+    """Python's cyclic garbage collector is off while a step is recorded or replayed (a collection
+    during a recording once aborted the process) and on again after, also when the recording fails."""
+    import gc
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.base import Views
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
+    from rfmitsuba.train.frozen_step import FrozenLoss
+
+    real, seen = CoherentGaussianField.channels_prepared, []
+
+    def watched(self, prep):
+        seen.append(gc.isenabled())
+        if len(seen) == 2:
+            raise RuntimeError("cannot record this")
+        return real(self, prep)
+
+    monkeypatch.setattr(CoherentGaussianField, "channels_prepared", watched)
+    frozen = FrozenLoss(height=trained.h, width=trained.w)
+    rows = np.arange(4)
+    gt = B.TensorXf(quick_data.pas(rows, d=trained.d))
+    assert gc.isenabled()
+    _loss_and_grads(frozen, trained.field, Views.of(quick_data, rows), gt)        # recorded
+    assert gc.isenabled()
+    with pytest.warns(RuntimeWarning, match="cannot be recorded"):                 # a new shape fails
+        _loss_and_grads(frozen, trained.field, Views.of(quick_data, np.arange(6)),
+                        B.TensorXf(quick_data.pas(np.arange(6), d=trained.d)))
+    assert gc.isenabled() and seen[:2] == [False, False]
+
+
 def _equal_jobs(method, quick_dataset, tmp_path, monkeypatch):
     """Method ``method`` of the coherent Gaussian family trained twice (recorded, then traced with
     recording switched off): the same losses at every logged step and the same fields, bit for bit
