@@ -63,13 +63,14 @@ def unit_modulus(channels: np.ndarray) -> np.ndarray:
 _SCRATCH = threading.local()
 
 
-def _scratch(pixels: int, batch: int) -> np.ndarray:
-    """A complex64 [pixels, batch] work array of this thread, reused between calls: fresh pages
-    for every product cost more than the product (module note in :func:`bartlett`)."""
+def _scratch(pixels: int, columns: int) -> np.ndarray:
+    """A C-contiguous complex64 [pixels, columns] work array of this thread, on memory reused
+    between calls (grown when a call needs more): fresh pages for every product cost more than
+    the product (:func:`bartlett`)."""
     buf = getattr(_SCRATCH, "buf", None)
-    if buf is None or buf.shape != (pixels, batch):
-        buf = _SCRATCH.buf = np.empty((pixels, batch), np.complex64)
-    return buf
+    if buf is None or buf.size < pixels * columns:
+        buf = _SCRATCH.buf = np.empty(pixels * columns, np.complex64)
+    return buf[:pixels * columns].reshape(pixels, columns)
 
 
 def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray | None = None,
@@ -82,11 +83,10 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
         frequency_hz: carrier, Hz.
         positions: element offsets float [M, 3], metres (default: the 4x4 URA).
         resolution_deg: angular step (1 -> [90, 360] images).
-        batch: images per matrix product, the last one padded with zeros to the same width (bounds
-            memory: a complex64 [H*W, batch] work array per thread, 16.6 MB at 1 degree and 64,
-            kept between calls). With one width every image has the same bits however many
-            channels come in one call and from which offset; another ``batch`` agrees to float32
-            rounding.
+        batch: images per matrix product (bounds memory: a complex64 [H*W, batch] work array per
+            thread, 16.6 MB at 1 degree and 64, kept between calls); each product is padded with
+            zeros to a multiple of 8 images, so every image has the same bits however many
+            channels come in one call, from which offset, and whatever ``batch`` (a multiple of 8).
         phase_only: use ``h_m / |h_m|`` (:func:`unit_modulus`) instead of ``h_m``, as NeRF2's
             RFID spectra do; the image is then independent of the per-element amplitudes.
         out: float32 C-contiguous [K, H, W] to write the images into (a caller making many
@@ -98,9 +98,10 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     and a caller may pass ``out``. Fresh pages for every state cost more than the arithmetic: in a
     dataset worker beside another (900 channels per state, 2 cores), a state's images took
     0.36-0.99 s with 0.18-0.69 s of it in the kernel (page faults), against 0.16-0.18 s with the
-    memory reused. Padding the last product changed the last bits of the images in the last
-    ``K mod 8`` places of a call (BLAS takes another kernel for fewer than 8 columns): 4 of a
-    900-channel state's images differ from those of datasets made before 2026-11-28, session 47.
+    memory reused. Padding to multiples of 8 changed the last bits of the images in the last
+    ``K mod 8`` places of a call (BLAS computes the columns past the last multiple of 8 with
+    another kernel): 4 of a 900-channel state's images differ from those of datasets made before
+    2026-11-28, session 47.
     Calls from several threads at once each use their own work
     array; their images may differ from a lone call's in the last float bit (BLAS's thread limit
     is process-wide).
@@ -128,23 +129,25 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
                           f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}")
     hc = h.astype(np.complex64)
     batch = int(batch)
-    work = _scratch(B.shape[0], batch)
-    # every product has ``batch`` columns, a short last one padded with zeros: BLAS takes another
-    # kernel for fewer than 8 columns, whose last bits differ, so an image's bits would depend on
-    # how many channels were beamformed with it (the noisy samples of one state come in sets of
-    # any size)
-    pad = np.zeros((batch, hc.shape[1]), np.complex64)
+    # every product's width is a multiple of 8 columns, a short one padded with zeros: BLAS
+    # computes the columns past the last multiple of 8 with another kernel, whose last bits
+    # differ, so an image's bits would depend on how many channels were beamformed with it (the
+    # noisy samples of one state come in sets of any size)
+    pad = np.zeros((batch + 7, hc.shape[1]), np.complex64)
     # one BLAS thread: OpenBLAS may take another kernel path with another thread count, which
     # changes the last float bit; Dask workers run with one, so a dataset state is bit-identical
     # whichever process made it (tests/core/test_cluster.py)
     with threadpool_limits(limits=1, user_api="blas"):
         for s in range(0, h.shape[0], batch):
             k = min(batch, h.shape[0] - s)
+            width = -(-k // 8) * 8
             rows = hc[s:s + k]
-            if k < batch:
+            if width > k:
                 pad[:k] = rows
-                rows = pad
-            np.matmul(B, rows.T, out=work)  # [pixels, 16] x [16, batch]
+                pad[k:width] = 0
+                rows = pad[:width]
+            work = _scratch(B.shape[0], width)
+            np.matmul(B, rows.T, out=work)  # [pixels, 16] x [16, width]
             # the magnitudes go straight into the images through a transposed view: no
             # [pixels, k] temporary and no strided copy (the copy was 3x the product's time)
             np.abs(work[:, :k], out=out[s:s + k].reshape(k, -1).T)
