@@ -33,6 +33,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError, SceneError
+from ..core.upload import upload
 from ..data.scene_xml import read_shapes
 from ..rf.readout import BartlettReadout
 from ..splat import render
@@ -163,9 +164,9 @@ def columns(x: np.ndarray) -> list:
     """
     import drjit as dr
 
-    x = np.ascontiguousarray(np.asarray(x, dtype=np.float32))
+    x = np.asarray(x, dtype=np.float32)
     m, d = x.shape
-    buf = B.Float(x.ravel())
+    buf = upload(B.Float, x.ravel())   # aligned: the kernels that read it compile once
     i = dr.arange(B.UInt32, m) * d
     return [dr.gather(B.Float, buf, i + k) for k in range(d)]
 
@@ -488,7 +489,7 @@ class SplatField(Field):
             ls = dr.gather(B.Array3f, log_scales, idx)
             if self.cfg.scale_mode == "angular":
                 vp = np.asarray(antenna_pos if view_pos is None else view_pos, dtype=np.float32).reshape(nb, 3)
-                vpa = dr.gather(B.Array3f, B.Array3f(vp[:, 0], vp[:, 1], vp[:, 2]),
+                vpa = dr.gather(B.Array3f, B.Array3f(*(upload(B.Float, vp[:, k]) for k in range(3))),
                                 dr.arange(B.UInt32, n * nb) // dr.opaque(B.UInt32, n))
                 dist = dr.norm(dr.gather(B.Array3f, means, idx) - vpa)
                 ls = ls + dr.log(dr.maximum(dist, 0.05))

@@ -36,7 +36,7 @@ against traced ones bit for bit.
 Dr.Jit borrows the memory of a NumPy array it is given, and whether that memory is 64-byte
 aligned is part of what a recording is valid for. NumPy gives no such promise, so the batch's
 uploads (``prep``'s arrays and the target images) are copied into aligned buffers first
-(:func:`aligned`; LLVM only): without that, a 1500-step run recorded 9 times; with it, a
+(:func:`rfmitsuba.core.upload.aligned`; LLVM only): without that, a 1500-step run recorded 9 times; with it, a
 3000-step run twice.
 """
 from __future__ import annotations
@@ -48,20 +48,7 @@ import warnings
 import numpy as np
 
 from ..core import backend as B
-
-#: the alignment [bytes] of every buffer a recorded step reads from the host
-ALIGN = 64
-
-
-def aligned(values: np.ndarray) -> np.ndarray:
-    """A C-contiguous copy of ``values`` whose first byte is :data:`ALIGN`-byte aligned (same
-    shape and dtype)."""
-    values = np.ascontiguousarray(values)
-    buf = np.empty(values.nbytes + ALIGN, np.uint8)
-    start = -buf.ctypes.data % ALIGN
-    out = buf[start:start + values.nbytes].view(values.dtype).reshape(values.shape)
-    out[...] = values
-    return out
+from ..core.upload import aligned
 
 
 def _realigned(tree):

@@ -48,6 +48,7 @@ from ..core.atomic import write_json
 from ..core.errors import ConfigError, RunError
 from ..core.progress import bar
 from ..core.ssim import ssim_images
+from ..core.upload import upload
 from ..data.split import block_split, make_split
 from ..data.store import resolve_scene
 from ..data.views import TrainData
@@ -556,7 +557,7 @@ class Trainer:
         for k in list(opt.keys()):
             opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
-        gt = B.TensorXf(gt_fit[pick])
+        gt = upload(B.TensorXf, gt_fit[pick])   # aligned: the loss's kernels compile once
         if self._records(field):
             loss = self._frozen_loss(self.frozen + [field], self.views(fit[pick]), gt, loss_fn)
         else:

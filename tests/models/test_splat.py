@@ -153,3 +153,50 @@ def test_concat_interleaves_sets_view_major(variant):
     # shared arrays stay shared (size N)
     np.testing.assert_array_equal(s.signals.numpy(), [0, 1, 2, 100, 101])
     np.testing.assert_array_equal(np.array(s.means.numpy())[0], [0, 1, 2, 100, 101])
+
+
+@pytest.mark.parametrize("host", [False, True])
+def test_a_training_step_compiles_once(variant, host):
+    """Render, loss and backward of the splat field on fresh host arrays every step (positions,
+    target images) compile their kernels once: every host array reaches Dr.Jit as an aligned upload
+    (rfmitsuba.core.upload), whatever alignment NumPy gave it. ``host``: the EM network's products on
+    the host's BLAS (LLVM) or as cooperative vectors."""
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.upload import upload
+    from rfmitsuba.models.base import Views, render
+    from rfmitsuba.models.nn import NetConfig
+    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.train.loss import loss
+
+    if host and B.is_cuda():
+        pytest.skip("the host products run on the LLVM backend only")
+    cfg = FieldConfig(init_scale=0.4, scale_mode="angular",
+                      net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1, host_products=host))
+    pts = np.random.default_rng(0).uniform(0.5, 2.5, (40, 3))
+    f = SplatField.from_points(pts, cfg=cfg, box=np.array([[0, 0, 0], [3, 3, 3.0]]), seed=4)
+    for v in f.trainable().values():
+        dr.enable_grad(v)
+    rng = np.random.default_rng(1)
+    keep, misses = [], []
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for step in range(7):
+            dr.kernel_history()
+            q = rng.uniform(0.5, 2.5, (3, 3))
+            views = Views(antenna_pos=q, view_pos=q, transmitter=np.full((3, 3), 1.5), rx_to_world=None,
+                          frequency_hz=5.0e9)
+            img = render([f], views, height=18, width=72)
+            gt = upload(B.TensorXf, rng.random((3, 18, 72)))
+            value = loss(img, gt)
+            dr.backward(value)
+            dr.eval(value, [dr.grad(v) for v in f.trainable().values()])
+            misses.append(sum(1 for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT
+                              and not k["cache_hit"]))
+            for v in f.trainable().values():
+                dr.clear_grad(v)
+            keep.append(np.empty(5 + 7 * step, np.float32))      # the heap moves
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert misses[2:] == [0] * 5, misses

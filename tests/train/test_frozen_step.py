@@ -44,17 +44,6 @@ def _same(actual, desired, what):
         np.testing.assert_array_equal(actual, desired, err_msg=what)
 
 
-@pytest.mark.parametrize("shape, dtype", [((7,), np.float32), ((3, 5, 9), np.float32), ((4,), np.uint32)])
-def test_aligned_copies_start_on_the_alignment_and_keep_the_values(shape, dtype):
-    from rfmitsuba.train.frozen_step import ALIGN, aligned
-
-    for offset in range(4):   # a source that starts off the alignment
-        src = np.arange(int(np.prod(shape)) + offset, dtype=dtype)[offset:].reshape(shape)
-        out = aligned(src)
-        assert out.ctypes.data % ALIGN == 0 and out.flags.c_contiguous
-        assert out.dtype == src.dtype and out.shape == src.shape and np.array_equal(out, src)
-
-
 @pytest.fixture(scope="module")
 def quick_data(quick_dataset):
     from rfmitsuba.data.views import TrainData
