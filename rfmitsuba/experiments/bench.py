@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from ..core import backend as B
+from ..core.upload import upload, upload_columns
 from ..splat.render import render
 from ..splat.tiles import lanes_per_tile
 from ..train import loss as ssim
@@ -124,11 +125,12 @@ def _drjit_step_functions(n: int, height: int, width: int, views: int = 1):
 
     B.ensure()
     (means, ls, rot, op, sig), rx = make_scene(n, views=views)
-    vec = lambda tp, a: tp(*(B.Float(np.ascontiguousarray(a[:, i])) for i in range(a.shape[1])))  # noqa: E731
-    params = [vec(B.Array3f, means), vec(B.Array3f, ls), vec(B.Array4f, rot), B.Float(op), B.Float(sig)]
+    # aligned uploads (rfmitsuba.core.upload): the kernels do not depend on where NumPy's memory fell
+    vec = lambda tp, a: tp(*upload_columns(B.Float, a))  # noqa: E731
+    params = [vec(B.Array3f, means), vec(B.Array3f, ls), vec(B.Array4f, rot), upload(B.Float, op), upload(B.Float, sig)]
     rng = np.random.default_rng(1)
-    weights = B.Float(rng.normal(size=views * height * width).astype(np.float32))
-    target = B.TensorXf(rng.uniform(0, 1, (views, height, width)).astype(np.float32))
+    weights = upload(B.Float, rng.normal(size=views * height * width))
+    target = upload(B.TensorXf, rng.uniform(0, 1, (views, height, width)))
 
     def attach():
         for p in params:
