@@ -10,8 +10,9 @@ alignments almost every step: the splat field's traced Stage-1 step (10 000 Gaus
 48). A recorded step (:mod:`rfmitsuba.train.frozen_step`) is valid only for the alignments it
 was recorded with, for the same reason.
 
-Every upload in a training or rendering step goes through :func:`upload` (or :func:`aligned`
-for arrays kept on the host). A borrowed array is also read lazily, when its kernel runs: a
+Every upload in a training or rendering step goes through :func:`upload` (the columns of a
+matrix: :func:`upload_columns`, one copy for all of them; :func:`aligned` for arrays kept on the
+host). A borrowed array is also read lazily, when its kernel runs: a
 copy made here cannot be changed behind Dr.Jit's back by later writes to the caller's array.
 On CUDA an upload is a copy into the device's own memory, so this costs one host copy only.
 """

@@ -33,7 +33,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError, SceneError
-from ..core.upload import upload
+from ..core.upload import upload, upload_columns
 from ..data.scene_xml import read_shapes
 from ..rf.readout import BartlettReadout
 from ..splat import render
@@ -489,7 +489,7 @@ class SplatField(Field):
             ls = dr.gather(B.Array3f, log_scales, idx)
             if self.cfg.scale_mode == "angular":
                 vp = np.asarray(antenna_pos if view_pos is None else view_pos, dtype=np.float32).reshape(nb, 3)
-                vpa = dr.gather(B.Array3f, B.Array3f(*(upload(B.Float, vp[:, k]) for k in range(3))),
+                vpa = dr.gather(B.Array3f, B.Array3f(*upload_columns(B.Float, vp)),
                                 dr.arange(B.UInt32, n * nb) // dr.opaque(B.UInt32, n))
                 dist = dr.norm(dr.gather(B.Array3f, means, idx) - vpa)
                 ls = ls + dr.log(dr.maximum(dist, 0.05))

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import GaussianError
-from ..core.upload import upload
+from ..core.upload import upload, upload_columns
 from .project import project
 from .raster import rasterize
 
@@ -43,7 +43,7 @@ def as_jit_array(x, kind: str, name: str = "array"):
         raise GaussianError(f"{name}: expected shape [N, {dims}], got {a.shape}")
     # Component by component: Array3f(numpy [3, N]) would gather lazily from one
     # flat array with N baked into the kernel (a recompilation whenever N changes).
-    return tp(*(upload(B.Float, a[:, i]) for i in range(dims)))
+    return tp(*upload_columns(B.Float, a))
 
 
 def _rx_array(rx_positions):
@@ -57,7 +57,7 @@ def _rx_array(rx_positions):
         host = host[None]
     if host.ndim != 2 or host.shape[1] != 3 or host.shape[0] == 0:
         raise GaussianError(f"rx_positions: expected shape [B, 3] with B >= 1, got {host.shape}")
-    return B.Array3f(*(upload(B.Float, host[:, i]) for i in range(3))), host
+    return B.Array3f(*upload_columns(B.Float, host.astype(np.float32))), host
 
 
 def _check_values(means, log_scales, rotations, opacities, signals) -> None:
