@@ -95,6 +95,6 @@ def _splat(args, *, default_sizes: tuple | None) -> dict:
         from ..experiments import bench_field
 
         result["stage1_step"] = bench_field.measure_stage1_step(gaussians=2000 if args.quick else 10_000,
-                                                                steps=14 if args.quick else 40, dataset=dataset)
+                                                                steps=14 if args.quick else 110, dataset=dataset)
         print(bench_field.format_stage1_step(result["stage1_step"]))
     return result

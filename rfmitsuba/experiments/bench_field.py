@@ -268,7 +268,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
             "step_ms": 1e3 / rate, "wall_s": total, "freeze": bool(freeze)}
 
 
-def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 40,
+def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 110,
                         dataset: str | None = None) -> dict:
     """A Stage-1 step of the splat field as the trainer runs it (``gaussians`` Gaussians from a
     random start, the EM network, ``batch`` views; issue 13's target is 60 ms at batch 4 and

@@ -177,28 +177,43 @@ def grad_barrier(values: list) -> list:
     return list(dr.custom(_EvalGrad.op(), list(values)))
 
 
-def _leaky(z: np.ndarray) -> np.ndarray:
-    """LeakyReLU(0.01) of a float32 array (``np.maximum``: 4 times faster than ``np.where``)."""
-    return np.maximum(z, np.float32(0.01) * z)
+def _leaky_into(z: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
+    """``out = LeakyReLU(0.01)(z)`` for float32 arrays of one shape, through ``tmp`` (no new
+    arrays; ``out`` may be ``z``)."""
+    np.multiply(z, np.float32(0.01), out=tmp)
+    np.maximum(z, tmp, out=out)
 
 
-def _leaky_slope(positive: np.ndarray) -> np.ndarray:
-    """LeakyReLU(0.01)'s derivative from the mask ``z > 0``: float32, 1 or 0.01."""
-    out = positive.astype(np.float32)
-    out *= np.float32(0.99)
-    out += np.float32(0.01)
-    return out
+def _leaky_backward(dz: np.ndarray, h: np.ndarray, slope: np.ndarray, mask: np.ndarray) -> None:
+    """``dz *= LeakyReLU'(.)`` in place, from the layer's output ``h`` (its input had the sign of
+    its output: slope 1 where ``h > 0``, else 0.01); ``slope`` (float32) and ``mask`` (bool) are
+    scratch arrays of ``dz``'s shape."""
+    np.greater(h, 0, out=mask)
+    np.copyto(slope, mask)
+    slope *= np.float32(0.99)
+    slope += np.float32(0.01)
+    dz *= slope
 
 
 _BLAS = None
 
-#: rows per block of :class:`_HostMLP`: each block runs through every layer before the next, so
+#: rows per block of :class:`_HostPass`: each block runs through every layer before the next, so
 #: its activations stay in the cache (64 features x 2048 rows = 512 KiB per layer). The splat
 #: field's head alone (64 -> 64 -> 3 on 40 000 rows, forward and backward) took 61-67 ms in
 #: blocks of 1024-2048 rows against 106-112 ms in one piece, with other processes on both cores;
 #: a whole Stage-1 splat step (10 000 Gaussians, batch 4, 45 x 180, one Dr.Jit thread beside one
 #: busy core) 298-301 ms against 304-309 ms.
 HOST_BLOCK_ROWS = 2048
+
+#: lanes of a :class:`_HostPass`: its rows (items) are cut into this many contiguous ranges, each
+#: with its own gradient accumulators, added in lane order at the end. The lanes run on as many
+#: host threads as Dr.Jit has (:func:`drjit.thread_count`, at most this many), and the result is
+#: the same bits whichever number ran them (tests/models/test_nn.py).
+HOST_LANES = 2
+
+#: fewer rows than this (items x views) run as one lane on the calling thread: below it a second
+#: thread's start-up costs more than it saves
+HOST_THREAD_MIN_ROWS = 8192
 
 
 def _one_blas_thread():
@@ -244,20 +259,245 @@ def _host_columns(values: list) -> np.ndarray:
     return np.stack([np.asarray(v.numpy(), np.float32) for v in values], axis=1)
 
 
+class _host_threads:
+    """A context for host work on ``threads`` threads: the host's BLAS on one thread each
+    (:func:`_one_blas_thread`) and, when ``threads > 1``, Dr.Jit's pool cut to one thread
+    until the context ends (its count is restored). Dr.Jit's idle workers spin for a while
+    before they sleep and would hold the cores the host threads need: the head's backward of a
+    splat step (10 000 Gaussians, batch 4, 45 x 180) took 19.6 ms on two host threads beside
+    Dr.Jit's two, 11.7 ms with Dr.Jit cut to one, 19.2 ms on one host thread (the whole step
+    51-54 ms against 65-68 ms). Call it only where no kernel is running (after the inputs were
+    read back)."""
+
+    def __init__(self, threads: int):
+        self.threads = int(threads)
+        self._blas = None
+        self._drjit = None
+
+    def __enter__(self):
+        import drjit as dr
+
+        self._blas = _one_blas_thread()
+        self._blas.__enter__()
+        if self.threads > 1:
+            self._drjit = dr.thread_count()
+            dr.set_thread_count(1)
+        return self
+
+    def __exit__(self, *exc):
+        import drjit as dr
+
+        if self._drjit is not None:
+            dr.set_thread_count(self._drjit)
+            self._drjit = None
+        self._blas.__exit__(*exc)
+        return False
+
+
+class _Buffers:
+    """Host arrays kept for reuse, by shape and dtype, so a training step does not write into
+    fresh memory: a first write to a fresh page faults, and two host threads faulting at once
+    wait for each other. The EM network's host work in a splat step (10 000 Gaussians, batch 4,
+    two host threads) took 7.4 ms forward and 12.1 ms backward with new arrays, 5.8 and 11.6 ms
+    with kept ones. Thread-safe; at most :attr:`KEEP` arrays of one kind are kept."""
+
+    KEEP = 4
+
+    def __init__(self):
+        import threading
+
+        self._free: dict = {}
+        self._lock = threading.Lock()
+
+    def take(self, shape: tuple, dtype=np.float32) -> np.ndarray:
+        """An uninitialised C-contiguous array of ``shape`` (a kept one where there is one)."""
+        key = (tuple(int(s) for s in shape), np.dtype(dtype).str)
+        with self._lock:
+            free = self._free.get(key)
+            if free:
+                return free.pop()
+        return np.empty(key[0], dtype)
+
+    def give(self, arrays: list) -> None:
+        """Hand arrays back (nobody may use them afterwards)."""
+        with self._lock:
+            for a in arrays:
+                free = self._free.setdefault((a.shape, a.dtype.str), [])
+                if len(free) < self.KEEP:
+                    free.append(a)
+
+
+#: activations of the :class:`_HostPass` objects alive, and every lane's scratch arrays
+_BUFFERS = _Buffers()
+
+_POOL = None
+
+
+def _lane_pool():
+    """The threads that run lanes 1.. of a :class:`_HostPass` (lane 0 runs on the caller's)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=max(1, HOST_LANES - 1), thread_name_prefix="rfmitsuba-host")
+    return _POOL
+
+
+class _HostPass:
+    """One call of an MLP on host arrays (plain NumPy): its forward pass, then once its backward
+    pass, with the activations kept in between. :class:`_HostMLP` is the Dr.Jit op around it.
+
+    Args:
+        x: float32 [N, D] inputs (read only); ``y``: float32 [B, D] per-view inputs or None.
+            With ``y`` the rows are the (view, item) pairs ``act(x_i + y_b)``, view-major
+            (``b * N + i``).
+        weights: float32 [size] packed weights; ``layers``: (weight offset, out, in, row
+            stride, bias offset) per linear layer (:attr:`MLP._host_layers`).
+        threads: host threads to run the lanes on (1: all on the caller's thread).
+
+    The items are cut into :data:`HOST_LANES` contiguous ranges (lanes) and each range into
+    blocks of at most :data:`HOST_BLOCK_ROWS` rows that run through every layer before the next
+    block; a lane's weight and per-view gradients are summed in its own arrays and the lanes'
+    sums added in order, so the bits do not depend on ``threads``. Arrays come from and go back
+    to :data:`_BUFFERS`: :meth:`release` when the backward pass has run (or when no backward
+    pass will).
+    """
+
+    def __init__(self, x: np.ndarray, y: np.ndarray | None, weights: np.ndarray, layers: tuple, *,
+                 threads: int = 1):
+        self.x, self.y, self.layers = x, y, layers
+        self.size = weights.shape[0]
+        # per layer: (W^T contiguous [in, out] for the forward, W [out, in], b [out])
+        self.mats = []
+        for wo, n_out, n_in, st, bo in layers:
+            w = weights[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in]
+            self.mats.append((np.ascontiguousarray(w.T), np.ascontiguousarray(w), weights[bo:bo + n_out].copy()))
+        self.n = x.shape[0]
+        self.views = y.shape[0] if y is not None else 1
+        rows = self.views * self.n
+        lanes = HOST_LANES if rows >= HOST_THREAD_MIN_ROWS else 1
+        self.threads = max(1, min(int(threads), lanes))
+        cut = [self.n * k // lanes for k in range(lanes + 1)]
+        step = max(1, int(HOST_BLOCK_ROWS))
+        #: per lane: its (view, first item, end item) blocks, views outermost
+        self.lanes = [[(b, lo, min(lo + step, cut[k + 1])) for b in range(self.views)
+                       for lo in range(cut[k], cut[k + 1], step)] for k in range(lanes)]
+        self.width = max(max(n_out, n_in) for _, n_out, n_in, _, _ in layers)
+        #: input of every linear layer over all rows: layer 0's is ``x`` itself without ``y``
+        self.acts = [None if (li == 0 and y is None) else _BUFFERS.take((rows, n_in))
+                     for li, (_, _, n_in, _, _) in enumerate(layers)]
+        if y is None:
+            self.acts[0] = x
+
+    def _run(self, fn):
+        """``fn(lane)`` for every lane (lanes 1.. on the pool's threads when ``threads > 1``);
+        their results in lane order."""
+        if self.threads == 1 or len(self.lanes) == 1:
+            return [fn(k) for k in range(len(self.lanes))]
+        pool = _lane_pool()
+        futures = [pool.submit(fn, k) for k in range(1, len(self.lanes))]
+        first = fn(0)
+        return [first] + [f.result() for f in futures]
+
+    def _scratch(self, count: int) -> list:
+        return [_BUFFERS.take((min(HOST_BLOCK_ROWS, max(self.n, 1)), self.width)) for _ in range(count)]
+
+    def forward(self, out: np.ndarray) -> np.ndarray:
+        """Fill ``out`` float32 [rows, n_out] with the network's outputs; returns it."""
+        def lane(k):
+            tmp, z = self._scratch(2)
+            try:
+                for b, lo, hi in self.lanes[k]:
+                    r0, r1, r = b * self.n + lo, b * self.n + hi, hi - lo
+                    if self.y is not None:
+                        h = self.acts[0][r0:r1]
+                        np.add(self.x[lo:hi], self.y[b], out=h)
+                        _leaky_into(h, h, tmp[:r, :h.shape[1]])
+                    else:
+                        h = self.x[lo:hi]
+                    for li, (wt, _, bias) in enumerate(self.mats):
+                        if li == len(self.mats) - 1:
+                            zz = np.matmul(h, wt, out=out[r0:r1])
+                            zz += bias
+                        else:
+                            zz = np.matmul(h, wt, out=z[:r, :wt.shape[1]])
+                            zz += bias
+                            h = self.acts[li + 1][r0:r1]
+                            _leaky_into(zz, h, tmp[:r, :wt.shape[1]])
+            finally:
+                _BUFFERS.give([tmp, z])
+
+        self._run(lane)
+        return out
+
+    def backward(self, dz_all: np.ndarray) -> tuple:
+        """Gradients from the outputs' gradients ``dz_all`` float32 [rows, n_out] (read only):
+        (weights float32 [size], x float32 [N, D], y float32 [B, D] or None)."""
+        if self.acts is None:
+            raise RuntimeError("HostMLP: the backward pass ran already (its activations are released)")
+        gx = np.zeros_like(self.x)
+        pairs = self.y is not None
+
+        def lane(k):
+            gw = np.zeros(self.size, np.float32)
+            gy = np.zeros_like(self.y) if pairs else None
+            d0, d1, slope = self._scratch(3)
+            mask = _BUFFERS.take(slope.shape, np.bool_)
+            try:
+                for b, lo, hi in self.lanes[k]:
+                    r0, r1, r = b * self.n + lo, b * self.n + hi, hi - lo
+                    dz = dz_all[r0:r1]
+                    for li in range(len(self.layers) - 1, -1, -1):
+                        wo, n_out, n_in, st, bo = self.layers[li]
+                        a = self.acts[li][r0:r1]
+                        gw[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in] += dz.T @ a
+                        gw[bo:bo + n_out] += dz.sum(axis=0)
+                        # the two scratch arrays take turns (layer li's output gradient is read here)
+                        nxt = np.matmul(dz, self.mats[li][1], out=(d0, d1)[li % 2][:r, :n_in])
+                        if li > 0 or pairs:    # LeakyReLU's input had the sign of its output
+                            _leaky_backward(nxt, a, slope[:r, :n_in], mask[:r, :n_in])
+                        dz = nxt
+                    gx[lo:hi] += dz
+                    if pairs:
+                        gy[b] += dz.sum(axis=0)
+            finally:
+                _BUFFERS.give([d0, d1, slope, mask])
+            return gw, gy
+
+        parts = self._run(lane)
+        gw, gy = parts[0]
+        for gw_k, gy_k in parts[1:]:
+            gw += gw_k
+            if pairs:
+                gy += gy_k
+        self.release()
+        return gw, gx, gy
+
+    def release(self) -> None:
+        """Hand the activations back to :data:`_BUFFERS` (once)."""
+        if self.acts is not None:
+            _BUFFERS.give([a for a in self.acts if a is not None and a is not self.x])
+            self.acts = None
+
+    def __del__(self):
+        self.release()
+
+
 class _HostMLP:
-    """An MLP's forward and backward as host matrix products (NumPy BLAS), for the LLVM backend.
+    """An MLP's forward and backward as host matrix products (NumPy BLAS), for the LLVM backend:
+    a ``dr.CustomOp`` on (inputs, per-view inputs, packed weights) around a :class:`_HostPass`;
+    the rest of the AD graph is unchanged.
 
     On the LLVM backend Dr.Jit's cooperative-vector backward adds each weight's gradient with
     one packet reduction and one atomic add per 8-16 input rows: for the splat field's head
     (64 -> 64 -> 3 on 40 000 (view, Gaussian) pairs) that took 166-208 ms of a 580-660 ms
-    step. Here a weight's gradient is one product ``dZ^T A`` over all rows.
+    step. Here a weight's gradient is one product ``dZ^T A`` per block of rows.
 
     With per-view inputs ``ys`` (:meth:`MLP.pairs`, the EM network's head) the rows are the
     (view, item) pairs, ``act(x_i + y_b)`` for ``xs`` [N] and ``ys`` [B], view-major (``b * N + i``): the
     expansion and its backward (sums over views and over Gaussians) run here too, so no gather
-    or atomic scatter is left in the Dr.Jit graph. A ``dr.CustomOp`` on (inputs, packed
-    weights): the rest of the AD graph is unchanged. Rows run in blocks of
-    :data:`HOST_BLOCK_ROWS`, each through every layer, forward and backward.
+    or atomic scatter is left in the Dr.Jit graph. The host work runs on as many threads as
+    Dr.Jit has (:data:`HOST_LANES` at most), with the same bits on any number.
     """
 
     _op = None
@@ -273,46 +513,12 @@ class _HostMLP:
                 def eval(self, xs, ys, weights, layers):
                     xs, ys = [dr.detach(v) for v in xs], [dr.detach(v) for v in ys]
                     dr.eval(xs, ys)   # one kernel for all inputs (each .numpy() alone would run its own)
-                    with _one_blas_thread():
-                        return self._eval(xs, ys, weights, layers)
-
-                def _eval(self, xs, ys, weights, layers):
-                    w = dr.detach(weights).numpy()
-                    # per layer: (W^T contiguous [in, out] for the forward, W [out, in], b [out])
-                    self.mats = [(np.ascontiguousarray(w[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in].T),
-                                  np.ascontiguousarray(w[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in]),
-                                  w[bo:bo + n_out]) for wo, n_out, n_in, st, bo in layers]
-                    self.layers, self.size = layers, w.shape[0]
-                    self.pairs = len(ys) > 0
-                    self.x = host(xs)
-                    self.n = self.x.shape[0]
-                    self.y = host(ys) if self.pairs else None
-                    views = self.y.shape[0] if self.pairs else 1
-                    n_out = layers[-1][1]
-                    out = np.empty((views * self.n, n_out), np.float32)
-                    self.blocks = self._blocks(views)
-                    self.acts = []         # per row block: each linear layer's input
-                    for b, lo, hi in self.blocks:
-                        h = self.x[lo:hi]
-                        if self.pairs:
-                            h = _leaky(h + self.y[b])
-                        acts = [h]
-                        for li, (wt, _, bias) in enumerate(self.mats):
-                            z = h @ wt
-                            z += bias
-                            if li < len(self.mats) - 1:
-                                h = _leaky(z)
-                                acts.append(h)
-                            else:
-                                out[b * self.n + lo:b * self.n + hi] = z
-                        self.acts.append(acts)
+                    x, y = host(xs), (host(ys) if ys else None)      # waits for that kernel
+                    self.host = _HostPass(x, y, dr.detach(weights).numpy(), layers, threads=dr.thread_count())
+                    with _host_threads(self.host.threads):
+                        out = self.host.forward(np.empty((self.host.views * self.host.n, layers[-1][1]), np.float32))
+                    self.pairs = bool(ys)
                     return _upload_kept(type(weights), out)   # aligned: no recompilation downstream
-
-                def _blocks(self, views: int):
-                    """(view, first row, end row) of every block of at most HOST_BLOCK_ROWS rows,
-                    view-major: a block's activations stay in cache through all layers."""
-                    step = max(1, int(HOST_BLOCK_ROWS))
-                    return [(b, lo, min(lo + step, self.n)) for b in range(views) for lo in range(0, self.n, step)]
 
                 def forward(self):
                     raise NotImplementedError("HostMLP: forward-mode AD is not implemented (use reverse mode)")
@@ -320,27 +526,10 @@ class _HostMLP:
                 def backward(self):
                     go = list(self.grad_out())
                     dr.eval(go)
-                    with _one_blas_thread():
-                        self._backward(go)
-
-                def _backward(self, go):
                     Float = type(go[0])
-                    dz_all = host(go)
-                    gw = np.zeros(self.size, np.float32)
-                    gx = np.zeros_like(self.x)
-                    gy = np.zeros_like(self.y) if self.pairs else None
-                    for (b, lo, hi), acts in zip(self.blocks, self.acts):
-                        dz = dz_all[b * self.n + lo:b * self.n + hi]
-                        for li in range(len(self.layers) - 1, -1, -1):
-                            wo, n_out, n_in, st, bo = self.layers[li]
-                            gw[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in] += dz.T @ acts[li]
-                            gw[bo:bo + n_out] += dz.sum(axis=0)
-                            dz = dz @ self.mats[li][1]
-                            if li > 0 or self.pairs:    # LeakyReLU's input had the sign of its output
-                                dz *= _leaky_slope(acts[li] > 0)
-                        gx[lo:hi] += dz
-                        if self.pairs:
-                            gy[b] += dz.sum(axis=0)
+                    dz = host(go)                                    # waits for the gradients
+                    with _host_threads(self.host.threads):
+                        gw, gx, gy = self.host.backward(dz)
                     self.set_grad_in("weights", upload(Float, gw))
                     if self.pairs:
                         self.set_grad_in("ys", _upload_kept(Float, gy))
