@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import write_json
+from ..core.direct_io import save_npy, save_npy_blocks
 from ..core.errors import DatasetError, SceneError
 from ..rf import array as antenna
 from ..rf.array import NUM_ELEMENTS
@@ -85,26 +86,39 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
-def write_chunk(root: str | Path, state: int, *, pas: np.ndarray, channel: np.ndarray | None = None) -> Path:
+def write_chunk(root: str | Path, state: int, *, pas: np.ndarray | None = None, channel: np.ndarray | None = None,
+                pas_blocks=None) -> Path:
     """Write one state's arrays atomically (temporary folder, then rename).
 
     Args:
         root: dataset folder.
         state: state index s (0 = empty room).
-        pas: float32 [A, 90, 360], raw linear amplitude.
+        pas: float32 [A, 90, 360], raw linear amplitude; or
+        pas_blocks: the same as blocks float32 [a_k, 90, 360] in order (A = ``channel``'s rows),
+            each written as it comes, so the whole state is never held at once (a generator
+            that beamforms into one reused buffer); needs ``channel``.
         channel: complex64 [A, 16] or None (zeros are stored then).
     Returns:
-        The chunk folder. An existing chunk of that state is replaced.
+        The chunk folder. An existing chunk of that state is replaced; a failure (blocks that
+        do not add up to A rows) leaves it as it was.
     """
     root = Path(root)
-    pas = np.ascontiguousarray(pas, dtype=np.float32)
-    if pas.ndim != 3 or pas.shape[1:] != PAS_SHAPE:
-        raise DatasetError(f"state {state}: pas must be [A, 90, 360], got {pas.shape}")
+    if (pas is None) == (pas_blocks is None):
+        raise DatasetError(f"state {state}: give pas or pas_blocks (one of them)")
+    if pas is not None:
+        pas = np.ascontiguousarray(pas, dtype=np.float32)
+        if pas.ndim != 3 or pas.shape[1:] != PAS_SHAPE:
+            raise DatasetError(f"state {state}: pas must be [A, 90, 360], got {pas.shape}")
+        num = pas.shape[0]
+    elif channel is None:
+        raise DatasetError(f"state {state}: pas_blocks needs the channel (its rows give the number of PAS)")
+    else:
+        num = int(np.shape(channel)[0])
     if channel is None:
-        channel = np.zeros((pas.shape[0], NUM_ELEMENTS), np.complex64)
+        channel = np.zeros((num, NUM_ELEMENTS), np.complex64)
     channel = np.ascontiguousarray(channel, dtype=np.complex64)
-    if channel.shape != (pas.shape[0], NUM_ELEMENTS):
-        raise DatasetError(f"state {state}: channel must be [{pas.shape[0]}, 16], got {channel.shape}")
+    if channel.shape != (num, NUM_ELEMENTS):
+        raise DatasetError(f"state {state}: channel must be [{num}, 16], got {channel.shape}")
     chunks = root / "chunks"
     chunks.mkdir(parents=True, exist_ok=True)
     final = chunks / chunk_name(state)
@@ -112,14 +126,20 @@ def write_chunk(root: str | Path, state: int, *, pas: np.ndarray, channel: np.nd
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir()
-    np.save(tmp / "pas.npy", pas, allow_pickle=False)
-    np.save(tmp / "channel.npy", channel, allow_pickle=False)
-    _write_json(tmp / "chunk.json", {"state": int(state), "num_antennas": int(pas.shape[0]),
-                                     "sha256": {"pas.npy": _sha256(tmp / "pas.npy"),
-                                                "channel.npy": _sha256(tmp / "channel.npy")}})
-    for f in tmp.iterdir():  # data on disk before the rename makes the chunk visible
-        with open(f, "rb") as fh:
-            os.fsync(fh.fileno())
+    # the arrays go to the device past the page cache, hashed as they are written
+    # (rfmitsuba.core.direct_io: 0.074-0.091 s for a 117 MB state against 0.39-0.40 s)
+    try:
+        digests = {"pas.npy": (save_npy(tmp / "pas.npy", pas) if pas is not None else
+                               save_npy_blocks(tmp / "pas.npy", pas_blocks, shape=(num, *PAS_SHAPE))),
+                   "channel.npy": save_npy(tmp / "channel.npy", channel)}
+    except BaseException as e:              # nothing half-written stays behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        if type(e) is ValueError:           # the blocks' shapes (save_npy_blocks)
+            raise DatasetError(f"state {state}: {e}") from None
+        raise
+    _write_json(tmp / "chunk.json", {"state": int(state), "num_antennas": num, "sha256": digests})
+    with open(tmp / "chunk.json", "rb") as fh:  # every file on disk before the rename makes the chunk visible
+        os.fsync(fh.fileno())
     if final.exists():
         shutil.rmtree(final)
     os.rename(tmp, final)

@@ -267,6 +267,11 @@ class StatesJob:
     array: str = "synthetic"
 
 
+#: images per Bartlett block of a state's PAS (:func:`simulate_states`): 33 MB, which the write
+#: copies out while much of it is still in the cache
+PAS_BLOCK = 256
+
+
 def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) -> dict:
     """Ray-trace ``states`` (0 = empty room, s = walk position s) of ``job`` and write their chunks.
 
@@ -289,9 +294,21 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
         # positions as float32, the precision they are stored with
         sim.set_positions(job.antenna_pos.astype(np.float64))
         faces = None
-        # one image array for every state (written out before the next): fresh pages per state
-        # cost more than the beamforming (rfmitsuba.rf.bartlett_ref.bartlett)
-        images = np.empty((len(job.antenna_pos), *PAS_SHAPE), np.float32)
+        # one image buffer of PAS_BLOCK images for every block of every state, written out
+        # before the next is made: fresh pages cost more than the beamforming
+        # (rfmitsuba.rf.bartlett_ref.bartlett), and a state is never held whole (7500 positions:
+        # 972 MB of images, 2.4 s of Bartlett into fresh memory)
+        images = np.empty((min(PAS_BLOCK, len(job.antenna_pos)), *PAS_SHAPE), np.float32)
+        pas_s = [0.0]
+
+        def blocks(h):
+            for k in range(0, len(h), len(images)):
+                t = time.perf_counter()
+                part = h[k:k + len(images)]
+                img = _pas.bartlett(part, frequency_hz=job.frequency_hz, out=images[:len(part)])
+                pas_s[0] += time.perf_counter() - t
+                yield img
+
         with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
             for s in states:
                 if s == 0:
@@ -307,12 +324,10 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
                 t0 = sim.timing.solver_s
                 h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0
-                t1 = time.perf_counter()
-                img = _pas.bartlett(h, frequency_hz=job.frequency_hz, out=images)
-                t2 = time.perf_counter()
-                write_chunk(job.root, s, pas=img, channel=h)
-                timing["write_s"] += time.perf_counter() - t2
-                timing["pas_s"] += t2 - t1
+                t1, before = time.perf_counter(), pas_s[0]
+                write_chunk(job.root, s, pas_blocks=blocks(h), channel=h)
+                timing["pas_s"] += pas_s[0] - before
+                timing["write_s"] += time.perf_counter() - t1 - (pas_s[0] - before)
                 pb.update(1)
     timing["busy_s"] = time.perf_counter() - t_start
     return timing

@@ -252,8 +252,18 @@ class Simulator:
         parts = []
         names = list(self._receivers)
         bs = self.solver.batch_size
-        for s in range(0, len(names), bs):
-            parts.append(self._solve_batch(names[s:s + bs]))
+        batches = [names[s:s + bs] for s in range(0, len(names), bs)]
+        try:
+            for batch in batches:
+                # Sionna solves for every receiver in the scene: the others are parked by removal,
+                # from one batch straight to the next (7500 positions in 8 batches: 0.2 s of
+                # scene edits, against 1.6 s when every position came back after each batch)
+                if len(batches) > 1:
+                    self._only(batch)
+                parts.append(self._solve_batch(batch))
+        finally:
+            if len(batches) > 1:
+                self._only(names)
         P = max(p.a.shape[1] for p in parts)
         out = PathSet(a=np.concatenate([_pad(p.a, P) for p in parts]),
                       u_fixed=np.concatenate([_pad(p.u_fixed, P) for p in parts]),
@@ -263,10 +273,7 @@ class Simulator:
         return out
 
     def _solve_batch(self, names: list[str]) -> PathSet:
-        # Sionna solves for every receiver in the scene; others are parked by removal.
-        all_names = self._receivers
-        if len(names) != len(all_names):
-            self._only(names)
+        """Paths to ``names``, the receivers in the scene now (:meth:`solve` parks the others)."""
         import drjit as dr
 
         c = self.solver
@@ -289,8 +296,6 @@ class Simulator:
                 dr.set_thread_count(old_threads)
         self.timing.solver_s += time.perf_counter() - t
         self.timing.calls += 1
-        if len(names) != len(all_names):
-            self._only(all_names)
         n = len(names)
         a, tau, valid = a.reshape(n, -1), tau.reshape(n, -1), valid.reshape(n, -1)
         ang = [x.reshape(n, -1) for x in ang]

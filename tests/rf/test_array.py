@@ -39,6 +39,19 @@ def test_array_response_matches_explicit_sum():
     assert np.allclose(antenna.array_response(a, u, frequency_hz=2.4e9), ref, rtol=1e-5, atol=1e-6)
 
 
+def test_array_response_has_the_same_bits_in_blocks(monkeypatch):
+    """Positions in blocks of ``RESPONSE_ROWS`` (here 4 of 10, the last block short) give the
+    bits of one block holding them all: datasets do not change with the block size."""
+    rng = np.random.default_rng(2)
+    a = (rng.normal(size=(10, 7)) + 1j * rng.normal(size=(10, 7))) * (rng.random((10, 7)) < 0.7)
+    u = rng.normal(size=(10, 7, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    whole = antenna.array_response(a, u, frequency_hz=2.4e9)
+    monkeypatch.setattr(antenna, "RESPONSE_ROWS", 4)
+    assert np.array_equal(antenna.array_response(a, u, frequency_hz=2.4e9), whole)
+    assert whole.dtype == np.complex64 and whole.shape == (10, 16)
+
+
 def test_array_response_shape_mismatch():
     with pytest.raises(ConfigError, match="directions"):
         antenna.array_response(np.ones((2, 3)), np.ones((2, 4, 3)), frequency_hz=2.4e9)

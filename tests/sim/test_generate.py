@@ -45,3 +45,33 @@ def test_exact_array_options_refused(box_room, tmp_path):
     with pytest.raises(ConfigError, match=f"subset of positions: got {gen.EXACT_MAX_POSITIONS + 1}, at most"):
         gen.generate(tmp_path / "b", cfg, quiet=True)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_state_is_beamformed_and_written_block_by_block(variant, box_room, tmp_path, monkeypatch):
+    """``PAS_BLOCK`` images at a time (here 3 of 10, the last block short): the chunk files are
+    those of one block holding the whole state, byte for byte, and its timing names both parts."""
+    cfg = gen.GenerateConfig(scene=str(box_room), positions=10, human_positions=1,
+                             solver=SolverConfig(samples_per_src=2000, max_depth=1))
+    whole = gen.generate(tmp_path / "whole", cfg, quiet=True)
+    monkeypatch.setattr(gen, "PAS_BLOCK", 3)
+    blocks = gen.generate(tmp_path / "blocks", cfg, quiet=True)
+    for s in range(2):
+        for name in ("pas.npy", "channel.npy", "chunk.json"):
+            a = whole.path / "chunks" / D.chunk_name(s) / name
+            assert a.read_bytes() == (blocks.path / "chunks" / D.chunk_name(s) / name).read_bytes(), (s, name)
+    timing = json.loads((blocks.path / "timing.json").read_text())[-1]
+    assert timing["pas_s"] > 0 and timing["write_s"] > 0 and timing["states"] == 2
+
+
+def test_blocks_that_do_not_add_up_leave_no_chunk(tmp_path):
+    """A generator of images that stops short: a DatasetError naming the state, and no chunk or
+    temporary folder left (a resumed run simulates the state again)."""
+    root = tmp_path / "ds"
+    channel = np.ones((5, 16), np.complex64)
+    with pytest.raises(DatasetError, match="state 2: pas.npy: the blocks hold 3 rows, expected 5"):
+        D.write_chunk(root, 2, pas_blocks=iter([np.zeros((3, 90, 360), np.float32)]), channel=channel)
+    assert list((root / "chunks").iterdir()) == []
+    with pytest.raises(DatasetError, match="pas_blocks needs the channel"):
+        D.write_chunk(root, 2, pas_blocks=iter([]))
+    with pytest.raises(DatasetError, match="give pas or pas_blocks"):
+        D.write_chunk(root, 2, channel=channel)

@@ -149,8 +149,12 @@ def test_same_seed_same_channels_and_batching(variant, box_room):
     fixed = np.array([0.4, 0.4, 2.0])
     pos = np.random.default_rng(3).uniform([0.5, 0.5, 0.5], [3.5, 2.5, 2.0], (12, 3))
     a = sim(box_room, fixed, pos, samples_per_src=5000).solve()
-    b = sim(box_room, fixed, pos, samples_per_src=5000, batch_size=5).solve()
+    batched = sim(box_room, fixed, pos, samples_per_src=5000, batch_size=5)
+    b = batched.solve()
     assert np.array_equal(a.channels("rx", frequency_hz=F), b.channels("rx", frequency_hz=F))
+    # every position is back in the scene after a batched solve, and a second one gives the same
+    assert set(batched.scene.receivers) == set(batched._receivers)
+    assert np.array_equal(batched.solve().channels("rx", frequency_hz=F), b.channels("rx", frequency_hz=F))
 
 
 def test_human_mesh_moves_absolutely(variant, box_room):
