@@ -299,9 +299,10 @@ class _Buffers:
     fresh memory: a first write to a fresh page faults, and two host threads faulting at once
     wait for each other. The EM network's host work in a splat step (10 000 Gaussians, batch 4,
     two host threads) took 7.4 ms forward and 12.1 ms backward with new arrays, 5.8 and 11.6 ms
-    with kept ones. Thread-safe; at most :attr:`KEEP` arrays of one kind are kept."""
+    with kept ones. Thread-safe; at most :attr:`KEEP` arrays of one kind are kept (a backward
+    pass on two lanes takes six scratch arrays of one shape)."""
 
-    KEEP = 4
+    KEEP = 8
 
     def __init__(self):
         import threading
