@@ -36,7 +36,7 @@ from ..core.errors import DatasetError
 from ..data.store import open_dataset
 from .job import Job
 from .paper_tables import all_jobs
-from .reproduce import check_experiment, dataset_path, truth_checks
+from .reproduce import check_experiment, dataset_path, dataset_specs, truth_checks
 from .sizes import ExperimentConfig
 from .truth import load_summary, truth_folder
 
@@ -227,7 +227,7 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
 
     tables = [table(t, all_jobs(dataclasses.replace(cfg, tables=[t]))) for t in cfg.tables]
     jobs = all_jobs(cfg)
-    specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
+    specs = dataset_specs(cfg)
     rates = generation_rates([data_dir] + [Path(r) / "data" for r in reference])
     datasets = []
     for spec in specs:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import threading
 import time
@@ -231,6 +232,51 @@ class Stopped(RunError):
     """Raised by :func:`reproduce` after ``stop_after`` jobs (a simulated kill, for tests)."""
 
 
+#: bytes on disk per PAS a dataset still has to generate [B]: its float32 90 x 360 image, its
+#: complex64 channel, and its share of the 45 x 180 training images' cache (rfmitsuba.data.pas_cache)
+BYTES_PER_PAS = 90 * 360 * 4 + 16 * 8 + 45 * 180 * 4
+#: room left beside the datasets for jobs, truth checks and reports [B]
+DISK_MARGIN = 1 << 30
+
+
+def dataset_specs(cfg: ExperimentConfig) -> list[DatasetSpec]:
+    """Every dataset the jobs of ``cfg`` train or evaluate on, once each, in job order."""
+    jobs = all_jobs(cfg)
+    return list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
+
+
+def disk_needed(specs: list[DatasetSpec], cfg: ExperimentConfig, data_dir: Path) -> int:
+    """Bytes the datasets of ``specs`` still need in ``data_dir`` (states already written count
+    as done): :data:`BYTES_PER_PAS` per PAS still to generate."""
+    need = 0
+    for spec in specs:
+        positions, states = ((spec.static_positions, 1) if spec.static_positions
+                             else (cfg.data.positions, 1 + cfg.data.human_positions))
+        written = sum(1 for _ in dataset_path(spec, cfg, data_dir).glob("chunks/*/chunk.json"))
+        need += max(states - written, 0) * positions * BYTES_PER_PAS
+    return need
+
+
+def check_disk(specs: list[DatasetSpec], cfg: ExperimentConfig, data_dir: Path) -> None:
+    """Refuse to start when the datasets still to generate do not fit on ``data_dir``'s file
+    system (with :data:`DISK_MARGIN` to spare), before anything is written.
+
+    Raises:
+        RunError: naming the folder, the bytes needed and the bytes free.
+    """
+    need = disk_needed(specs, cfg, data_dir)
+    if need == 0:
+        return
+    probe = Path(data_dir).resolve()
+    while not probe.exists():
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < need + DISK_MARGIN:
+        raise RunError(f"{data_dir}: the datasets still to generate need about {need / 1e9:.1f} GB (and "
+                       f"{DISK_MARGIN / 1e9:.1f} GB beside them), but its file system has {free / 1e9:.1f} GB free; "
+                       "free some space, or give --data a folder on a larger disk (datasets already there are reused)")
+
+
 def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None = None,
               stop_after: int | None = None, reevaluate: bool = False, quiet: bool = False,
               cluster: ClusterConfig | None = None) -> Path:
@@ -252,8 +298,9 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
         path of ``report.md``.
 
     Raises:
-        RunError: ``out`` holds another configuration (the differing key is named), or another
-        process is running a reproduction into it (:mod:`rfmitsuba.core.folder_lock`);
+        RunError: ``out`` holds another configuration (the differing key is named), another
+        process is running a reproduction into it (:mod:`rfmitsuba.core.folder_lock`), or the
+        datasets still to generate do not fit on the disk (:func:`check_disk`);
         JobsFailed (a RunError): on a cluster, datasets or jobs failed (each named; the
         others are done and kept).
     """
@@ -261,6 +308,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     out = Path(out)
     cluster = cluster or ClusterConfig()
     check_experiment(out, cfg)
+    check_disk(dataset_specs(cfg), cfg, Path(data_dir) if data_dir else out / "data")   # before anything is written
     with folder_lock(out, what="reproduce"), _sigterm_as_exit():   # a second reproduce into out stops at the lock
         return _reproduce(out, cfg, data_dir=data_dir, stop_after=stop_after, reevaluate=reevaluate, quiet=quiet,
                           cluster=cluster)
@@ -293,7 +341,7 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
     # workers elsewhere resolve relative paths against their own folder
     out_arg, data_arg = (out, data_dir) if cluster.serial else (out.resolve(), data_dir.resolve())
     jobs = all_jobs(cfg)
-    specs = list(dict.fromkeys([j.dataset for j in jobs] + [j.eval_dataset for j in jobs if j.eval_dataset]))
+    specs = dataset_specs(cfg)
     truths = [Task(f"truth/{r}_{k}", ensure_truth, (r, k, cfg, out_arg), {"quiet": True})
               for r, k in truth_checks(cfg)]
     data_tasks = [Task(f"data/{s.key}", ensure_dataset, (s, cfg, data_arg), {"quiet": True}) for s in specs]

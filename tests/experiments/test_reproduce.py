@@ -330,3 +330,25 @@ def test_each_job_waits_for_its_own_datasets_not_for_all(monkeypatch, tmp_path):
     assert any(j.prior_job() for j in jobs) and any(j.eval_dataset for j in jobs)
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert set(results) == {f"{j.dataset.key}/{j.key}" for j in jobs}   # jobs only
+
+
+def test_datasets_that_do_not_fit_on_the_disk_are_refused_before_anything_is_written(monkeypatch, tmp_path):
+    """A file system with less room than the datasets still to generate: a RunError naming the
+    folder, the bytes needed and free, and no output folder (the full size needs about 52 GB)."""
+    import collections
+    import shutil
+
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.experiments import reproduce as R
+    from rfmitsuba.experiments.sizes import size_config
+
+    cfg = size_config("tiny")
+    need = R.disk_needed(R.dataset_specs(cfg), cfg, tmp_path / "out" / "data")
+    assert need > 0
+    assert 50e9 < R.disk_needed(R.dataset_specs(size_config("full")), size_config("full"), tmp_path / "x") < 60e9
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**12, 10**12 - need, need))
+    with pytest.raises(RunError, match=r"out/data: the datasets still to generate need about .* GB .* but its file "
+                                       r"system has .* GB free; free some space, or give --data"):
+        R.reproduce(tmp_path / "out", cfg, quiet=True)
+    assert not (tmp_path / "out").exists()
