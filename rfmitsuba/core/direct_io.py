@@ -56,18 +56,12 @@ def _hasher():
     return _HASHER
 
 
-def npy_header(array: np.ndarray) -> bytes:
-    """The ``.npy`` (format 1.0) header ``np.save`` writes before ``array``'s data."""
-    out = io.BytesIO()
-    np.lib.format.write_array_header_1_0(out, np.lib.format.header_data_from_array_1_0(array))
-    return out.getvalue()
-
-
-def npy_header_for(shape: tuple, dtype) -> bytes:
-    """The ``.npy`` (format 1.0) header of a C-ordered array of ``shape`` and ``dtype``."""
+def npy_header(shape: tuple, dtype, *, fortran_order: bool = False) -> bytes:
+    """The ``.npy`` (format 1.0) header ``np.save`` writes before the data of an array of
+    ``shape`` and ``dtype`` (stored in Fortran order where ``fortran_order``)."""
     out = io.BytesIO()
     np.lib.format.write_array_header_1_0(out, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
-                                               "fortran_order": False, "shape": tuple(shape)})
+                                               "fortran_order": bool(fortran_order), "shape": tuple(shape)})
     return out.getvalue()
 
 
@@ -169,8 +163,9 @@ def save_npy(path: str | Path, array: np.ndarray, *, direct: bool = True) -> str
         raise ValueError(f"{path.name}: object arrays are not written (they would need pickle)")
     if not (array.flags.c_contiguous or array.flags.f_contiguous):
         array = array.copy(order="C")
-    header = npy_header(array)   # a Fortran-ordered array is stored as such, as np.save does
-    raw = array.T if (array.flags.f_contiguous and not array.flags.c_contiguous) else array
+    fortran = array.flags.f_contiguous and not array.flags.c_contiguous   # stored as such, as np.save does
+    header = npy_header(array.shape, array.dtype, fortran_order=fortran)
+    raw = array.T if fortran else array
     data = memoryview(raw.reshape(-1).view(np.uint8))
     return _save(path, header, lambda: [data], direct=direct)
 
@@ -196,7 +191,7 @@ def save_npy_blocks(path: str | Path, blocks, *, shape: tuple, dtype=np.float32,
     path = Path(path)
     shape = tuple(int(n) for n in shape)
     dtype = np.dtype(dtype)
-    header = npy_header_for(shape, dtype)
+    header = npy_header(shape, dtype)
     started = []
 
     def views():

@@ -36,7 +36,7 @@ from ..core.errors import DatasetError
 from ..data.store import open_dataset
 from .job import Job
 from .paper_tables import all_jobs
-from .reproduce import check_experiment, dataset_path, dataset_specs, truth_checks
+from .reproduce import check_experiment, dataset_path, dataset_specs, states_written, truth_checks
 from .sizes import ExperimentConfig
 from .truth import load_summary, truth_folder
 
@@ -92,11 +92,6 @@ def generation_rates(folders: list[Path]) -> dict[str, list[float]]:
             for key in (f"{scene}/{task}", scene, f"task:{task}", "any"):
                 rates.setdefault(key, []).append(rate)
     return rates
-
-
-def _states_written(path: Path) -> int:
-    """States of a partial dataset already on disk (their chunks are kept when it resumes)."""
-    return sum(1 for _ in Path(path).glob("chunks/*/chunk.json"))
 
 
 @dataclass
@@ -237,7 +232,7 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
             continue
         positions, states = ((spec.static_positions, 1) if spec.static_positions
                              else (cfg.data.positions, 1 + cfg.data.human_positions))
-        left = max(states - _states_written(path), 0) * positions
+        left = max(states - states_written(path), 0) * positions
         by = next((k for k in (f"{spec.scene}/{spec.task}", spec.scene, f"task:{spec.task}", "any") if rates.get(k)),
                   None)
         datasets.append(DatasetPlan(spec.key, str(path), False, left,

@@ -239,6 +239,11 @@ BYTES_PER_PAS = 90 * 360 * 4 + 16 * 8 + 45 * 180 * 4
 DISK_MARGIN = 1 << 30
 
 
+def states_written(path: Path) -> int:
+    """States of a partial dataset already on disk (their chunks are kept when it resumes)."""
+    return sum(1 for _ in Path(path).glob("chunks/*/chunk.json"))
+
+
 def dataset_specs(cfg: ExperimentConfig) -> list[DatasetSpec]:
     """Every dataset the jobs of ``cfg`` train or evaluate on, once each, in job order."""
     jobs = all_jobs(cfg)
@@ -252,8 +257,7 @@ def disk_needed(specs: list[DatasetSpec], cfg: ExperimentConfig, data_dir: Path)
     for spec in specs:
         positions, states = ((spec.static_positions, 1) if spec.static_positions
                              else (cfg.data.positions, 1 + cfg.data.human_positions))
-        written = sum(1 for _ in dataset_path(spec, cfg, data_dir).glob("chunks/*/chunk.json"))
-        need += max(states - written, 0) * positions * BYTES_PER_PAS
+        need += max(states - states_written(dataset_path(spec, cfg, data_dir)), 0) * positions * BYTES_PER_PAS
     return need
 
 
