@@ -22,6 +22,7 @@ network is an ordinary MLP on ``[enc(p_i), enc(q_b), extra_b]``.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -259,7 +260,8 @@ def _host_columns(values: list) -> np.ndarray:
     return np.stack([np.asarray(v.numpy(), np.float32) for v in values], axis=1)
 
 
-class _host_threads:
+@contextlib.contextmanager
+def _host_threads(threads: int):
     """A context for host work on ``threads`` threads: the host's BLAS on one thread each
     (:func:`_one_blas_thread`) and, when ``threads > 1``, Dr.Jit's pool cut to one thread
     until the context ends (its count is restored). Dr.Jit's idle workers spin for a while
@@ -268,30 +270,18 @@ class _host_threads:
     Dr.Jit's two, 11.7 ms with Dr.Jit cut to one, 19.2 ms on one host thread (the whole step
     51-54 ms against 65-68 ms). Call it only where no kernel is running (after the inputs were
     read back)."""
+    import drjit as dr
 
-    def __init__(self, threads: int):
-        self.threads = int(threads)
-        self._blas = None
-        self._drjit = None
-
-    def __enter__(self):
-        import drjit as dr
-
-        self._blas = _one_blas_thread()
-        self._blas.__enter__()
-        if self.threads > 1:
-            self._drjit = dr.thread_count()
-            dr.set_thread_count(1)
-        return self
-
-    def __exit__(self, *exc):
-        import drjit as dr
-
-        if self._drjit is not None:
-            dr.set_thread_count(self._drjit)
-            self._drjit = None
-        self._blas.__exit__(*exc)
-        return False
+    with _one_blas_thread():
+        if threads <= 1:
+            yield
+            return
+        before = dr.thread_count()
+        dr.set_thread_count(1)
+        try:
+            yield
+        finally:
+            dr.set_thread_count(before)
 
 
 class _Buffers:
@@ -385,10 +375,8 @@ class _HostPass:
                        for lo in range(cut[k], cut[k + 1], step)] for k in range(lanes)]
         self.width = max(max(n_out, n_in) for _, n_out, n_in, _, _ in layers)
         #: input of every linear layer over all rows: layer 0's is ``x`` itself without ``y``
-        self.acts = [None if (li == 0 and y is None) else _BUFFERS.take((rows, n_in))
+        self.acts = [x if (li == 0 and y is None) else _BUFFERS.take((rows, n_in))
                      for li, (_, _, n_in, _, _) in enumerate(layers)]
-        if y is None:
-            self.acts[0] = x
 
     def _run(self, fn):
         """``fn(lane)`` for every lane (lanes 1.. on the pool's threads when ``threads > 1``);
@@ -477,7 +465,7 @@ class _HostPass:
     def release(self) -> None:
         """Hand the activations back to :data:`_BUFFERS` (once)."""
         if self.acts is not None:
-            _BUFFERS.give([a for a in self.acts if a is not None and a is not self.x])
+            _BUFFERS.give([a for a in self.acts if a is not self.x])
             self.acts = None
 
     def __del__(self):

@@ -299,14 +299,13 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
         # (rfmitsuba.rf.bartlett_ref.bartlett), and a state is never held whole (7500 positions:
         # 972 MB of images, 2.4 s of Bartlett into fresh memory)
         images = np.empty((min(PAS_BLOCK, len(job.antenna_pos)), *PAS_SHAPE), np.float32)
-        pas_s = [0.0]
 
         def blocks(h):
             for k in range(0, len(h), len(images)):
                 t = time.perf_counter()
                 part = h[k:k + len(images)]
                 img = _pas.bartlett(part, frequency_hz=job.frequency_hz, out=images[:len(part)])
-                pas_s[0] += time.perf_counter() - t
+                timing["pas_s"] += time.perf_counter() - t
                 yield img
 
         with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
@@ -324,10 +323,9 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
                 t0 = sim.timing.solver_s
                 h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0
-                t1, before = time.perf_counter(), pas_s[0]
-                write_chunk(job.root, s, pas_blocks=blocks(h), channel=h)
-                timing["pas_s"] += pas_s[0] - before
-                timing["write_s"] += time.perf_counter() - t1 - (pas_s[0] - before)
+                t1, before = time.perf_counter(), timing["pas_s"]
+                write_chunk(job.root, s, pas_blocks=blocks(h), channel=h)   # beamforms as it writes
+                timing["write_s"] += time.perf_counter() - t1 - (timing["pas_s"] - before)
                 pb.update(1)
     timing["busy_s"] = time.perf_counter() - t_start
     return timing
