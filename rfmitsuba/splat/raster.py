@@ -18,19 +18,28 @@ definition (the step itself has none).
 
 Layout: one packet of lanes per 8x8 tile (:func:`tiles.lanes_per_tile`: 16
 lanes of four pixels of one column with AVX-512, 8 lanes of eight with AVX2),
-so all lanes of a packet walk the same tile list and a Gaussian's seven
-parameters come with two 4-wide packet loads per step.
+so all lanes of a packet walk the same tile list. Before the loops, each pair
+(tile, Gaussian) gets its own record of eight floats in tile-list order
+(:func:`_pair_records`: centre, conic scaled to base 2, opacity, signal), so a
+loop step reads its Gaussian with one aligned 8-wide packet load per lane and
+no indirection through the list's entry index; ``exp(-q/2)`` is evaluated as
+``2^x`` by :func:`_exp2`.
 Tiles are visited in a scrambled order so that the two equal lane blocks
 Dr.Jit gives its threads hold a similar amount of work.
 
 Forward: a symbolic ``dr.while_loop`` over the tile list (one kernel).
 Backward (``dr.CustomOp``): the same list back to front, recovering
-``T_k = T_{k+1} / (1 - alpha_k)`` from the final transmittance as 3DGS does;
-each step sums the gradients of (u, v, a, b, c, opacity, signal) over the
-lane's four pixels and scatter-adds them with ``ReduceMode.Local`` (one
-packet reduction and one uncontended atomic) into a slot of *that pair* --
-a slot belongs to one tile, so threads never fight over it. A second loop
-(one lane per Gaussian) then sums each Gaussian's pair slots. No kernel
+``T_k = T_{k+1} / (1 - alpha_k)`` from the final transmittance as 3DGS does.
+Each step sums, over the lane's pixels, seven moments of the pair
+(with ``e = dL/dalpha * exp(-q/2)``: ``e, e du, e dv, e du^2, e du dv, e dv^2``
+and ``dL/dsignal``) and adds them, one 8-wide packet per lane, into the pair's
+slot (:func:`_slot_mode`). A slot belongs to one tile, so where a tile's lanes
+lie in one packet (the LLVM layouts of :func:`tiles.lanes_per_tile`) no other
+thread writes it and the addition needs no atomics
+(``ReduceMode.NoConflicts``). A second loop (one lane per Gaussian) sums each
+Gaussian's pair slots and turns the moments into the gradients of
+(u, v, a, b, c, opacity, signal), which are linear in them with the Gaussian's own
+conic and opacity as coefficients (:func:`_moments_to_grads`). No kernel
 contains N, the number of pairs or any other size: densification does not
 recompile.
 """
@@ -42,8 +51,6 @@ from ..core import backend as B
 from . import tiles as _tiles
 from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_SIZE, TILE_W
 
-#: Scatter mode of the backward pass (see module docstring).
-GRAD_MODE = dr.ReduceMode.Local
 #: Primes for the tile scrambling (the first one not dividing the tile count is used).
 _STRIDES = (37, 41, 43)  # small: slot * stride stays far below 2^32
 
@@ -81,35 +88,95 @@ def _lanes(views: int, height: int, width: int, tile_lanes: int):
     return tile, rows, B.Float(col), pix, active, any_active
 
 
-def _pack(params):
-    """7 Float [M] -> one Float [8*M], entry-major, so a loop step reads one
-    entry's parameters with two aligned 4-wide packet loads."""
-    m = dr.width(params[0])
-    packed = dr.zeros(B.Float, 8 * m)
-    idx = dr.arange(B.UInt32, m) * 8
-    for c, p in enumerate(params):
-        dr.scatter(packed, p, idx + c)
-    dr.eval(packed)
-    return packed
+#: Floats per pair record and per pair slot of the backward pass (one packet load or add).
+RECORD = 8
 
 
-def _load(packed, g):
-    lo = dr.gather(B.Array4f, packed, 2 * g)
-    hi = dr.gather(B.Array4f, packed, 2 * g + 1)
-    return lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2]  # u, v, a, b, c, opacity, signal
+#: log2(e): the pair records hold the conic in base 2, ``exp(-q/2) = 2^(-q log2(e) / 2)``.
+LOG2E = 1.4426950408889634
+#: Coefficients (constant term first) of the degree-6 polynomial for ``2^f`` on [-1/2, 1/2]
+#: in :func:`_exp2`, fitted for relative error (1.9e-9 in float64; 9.3e-8 evaluated in float32).
+_EXP2_POLY = (1.0000000005549092, 0.6931472057690302, 0.24022646888239285, 0.055503287176409975,
+              0.009618488991609999, 0.00133999520946758, 0.0001534584443530378)
+
+
+def _exp2(x):
+    """``2^x`` for Float x, relative error below 2.5e-7 for x in [-126, 127]; x is clamped to that
+    range (below it ``2^-126``, a value the rasteriser treats as zero, above it ``2^127``).
+
+    Range reduction ``x = n + f`` (n the nearest integer, ``|f| <= 1/2``, exact), a polynomial for
+    ``2^f`` and the exponent ``n`` written into the float's exponent bits: 15 vector operations,
+    where ``dr.exp`` takes about 24 with its overflow and underflow tests (its exponentials were
+    31% of the rasteriser's forward time and 22% of the backward's)."""
+    x = dr.clip(x, -126.0, 127.0)
+    n = dr.round(x)
+    f = x - n
+    p = B.Float(_EXP2_POLY[-1])
+    for c in _EXP2_POLY[-2::-1]:
+        p = dr.fma(p, f, c)
+    scale = dr.reinterpret_array(B.Float, (B.Int32(n) + 127) << 23)
+    return p * scale
+
+
+def _pair_records(params, lists):
+    """Per pair, in tile-list order: ``u, v, -a k, -2b k, -c k, opacity, signal, 0`` of its entry
+    with ``k = log2(e) / 2``, so that ``exp(-q/2) = 2^((-a k) du^2 + (-2b k) du dv + (-c k)
+    dv^2)``; and the backward pass's zeroed slots, written by the same kernel.
+
+    Returns:
+        (records, slots): Float [8 * P] each (P = ``lists.count``; one dummy record when there
+        are none).
+    """
+    u, v, ca, cb, cc, op, sig = params
+    if lists.count == 0:
+        return dr.zeros(B.Float, RECORD), dr.zeros(B.Float, RECORD)
+    m = dr.width(u)
+    k = 0.5 * LOG2E
+    # Each entry's record once (Float [8 M]), then one packet per pair: two packet copies are
+    # cheaper than seven gathers per pair.
+    per_entry = dr.empty(B.Float, RECORD * m)
+    dr.scatter(per_entry, B.jit.ArrayXf([u, v, -k * ca, -2.0 * k * cb, -k * cc, op, sig, B.Float(0.0)]),
+               dr.arange(B.UInt32, m))
+    pairs = dr.arange(B.UInt32, lists.count)
+    records = dr.empty(B.Float, RECORD * lists.count)
+    slots = dr.empty(B.Float, RECORD * lists.count)
+    dr.scatter(records, dr.gather(B.jit.ArrayXf, per_entry, lists.entries, shape=(RECORD, lists.count)), pairs)
+    dr.scatter(slots, B.jit.ArrayXf([B.Float(0.0)] * RECORD), pairs)
+    dr.eval(records, slots)
+    return records, slots
+
+
+def _load(records, i):
+    """The pair record i (see :func:`_pair_records`), one 8-wide packet gather."""
+    r = dr.gather(B.jit.ArrayXf, records, i, shape=(RECORD, dr.width(i)))
+    return r[0], r[1], r[2], r[3], r[4], r[5], r[6]
 
 
 def _alpha(par, px, py, width):
-    u, v, ca, cb, cc, op, _ = par
+    u, v, qa, qb, qc, op, _ = par
     du = px - u
     du = dr.select(du >= 0.5 * width, du - width, du)
     du = dr.select(du < -0.5 * width, du + width, du)
     dv = py - v
-    q = ca * du * du + 2.0 * cb * du * dv + cc * dv * dv
-    gauss = dr.exp(-0.5 * q)
+    gauss = _exp2(qa * du * du + qb * du * dv + qc * dv * dv)  # exp(-q/2)
     raw = op * gauss
     alpha = dr.minimum(raw, ALPHA_MAX)
     return alpha, raw, gauss, du, dv
+
+
+def _slot_mode(tile_lanes: int):
+    """Scatter mode of the backward pass's per-pair slots.
+
+    LLVM: a slot is written by the lanes of one tile; where they lie in one packet (``tile_lanes``
+    at most the packet width), one thread runs them one after another, so ``NoConflicts`` (a
+    plain 8-wide load-add-store per lane) is exact; otherwise ``Expand`` (a copy per thread,
+    added after the kernel). CUDA: ``Local`` (a warp holds two tiles; the warp reduction adds
+    the lanes of each)."""
+    if B.is_cuda():
+        return dr.ReduceMode.Local
+    if tile_lanes <= _tiles.llvm_packet_width_at_least():
+        return dr.ReduceMode.NoConflicts
+    return dr.ReduceMode.Expand
 
 
 class Rasterize(dr.CustomOp):
@@ -118,7 +185,7 @@ class Rasterize(dr.CustomOp):
 
     def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width, tile_lanes):
         self.params = (u, v, ca, cb, cc, op, sig)
-        self.packed = _pack(self.params)
+        self.records, self.slots = _pair_records(self.params, lists)
         self.shape = (views, height, width, tile_lanes)
         self.lists = lists
         tile, rows, px, pix, active, any_active = _lanes(views, height, width, tile_lanes)
@@ -127,7 +194,7 @@ class Rasterize(dr.CustomOp):
         end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
 
         def body(i, T, C):
-            par = _load(self.packed, dr.gather(B.UInt32, lists.entries, i))
+            par = _load(self.records, i)
             s = par[6]
             T, C = list(T), list(C)
             for q in range(sub):
@@ -162,16 +229,16 @@ class Rasterize(dr.CustomOp):
         end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
         gpix = [dr.gather(B.Float, grad_img, pix[q], active[q]) for q in range(sub)]
         m = dr.width(self.params[0])
-        # Per-pair gradient slots: a slot is written by one tile (one packet) only,
-        # so the packet-local reduction's single atomic never contends.
-        pair_grads = [dr.zeros(B.Float, max(lists.count, 1)) for _ in range(7)]
+        # One slot of RECORD floats per pair, zeroed in eval: written by one tile only (see _slot_mode).
+        slots, self.slots = self.slots, None
+        mode = _slot_mode(tile_lanes)
 
         def body(i, T, acc):
             i = i - 1
-            par = _load(self.packed, dr.gather(B.UInt32, lists.entries, i))
-            _, _, ca, cb, cc, _, s = par
+            par = _load(self.records, i)
+            s = par[6]
             T, acc = list(T), list(acc)
-            sums = [B.Float(0.0) for _ in range(7)]
+            sums = [B.Float(0.0) for _ in range(RECORD - 1)]
             for q in range(sub):
                 alpha, raw, gauss, du, dv = _alpha(par, px, rows[q], width)
                 use = (alpha >= ALPHA_MIN) & active[q]
@@ -180,23 +247,20 @@ class Rasterize(dr.CustomOp):
                 w = T_k * alpha
                 g_alpha = gpix[q] * (T_k * s - acc[q] * inv_one_m)
                 g_alpha = dr.select(use & (raw < ALPHA_MAX), g_alpha, 0.0)  # clamped: no dependence
-                g_q = -0.5 * g_alpha * alpha
-                g_s = dr.select(use, gpix[q] * w, 0.0)
-                # dq/du_centre = -(2a du + 2b dv); dq/dv_centre = -(2b du + 2c dv)
-                vals = (-2.0 * g_q * (ca * du + cb * dv), -2.0 * g_q * (cb * du + cc * dv),
-                        g_q * du * du, 2.0 * g_q * du * dv, g_q * dv * dv, g_alpha * gauss, g_s)
-                sums = [a + b for a, b in zip(sums, vals)]
+                e = g_alpha * gauss
+                e_du, e_dv = e * du, e * dv
+                moments = (e, e_du, e_dv, e_du * du, e_du * dv, e_dv * dv, dr.select(use, gpix[q] * w, 0.0))
+                sums = [a + b for a, b in zip(sums, moments)]
                 acc[q] = dr.select(use, dr.fma(w, s, acc[q]), acc[q])
                 T[q] = dr.select(use, T_k, T[q])
-            for target, val in zip(pair_grads, sums):
-                dr.scatter_reduce(dr.ReduceOp.Add, target, val, i, mode=GRAD_MODE)
+            dr.scatter_reduce(dr.ReduceOp.Add, slots, B.jit.ArrayXf(sums + [B.Float(0.0)]), i, mode=mode)
             return i, tuple(T), tuple(acc)
 
         zero = tuple(B.Float(0.0) for _ in range(sub))
         dr.while_loop((end, tuple(self.T_final), zero), lambda i, T, acc: i > start, body,
                       labels=("i", "T", "acc"), label="splat_backward")
-        dr.eval(pair_grads)
-        grads = _sum_pairs(pair_grads, lists, m)
+        dr.eval(slots)
+        grads = _sum_pairs(slots, lists, self.params, m)
         names = ("u", "v", "ca", "cb", "cc", "op", "sig")
         for name, gr in zip(names, grads):
             self.set_grad_in(name, gr)
@@ -205,23 +269,43 @@ class Rasterize(dr.CustomOp):
         return "splat.Rasterize"
 
 
-def _sum_pairs(pair_grads, lists, m):
-    """Per-pair gradients (tile order) -> per-entry sums, Float [m] each, without atomics:
-    one lane per entry walks its contiguous range of the entry-major pair order."""
+def _moments_to_grads(moments, ca, cb, cc, op):
+    """A Gaussian's summed moments ``(E, E_u, E_v, E_uu, E_uv, E_vv, G_s)`` (sums over its
+    pixels of ``e, e du, e dv, e du^2, e du dv, e dv^2`` and ``dL/dsignal``, with
+    ``e = dL/dalpha * exp(-q/2)`` where alpha is not clamped, 0 elsewhere) -> the gradients of
+    (u, v, a, b, c, opacity, signal).
+
+    With ``alpha = opacity exp(-q/2)``, ``q = a du^2 + 2b du dv + c dv^2``, ``du = j - u``:
+    ``dalpha/du = alpha (a du + b dv)``, ``dalpha/dv = alpha (b du + c dv)``,
+    ``dalpha/da = -alpha du^2 / 2``, ``dalpha/db = -alpha du dv``,
+    ``dalpha/dc = -alpha dv^2 / 2``, ``dalpha/dopacity = exp(-q/2)``."""
+    E, E_u, E_v, E_uu, E_uv, E_vv, G_s = moments
+    return (op * (ca * E_u + cb * E_v), op * (cb * E_u + cc * E_v),
+            -0.5 * op * E_uu, -op * E_uv, -0.5 * op * E_vv, E, G_s)
+
+
+def _sum_pairs(slots, lists, params, m):
+    """Per-pair moment slots (tile order) -> per-entry gradients, Float [m] each, without
+    atomics: one lane per entry walks its contiguous range of the entry-major pair order, then
+    :func:`_moments_to_grads` with the entry's own conic and opacity."""
     if lists.count == 0:
-        return [dr.zeros(B.Float, m) for _ in pair_grads]
+        return [dr.zeros(B.Float, m) for _ in range(RECORD - 1)]
     first, length = lists.first, lists.length
     end = first + length
 
     def body(j, *acc):
         slot = dr.gather(B.UInt32, lists.sorted_pos, j)
-        return (j + 1,) + tuple(a + dr.gather(B.Float, pg, slot) for a, pg in zip(acc, pair_grads))
+        val = dr.gather(B.jit.ArrayXf, slots, slot, shape=(RECORD, dr.width(slot)))
+        return (j + 1,) + tuple(a + val[k] for k, a in enumerate(acc))
 
-    _, *sums = dr.while_loop((B.UInt32(first),) + tuple(B.Float(0.0) for _ in pair_grads),
+    _, *sums = dr.while_loop((B.UInt32(first),) + tuple(B.Float(0.0) for _ in range(RECORD - 1)),
                              lambda j, *acc: j < end, body, label="splat_pair_sums")
-    out = [dr.zeros(B.Float, m) for _ in pair_grads]
-    for o, v in zip(out, sums):
-        dr.scatter(o, v, lists.order)  # order is a permutation of the entries
+    entry = lists.order  # a permutation of the entries
+    ca, cb, cc, op = (dr.gather(B.Float, params[k], entry) for k in (2, 3, 4, 5))
+    grads = _moments_to_grads(sums, ca, cb, cc, op)
+    out = [dr.zeros(B.Float, m) for _ in grads]
+    for o, g in zip(out, grads):
+        dr.scatter(o, g, entry)
     dr.eval(out)
     return out
 

@@ -9,8 +9,9 @@ same construction in NumPy (kept as an independent check for the tests). The ima
 ``TILE_H x TILE_W`` pixels (8 x 8 = 64 pixels, drawn by the lanes of one
 packet of the LLVM backend -- :func:`lanes_per_tile`: 16 lanes of four pixels
 with AVX-512, 8 lanes of eight pixels with AVX2 -- so all lanes of a packet
-walk the same list, and the backward pass's per-pair packet reductions are
-shared by 64 pixels; on AVX-512, 2x8, 4x8 and 16x8 tiles measured slower). A Gaussian touches the
+walk the same list, and the backward pass's per-pair sums are added to one
+slot without atomics, shared by 64 pixels; on AVX-512, 2x8, 4x8 and 16x8
+tiles measured slower). A Gaussian touches the
 pixels where ``opacity * exp(-q/2) >= ALPHA_MIN``, i.e. inside the ellipse
 ``q <= 2 ln(opacity / ALPHA_MIN)``; its axis-aligned bounding box decides its
 tiles, so no contribution the rasteriser would keep is lost. Azimuth wraps:
@@ -72,16 +73,36 @@ def checked_lanes(lanes, *, what: str) -> int:
 
 
 @functools.cache
-def _cpu_has_avx512() -> bool:
-    """Whether the host CPU reports AVX-512F (Linux ``/proc/cpuinfo``; False elsewhere)."""
+def _cpu_flags() -> frozenset:
+    """The host CPU's feature flags (Linux ``/proc/cpuinfo``; empty elsewhere)."""
     try:
         with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
             for line in f:
                 if line.startswith("flags"):
-                    return "avx512f" in line.split()
+                    return frozenset(line.split(":", 1)[-1].split())
     except OSError:
         pass
-    return False
+    return frozenset()
+
+
+def _cpu_has_avx512() -> bool:
+    """Whether the host CPU reports AVX-512F (Linux ``/proc/cpuinfo``; False elsewhere)."""
+    return "avx512f" in _cpu_flags()
+
+
+def llvm_packet_width_at_least() -> int:
+    """A lower bound on the LLVM backend's packet width (lanes), from the CPU's flags.
+
+    Dr.Jit's LLVM backend runs 16 lanes per packet where the CPU has AVX-512VL, 8 with AVX and
+    4 with SSE 4.2 or NEON. This mirrors that rule from ``/proc/cpuinfo`` and answers 4 where
+    it cannot tell: a caller relies on "a tile's lanes lie in one packet" only where the packet
+    is at least this wide, so an underestimate is safe (and merely slower)."""
+    flags = _cpu_flags()
+    if {"avx512f", "avx512vl"} <= flags:
+        return 16
+    if "avx" in flags:
+        return 8
+    return 4
 
 
 def tile_grid(height: int, width: int) -> tuple[int, int]:

@@ -10,6 +10,7 @@ import pytest
 
 from rfmitsuba.core import backend as B
 from rfmitsuba.splat.project import Projected
+from rfmitsuba.splat import raster, tiles
 from rfmitsuba.splat.raster import rasterize
 
 
@@ -97,3 +98,47 @@ def test_lane_layout_errors(variant, monkeypatch):
         monkeypatch.setenv("RFMITSUBA_SPLAT_LANES", bad)
         with pytest.raises(ValueError, match=f"RFMITSUBA_SPLAT_LANES must be one of .*{bad}"):
             rasterize(p, views=1, height=8, width=16)
+
+
+def test_exp2_relative_error_and_clamp(variant):
+    # The rasteriser's 2^x (range reduction and a degree-6 polynomial) against float64 NumPy
+    # over its whole range, densely near 0 where the alphas that matter live.
+    x = np.concatenate([np.linspace(-126.0, 127.0, 200_001), np.linspace(-12.0, 0.0, 100_001),
+                        [-0.5, 0.5, -1.5, 2.5, -125.9999]]).astype(np.float32)
+    got = raster._exp2(B.Float(x)).numpy().astype(np.float64)
+    want = np.exp2(x.astype(np.float64))
+    assert np.abs(got / want - 1).max() < 2.5e-7
+    # Outside [-126, 127] it is clamped: finite, and tiny enough below to be skipped.
+    out = raster._exp2(B.Float(np.float32([-1000.0, -127.5, 127.5, 1000.0]))).numpy()
+    assert out.tolist() == [2.0**-126, 2.0**-126, 2.0**127, 2.0**127]
+
+
+def test_moments_give_the_per_pixel_gradients(variant):
+    # The backward pass sums seven moments per pair and turns them into gradients per Gaussian
+    # (_moments_to_grads); summed per pixel from the definition instead, they must agree.
+    rng = np.random.default_rng(5)
+    k = 64
+    du, dv = rng.uniform(-4, 4, k), rng.uniform(-4, 4, k)
+    g_alpha, g_s = rng.normal(size=k), rng.normal(size=k)
+    a, b, c, op = 0.7, -0.2, 0.4, 0.6
+    gauss = np.exp(-0.5 * (a * du * du + 2 * b * du * dv + c * dv * dv))
+    alpha = op * gauss
+    want = [np.sum(g_alpha * alpha * (a * du + b * dv)), np.sum(g_alpha * alpha * (b * du + c * dv)),
+            np.sum(-0.5 * g_alpha * alpha * du * du), np.sum(-g_alpha * alpha * du * dv),
+            np.sum(-0.5 * g_alpha * alpha * dv * dv), np.sum(g_alpha * gauss), np.sum(g_s)]
+    e = g_alpha * gauss
+    moments = [np.sum(x) for x in (e, e * du, e * dv, e * du * du, e * du * dv, e * dv * dv, g_s)]
+    got = raster._moments_to_grads(moments, a, b, c, op)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_slot_mode(variant, monkeypatch):
+    # No atomics only where one packet holds a whole tile's lanes; Expand (a copy per thread)
+    # otherwise on the LLVM backend; the warp reduction on CUDA.
+    if B.is_cuda():
+        assert raster._slot_mode(16) == dr.ReduceMode.Local
+        return
+    monkeypatch.setattr(tiles, "llvm_packet_width_at_least", lambda: 16)
+    assert [raster._slot_mode(n) for n in (8, 16, 32, 64)] == [dr.ReduceMode.NoConflicts] * 2 + [dr.ReduceMode.Expand] * 2
+    monkeypatch.setattr(tiles, "llvm_packet_width_at_least", lambda: 4)
+    assert raster._slot_mode(8) == dr.ReduceMode.Expand

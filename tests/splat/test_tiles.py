@@ -86,3 +86,13 @@ def test_no_pairs(variant):
     zeros = B.Float(np.zeros(4, np.float32))
     lists = tiles.build(zeros, zeros, zeros + 1, zeros + 1, zeros, zeros + 1, views=1, n=4, height=16, width=16)
     assert lists.count == 0 and not np.any(lists.offsets.numpy())
+
+
+def test_packet_width_lower_bound_follows_the_cpu_flags(monkeypatch):
+    # Dr.Jit's LLVM packets: 16 lanes with AVX-512VL, 8 with AVX, 4 with SSE 4.2 / NEON; an
+    # unreadable /proc/cpuinfo answers the smallest (an underestimate only costs speed).
+    cases = [({"avx512f", "avx512vl", "avx2", "avx"}, 16), ({"avx512f", "avx2", "avx"}, 8),
+             ({"avx2", "avx", "sse4_2"}, 8), ({"sse4_2"}, 4), (set(), 4)]
+    for flags, width in cases:
+        monkeypatch.setattr(tiles, "_cpu_flags", lambda flags=flags: frozenset(flags))
+        assert tiles.llvm_packet_width_at_least() == width, flags
