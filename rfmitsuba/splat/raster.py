@@ -334,6 +334,7 @@ def rasterize(proj, *, views: int, height: int, width: int, tile_lanes: int | No
     n = dr.width(proj.u) // views
     lists = _tiles.build(*(dr.detach(x) for x in (proj.u, proj.v, proj.cov_uu, proj.cov_vv,
                                                     proj.opacity, proj.depth)),
-                         views=views, n=n, height=height, width=width)
+                         views=views, n=n, height=height, width=width,
+                         conic=tuple(dr.detach(x) for x in (proj.conic_a, proj.conic_b, proj.conic_c)))
     return dr.custom(Rasterize, proj.u, proj.v, proj.conic_a, proj.conic_b, proj.conic_c,
                      proj.opacity, proj.signal, lists, views, height, width, tile_lanes)

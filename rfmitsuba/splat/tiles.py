@@ -14,8 +14,12 @@ slot without atomics, shared by 64 pixels; on AVX-512, 2x8, 4x8 and 16x8
 tiles measured slower). A Gaussian touches the
 pixels where ``opacity * exp(-q/2) >= ALPHA_MIN``, i.e. inside the ellipse
 ``q <= 2 ln(opacity / ALPHA_MIN)``; its axis-aligned bounding box decides its
-tiles, so no contribution the rasteriser would keep is lost. Azimuth wraps:
-a box crossing column 0 / W touches tiles at both ends of the row.
+tiles, so no contribution the rasteriser would keep is lost. Given the conic,
+:func:`build` also drops the tiles of the box that the ellipse misses (the
+least ``q`` over a tile's pixel rectangle, exact; 11.7% of the pairs of
+``rfmitsuba bench splat``'s scene), which changes no bit of the image or its
+gradients. Azimuth wraps: a box crossing column 0 / W touches tiles at both
+ends of the row.
 """
 from __future__ import annotations
 
@@ -229,6 +233,8 @@ class DeviceTileLists:
 #: Relative and absolute widening of the boxes (pixels), so that float32
 #: rounding never drops a pixel the rasteriser would keep.
 _BOX_REL, _BOX_ABS = 1e-5, 1e-3
+#: The same for the per-tile test of :func:`build` (on ``q``, a squared distance).
+_CULL_REL, _CULL_ABS = 1e-4, 1e-2
 
 
 def _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width):
@@ -271,14 +277,61 @@ def _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width):
     return count, UInt32(ty0), UInt32(tx0), UInt32(ncol1), UInt32(ncols)
 
 
+def _edge_min(a, b, c, x, y0, y1):
+    """min over y in [y0, y1] of ``a x^2 + 2b x y + c y^2`` (c > 0)."""
+    y = dr.clip(-b * x / c, y0, y1)
+    return a * x * x + 2.0 * b * x * y + c * y * y
+
+
+def _reaches(ca, cb, cc, du0, du1, dv0, dv1, k2):
+    """Whether ``q = a du^2 + 2b du dv + c dv^2`` falls to ``k2`` (widened like the boxes)
+    somewhere in the rectangle [du0, du1] x [dv0, dv1] (offsets from the centre, pixels): 0
+    where it holds the centre, else the least of its four edges (exact for a positive definite
+    conic; anything else, or a NaN, counts as reaching)."""
+    inside = (du0 <= 0.0) & (du1 >= 0.0) & (dv0 <= 0.0) & (dv1 >= 0.0)
+    q = dr.minimum(dr.minimum(_edge_min(ca, cb, cc, du0, dv0, dv1), _edge_min(ca, cb, cc, du1, dv0, dv1)),
+                   dr.minimum(_edge_min(cc, cb, ca, dv0, du0, du1), _edge_min(cc, cb, ca, dv1, du0, du1)))
+    definite = (ca > 0.0) & (cc > 0.0) & (ca * cc > cb * cb)
+    return inside | ~definite | ~(q > k2 * (1.0 + _CULL_REL) + _CULL_ABS)
+
+
+def _pair_reaches_tile(u, v, opacity, conic, e, tx, ty, height, width):
+    """Per pair (entry ``e``, tile column ``tx`` and row ``ty``): whether some pixel of the
+    tile may get ``alpha >= ALPHA_MIN`` from the entry (:func:`_reaches` on the tile's pixel
+    rectangle, azimuth offsets wrapped as the rasteriser wraps them; a rectangle that the wrap
+    would cut counts as reached)."""
+    Float = B.Float
+    ca, cb, cc = (dr.gather(Float, x, e) for x in conic)
+    uu, vv, op = dr.gather(Float, u, e), dr.gather(Float, v, e), dr.gather(Float, opacity, e)
+    k2 = 2.0 * dr.log(dr.maximum(op, ALPHA_MIN) * (1.0 / ALPHA_MIN))
+    x0 = Float(tx * TILE_W)
+    x1 = dr.minimum(x0 + (TILE_W - 1), width - 1.0)
+    y0 = Float(ty * TILE_H)
+    y1 = dr.minimum(y0 + (TILE_H - 1), height - 1.0)
+
+    def wrap(du):  # as splat.raster wraps each pixel's offset
+        du = dr.select(du >= 0.5 * width, du - width, du)
+        return dr.select(du < -0.5 * width, du + width, du)
+
+    du0, du1 = wrap(x0 - uu), wrap(x1 - uu)
+    cut = ~(dr.abs((du1 - du0) - (x1 - x0)) < 0.5)
+    return cut | _reaches(ca, cb, cc, du0, du1, y0 - vv, y1 - vv, k2)
+
+
 def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: int,
-          width: int) -> DeviceTileLists:
+          width: int, conic=None) -> DeviceTileLists:
     """Tile lists of ``views`` views on the device.
 
     Args:
         u, v, cov_uu, cov_vv, opacity, depth: Float [B*N] (detached), as in
             :class:`rfmitsuba.splat.project.Projected`.
         views, n: B and N; height, width: image size, pixels.
+        conic: optional (a, b, c), Float [B*N] each (detached), the conic of
+            :class:`~rfmitsuba.splat.project.Projected`. With it, a pair whose tile the
+            Gaussian's ``alpha >= ALPHA_MIN`` ellipse misses (a corner of its bounding box)
+            is dropped from its tile's list: it stays in the pair arrays (``count``) after
+            the last tile's pairs, where no list reaches it. Without it every tile of the
+            box keeps the pair (as :func:`build_numpy`).
 
     Entries with any non-finite value, opacity below ALPHA_MIN, or no pixel
     inside the image get no pairs.
@@ -315,9 +368,12 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     col = k - row * nc
     tx = dr.select(col < n1, dr.gather(UInt32, tx0, e) + col, col - n1)
     view = e // dr.opaque(UInt32, n)
-    tile = view * tiles_per_view + (dr.gather(UInt32, ty0, e) + row) * ntx + tx
+    ty = dr.gather(UInt32, ty0, e) + row
+    tile = view * tiles_per_view + ty * ntx + tx
+    if conic is not None:  # dead pairs take the key num_tiles: after every tile, in no list
+        tile = dr.select(_pair_reaches_tile(u, v, opacity, conic, e, tx, ty, height, width), tile, num_tiles)
     dr.eval(tile, e)
-    buckets = 1 << max(int(num_tiles - 1).bit_length(), 1)
+    buckets = 1 << max(int(num_tiles).bit_length(), 1)
     perm = dr.detail.block_mkperm(tile, total, buckets)
     tile_sorted = dr.gather(UInt32, tile, perm)
     entries = dr.gather(UInt32, e, perm)

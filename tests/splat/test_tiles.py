@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
+import pytest
 from test_render import random_scene, to_jit
 
 from rfmitsuba.core import backend as B
@@ -29,19 +30,26 @@ def lists_of(lists, views, h, w):
     entries = lists.entries.numpy()[:lists.count]
     offsets = lists.offsets.numpy()
     nty, ntx = tiles.tile_grid(h, w)
-    assert offsets.shape == (views * nty * ntx + 1,) and offsets[-1] == len(entries)
+    assert offsets.shape == (views * nty * ntx + 1,) and offsets[-1] <= len(entries)
     return [entries[offsets[t]:offsets[t + 1]] for t in range(len(offsets) - 1)]
 
 
-def test_lists_cover_every_visible_pair_in_depth_order(variant):
+@pytest.mark.parametrize("cull", [False, True])
+def test_lists_cover_every_visible_pair_in_depth_order(variant, cull):
+    # With the conic (``cull``), the pairs whose tile the ellipse misses leave the lists:
+    # every pixel the reference draws must still find its Gaussian in its tile's list.
     rng = np.random.default_rng(0)
     scene = random_scene(rng, 60)
     rx = np.array([[0.1, 0.2, 0.0], [0.5, -0.3, 0.4]])
     h, w = 18, 72
     p, n = projected(scene, rx, h, w)
     fields = [dr.detach(getattr(p, f)) for f in ("u", "v", "cov_uu", "cov_vv", "opacity", "depth")]
-    lists = tiles.build(*fields, views=2, n=n, height=h, width=w)
+    conic = tuple(dr.detach(x) for x in (p.conic_a, p.conic_b, p.conic_c)) if cull else None
+    lists = tiles.build(*fields, views=2, n=n, height=h, width=w, conic=conic)
     got = lists_of(lists, 2, h, w)
+    if cull:  # some corners of the boxes were dropped; the pair arrays keep them
+        uncut = tiles.build(*fields, views=2, n=n, height=h, width=w)
+        assert lists.count == uncut.count and lists.offsets.numpy()[-1] < 0.95 * uncut.count
     depth = p.depth.numpy()
     nty, ntx = tiles.tile_grid(h, w)
     jj, ii = np.meshgrid(np.arange(w), np.arange(h))
@@ -96,3 +104,32 @@ def test_packet_width_lower_bound_follows_the_cpu_flags(monkeypatch):
     for flags, width in cases:
         monkeypatch.setattr(tiles, "_cpu_flags", lambda flags=flags: frozenset(flags))
         assert tiles.llvm_packet_width_at_least() == width, flags
+
+
+def test_ellipse_tile_test_never_misses_a_pixel(variant):
+    # _reaches (the least q over a rectangle) against a dense grid in float64: wherever some
+    # point of the rectangle has q <= k2 it must answer True; and it drops most rectangles the
+    # ellipse misses by a margin (else the test would cull nothing).
+    rng = np.random.default_rng(11)
+    k = 4000
+    ang = rng.uniform(0, np.pi, k)
+    s1, s2 = rng.uniform(0.3, 6.0, k), rng.uniform(0.3, 6.0, k)
+    ca = np.cos(ang) ** 2 / s1**2 + np.sin(ang) ** 2 / s2**2
+    cc = np.sin(ang) ** 2 / s1**2 + np.cos(ang) ** 2 / s2**2
+    cb = np.sin(ang) * np.cos(ang) * (1 / s1**2 - 1 / s2**2)
+    du0, dv0 = rng.uniform(-25, 20, k), rng.uniform(-25, 20, k)
+    du1, dv1 = du0 + 7, dv0 + rng.choice([3.0, 7.0], k)
+    k2 = 2 * np.log(rng.uniform(0.05, 1.0, k) * 255)
+    f = lambda a: B.Float(np.float32(a))  # noqa: E731
+    got = tiles._reaches(f(ca), f(cb), f(cc), f(du0), f(du1), f(dv0), f(dv1), f(k2)).numpy()
+    t = np.linspace(0, 1, 57)
+    x = du0[:, None, None] + (du1 - du0)[:, None, None] * t[None, :, None]
+    y = dv0[:, None, None] + (dv1 - dv0)[:, None, None] * t[None, None, :]
+    q = ca[:, None, None] * x * x + 2 * cb[:, None, None] * x * y + cc[:, None, None] * y * y
+    qmin = q.reshape(k, -1).min(1)
+    assert np.all(got[qmin <= k2])
+    far = qmin > 1.01 * k2 + 0.1
+    assert far.sum() > k // 4 and not np.any(got & (qmin > 1.5 * k2 + 1))
+    # not positive definite, or NaN: kept
+    assert tiles._reaches(f([1.0, np.nan]), f([2.0, 0.0]), f([1.0, 1.0]), f([50.0, 50.0]), f([57.0, 57.0]),
+                          f([50.0, 50.0]), f([57.0, 57.0]), f([1.0, 1.0])).numpy().tolist() == [True, True]
