@@ -84,18 +84,30 @@ def _reset_peak() -> None:
         pass
 
 
-def times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None) -> list[float]:
-    """Wall times (ms) of ``repeats`` calls; with ``cpu``, also appends the process
-    CPU time (all threads, ms) of each call -- a figure that other load on the
-    cores does not inflate."""
+#: Each timed figure calls its function for at least this long (s), so that a fast kernel's
+#: median spans as much of the machine's weather as a slow reference's: at 10 000 Gaussians five
+#: Dr.Jit iterations last 45 ms and five PyTorch ones 1.3 s.
+MIN_TIME_S = 1.0
+#: At most this many calls per figure, whatever ``min_time_s`` asks.
+MAX_CALLS = 2000
+
+
+def times_ms(fn, repeats: int, *, warmup: int = 2, cpu: list | None = None, min_time_s: float = 0.0) -> list[float]:
+    """Wall times (ms) of at least ``repeats`` calls, more until the calls have taken
+    ``min_time_s`` seconds in all (at most :data:`MAX_CALLS`); with ``cpu``, also appends the
+    process CPU time (all threads, ms) of each call -- a figure that other load on the cores
+    does not inflate."""
     for _ in range(warmup):  # compilation, allocator
         fn()
     times = []
-    for _ in range(repeats):
+    spent = 0.0
+    while len(times) < repeats or (spent < min_time_s and len(times) < MAX_CALLS):
         c0 = time.process_time()
         t0 = time.perf_counter()
         fn()
-        times.append((time.perf_counter() - t0) * 1e3)
+        dt = time.perf_counter() - t0
+        spent += dt
+        times.append(dt * 1e3)
         if cpu is not None:
             cpu.append((time.process_time() - c0) * 1e3)
     return times
@@ -105,17 +117,18 @@ def _median_ms(fn, repeats: int, *, warmup: int = 2) -> float:
     return statistics.median(times_ms(fn, repeats, warmup=warmup))
 
 
-def _figures(forward, forward_backward, iteration, repeats: int) -> dict:
-    """Median and best (minimum) times, ms. Backward = (forward + backward) - forward.
-    The best-of figures are the ones least disturbed by other load on shared cores."""
-    f = times_ms(forward, repeats)
-    fb = times_ms(forward_backward, repeats)
+def _figures(forward, forward_backward, iteration, repeats: int, *, min_time_s: float = 0.0) -> dict:
+    """Median and best (minimum) times, ms, each over at least ``repeats`` calls and
+    ``min_time_s`` seconds. Backward = (forward + backward) - forward. The best-of figures are
+    the ones least disturbed by other load on shared cores."""
+    f = times_ms(forward, repeats, min_time_s=min_time_s)
+    fb = times_ms(forward_backward, repeats, min_time_s=min_time_s)
     cpu: list[float] = []
-    it = times_ms(iteration, repeats, cpu=cpu)
+    it = times_ms(iteration, repeats, cpu=cpu, min_time_s=min_time_s)
     med = statistics.median
     return {"forward_ms": med(f), "backward_ms": max(med(fb) - med(f), 0.0), "iteration_ms": med(it),
             "forward_min_ms": min(f), "backward_min_ms": max(min(fb) - min(f), 0.0),
-            "iteration_min_ms": min(it), "iteration_cpu_ms": med(cpu)}
+            "iteration_min_ms": min(it), "iteration_cpu_ms": med(cpu), "iteration_calls": len(it)}
 
 
 # --------------------------------------------------------------------------- Dr.Jit
@@ -162,7 +175,8 @@ def _drjit_step_functions(n: int, height: int, width: int, views: int = 1):
     return forward, forward_backward, iteration
 
 
-def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1) -> dict:
+def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1,
+                  min_time_s: float = 0.0) -> dict:
     """Dr.Jit timings (ms) and memory (MiB) at N Gaussians and B views, in this process."""
     import drjit as dr
 
@@ -172,7 +186,7 @@ def measure_drjit(n: int, *, height: int = 90, width: int = 360, repeats: int = 
     _reset_peak()
     rss0 = _rss_bytes()
     dr.detail.malloc_clear_statistics()
-    return {**_figures(forward, forward_backward, iteration, repeats),
+    return {**_figures(forward, forward_backward, iteration, repeats, min_time_s=min_time_s),
             "peak_mib": max(_peak_bytes() - rss0, 0) / 2**20,
             "jit_watermark_mib": dr.detail.malloc_watermark(dr.JitBackend.CUDA if B.is_cuda()
                                                             else dr.JitBackend.LLVM) / 2**20,
@@ -198,7 +212,8 @@ def torch_available() -> bool:
     return True
 
 
-def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1) -> dict:
+def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 5, views: int = 1,
+                  min_time_s: float = 0.0) -> dict:
     """PyTorch-CPU timings (ms) and memory (MiB) of :mod:`.torch_baseline` at N Gaussians
     (several views: one vectorised render per view)."""
     import torch
@@ -248,7 +263,7 @@ def measure_torch(n: int, *, height: int = 90, width: int = 360, repeats: int = 
         fn()
     _reset_peak()
     rss0 = _rss_bytes()
-    return {**_figures(forward, forward_backward, iteration, repeats),
+    return {**_figures(forward, forward_backward, iteration, repeats, min_time_s=min_time_s),
             "peak_mib": max(_peak_bytes() - rss0, 0) / 2**20, "threads": torch.get_num_threads()}
 
 
@@ -272,13 +287,14 @@ def compile_times(n: int = 2000) -> dict:
 
 
 def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, torch: bool = True,
-        progress=None, compile_n: int = 2000, views: int = 1) -> dict:
-    """Run the whole benchmark; returns a JSON-able dict (see :func:`format_report`)."""
+        progress=None, compile_n: int = 2000, views: int = 1, min_time_s: float = MIN_TIME_S) -> dict:
+    """Run the whole benchmark; returns a JSON-able dict (see :func:`format_report`). Each timed
+    figure takes at least ``repeats`` calls and ``min_time_s`` seconds, on both sides."""
     have_torch = torch and torch_available()
     rows = []
     for n in sizes:
         common = ["--n", str(n), "--repeats", str(repeats), "--height", str(height), "--width", str(width),
-                  "--views", str(views)]
+                  "--views", str(views), "--min-time", str(min_time_s)]
         row = {"n": n, "drjit": _worker(["drjit", *common])}
         if have_torch:
             row["torch"] = _worker(["torch", *common])
@@ -287,7 +303,8 @@ def run(*, sizes=SIZES, repeats: int = 5, height: int = 90, width: int = 360, to
             progress(n)
     return {"rows": rows, "compile": compile_times(compile_n), "torch": have_torch,
             "torch_note": "" if have_torch else ("skipped" if not torch else "missing"), "height": height,
-            "width": width, "views": views, "repeats": repeats, "load": os.getloadavg(), "cores": os.cpu_count(),
+            "width": width, "views": views, "repeats": repeats, "min_time_s": min_time_s,
+            "load": os.getloadavg(), "cores": os.cpu_count(),
             "tile_lanes": lanes_per_tile()}
 
 
@@ -296,7 +313,9 @@ def format_report(result: dict) -> str:
     h, w = result["height"], result["width"]
     views = result.get("views", 1)
     what = f"one {h}x{w} PAS" if views == 1 else f"{views} PAS of {h}x{w} (one call)"
-    lines = [f"splat benchmark: {what} per iteration, median of {result['repeats']} "
+    min_time = result.get("min_time_s", 0.0)
+    calls = f"median of at least {result['repeats']} calls" + (f" and {min_time:g} s" if min_time else "")
+    lines = [f"splat benchmark: {what} per iteration, {calls} per figure "
              f"(cores {result['cores']}, load {' '.join(f'{x:.2f}' for x in result['load'])}"
              + (f", {result['tile_lanes']} rasteriser lanes per tile" if "tile_lanes" in result else "") + ")",
              f"{'N':>7} | {'Dr.Jit fwd':>10} {'bwd':>8} {'iter':>8} {'mem':>8} |"
@@ -315,7 +334,7 @@ def format_report(result: dict) -> str:
                      f"{t['iteration_ms'] / d['iteration_ms']:>5.1f}x")
         lines.append(line)
     if result["rows"] and "iteration_min_ms" in result["rows"][0]["drjit"]:
-        lines.append(f"best of {result['repeats']} (least disturbed by other load), ms:")
+        lines.append("best call (least disturbed by other load), ms:")
         for row in result["rows"]:
             d = row["drjit"]
             line = (f"{row['n']:>7} | Dr.Jit fwd {d['forward_min_ms']:.1f}  bwd {d['backward_min_ms']:.1f}  "
@@ -361,11 +380,14 @@ def _main(argv: list[str]) -> int:
     p.add_argument("--height", type=int, default=90)
     p.add_argument("--width", type=int, default=360)
     p.add_argument("--views", type=int, default=1)
+    p.add_argument("--min-time", type=float, default=0.0, help="seconds of calls per timed figure, at least")
     a = p.parse_args(argv)
     if a.mode == "drjit":
-        res = measure_drjit(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views)
+        res = measure_drjit(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views,
+                            min_time_s=a.min_time)
     elif a.mode == "torch":
-        res = measure_torch(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views)
+        res = measure_torch(a.n, height=a.height, width=a.width, repeats=a.repeats, views=a.views,
+                            min_time_s=a.min_time)
     else:
         res = first_call(a.n)
     print(json.dumps(res))

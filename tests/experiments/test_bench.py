@@ -65,3 +65,25 @@ def test_report_without_torch_says_so():
     text = bench.format_report(result)
     assert "PyTorch is missing" in text and "speed-up" not in text
     assert "empty kernel cache 1.50 s, warm cache 0.05 s" in text
+
+
+def test_times_ms_runs_for_at_least_min_time(monkeypatch):
+    # A figure takes max(repeats, enough calls to last min_time_s) calls, never more than
+    # MAX_CALLS: a fast kernel's median then spans as long a stretch of the machine as a slow
+    # reference's. A fake clock makes the count exact.
+    clock = {"t": 0.0}
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: clock["t"])
+
+    def call(dt):
+        def fn():
+            clock["t"] += dt
+        return fn
+
+    assert len(bench.times_ms(call(0.25), 5, warmup=0, min_time_s=1.0)) == 5       # 1.25 s already
+    # (steps of 1/64 s: binary fractions, so the sums are exact)
+    assert len(bench.times_ms(call(1 / 64), 5, warmup=0, min_time_s=1.0)) == 64
+    assert len(bench.times_ms(call(1 / 64), 5, warmup=0)) == 5                     # no minimum
+    monkeypatch.setattr(bench, "MAX_CALLS", 30)
+    assert len(bench.times_ms(call(1 / 64), 5, warmup=0, min_time_s=1.0)) == 30
+    cpu: list = []
+    assert bench.times_ms(call(1 / 32), 3, warmup=1, cpu=cpu, min_time_s=0.25) == [31.25] * 8 and len(cpu) == 8
