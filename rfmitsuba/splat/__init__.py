@@ -11,8 +11,9 @@ Pipeline (one call):
 2. :mod:`.tiles` -- tile lists (8x8-pixel tiles), front to back by distance
    from the receiver, built on the device (one synchronisation: the number
    of pairs).
-3. :mod:`.raster` -- compositing loop over each tile's list (16 lanes per
-   tile, 4 pixels per lane) with a hand-written backward (``dr.CustomOp``).
+3. :mod:`.raster` -- compositing loop over each tile's list (8 lanes per
+   tile, 8 pixels per lane, on the LLVM backend) with a hand-written backward
+   (``dr.CustomOp``).
 
 No kernel depends on N, on the number of pairs or on the batch size B (for
 B >= 2), so densification does not recompile anything. ``render(...,

@@ -16,9 +16,10 @@ is cut at the azimuth opposite its centre; with a tilted footprint (non-zero
 ``b``) the image has a small step there. Gradients are those of this
 definition (the step itself has none).
 
-Layout: one packet of lanes per 8x8 tile (:func:`tiles.lanes_per_tile`: 16
-lanes of four pixels of one column with AVX-512, 8 lanes of eight with AVX2),
-so all lanes of a packet walk the same tile list. Before the loops, each pair
+Layout: 8 lanes per 8x8 tile on the LLVM backend, each drawing eight pixels
+of one column (:func:`tiles.lanes_per_tile`; an AVX-512 packet holds two
+tiles, an AVX2 packet one), so the lanes of a tile walk its list together in
+one packet. Before the loops, each pair
 (tile, Gaussian) gets its own record of eight floats in tile-list order
 (:func:`_pair_records`: centre, conic scaled to base 2, opacity, signal), so a
 loop step reads its Gaussian with one aligned 8-wide packet load per lane and

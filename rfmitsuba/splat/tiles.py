@@ -6,12 +6,11 @@ for the pair offsets, a max-scan to find each pair's Gaussian, and a stable
 counting sort by tile (``dr.detail.block_mkperm``). The only host
 synchronisation is reading the number of pairs. :func:`build_numpy` is the
 same construction in NumPy (kept as an independent check for the tests). The image is cut into tiles of
-``TILE_H x TILE_W`` pixels (8 x 8 = 64 pixels, drawn by the lanes of one
-packet of the LLVM backend -- :func:`lanes_per_tile`: 16 lanes of four pixels
-with AVX-512, 8 lanes of eight pixels with AVX2 -- so all lanes of a packet
-walk the same list, and the backward pass's per-pair sums are added to one
-slot without atomics, shared by 64 pixels; on AVX-512, 2x8, 4x8 and 16x8
-tiles measured slower). A Gaussian touches the
+``TILE_H x TILE_W`` pixels (8 x 8 = 64 pixels, drawn by 8 lanes of eight
+pixels on the LLVM backend -- :func:`lanes_per_tile` -- so the lanes of a tile
+walk the same list in one packet, and the backward pass's per-pair sums are
+added to one slot without atomics, shared by 64 pixels; on AVX-512, 2x8, 4x8
+and 16x8 tiles measured slower). A Gaussian touches the
 pixels where ``opacity * exp(-q/2) >= ALPHA_MIN``, i.e. inside the ellipse
 ``q <= 2 ln(opacity / ALPHA_MIN)``; its axis-aligned bounding box decides its
 tiles, so no contribution the rasteriser would keep is lost. Given the conic,
@@ -46,16 +45,22 @@ ALPHA_MAX = 0.99
 
 
 def lanes_per_tile() -> int:
-    """Lanes of the rasteriser per tile: one packet of the backend, so a packet walks one list.
+    """Lanes of the rasteriser per tile.
 
     Each lane draws ``TILE_SIZE / lanes`` pixels of one column, ``lanes / TILE_W`` rows apart.
-    The LLVM backend's packet is 16 lanes where the CPU has AVX-512 and 8 otherwise (AVX2;
-    NEON's 4-lane packets also get 8, two packets per tile); CUDA keeps 16 (a warp draws two
-    tiles). Measured at 10 000 Gaussians on an AVX2 host (``rfmitsuba bench splat``, pairs run
-    back to back): on cores shared with other jobs (load 3.5-4.5) 8 lanes took 58-63 ms per
-    iteration against 72-80 ms (CPU 46-52 against 55-63 ms); on quiet cores (load 1.2-1.6) the two
-    were within the run-to-run noise (17-24 ms against 21-34 ms). The environment
-    variable ``RFMITSUBA_SPLAT_LANES`` (one of :data:`TILE_LANE_CHOICES`) overrides the choice.
+    LLVM: 8 lanes of eight pixels, so an AVX-512 packet (16 lanes) walks two tiles' lists at
+    once, an AVX2 packet one, a NEON packet half of one. CUDA: 16 (a warp draws two tiles).
+    Measured on AVX-512 (session 50, after the pair records and the moments of
+    :mod:`rfmitsuba.splat.raster`; 16 lanes had been the AVX-512 choice since the backward pass
+    reduced each pair's gradients across the packet): a training iteration at 10 000 Gaussians
+    7.1-7.3 ms against 8.1-8.3 ms for 16 lanes (alternating processes), at 50 000 29.6-32.2
+    against 33.8-37.1 ms, at 2000 3.8 against 3.9-4.1 ms; the op alone on 2 threads, forward 1.74
+    against 1.85 ms, backward 3.1 against 3.8 ms (a step's record load and slot addition shared
+    by eight pixels instead of four); the Stage-1 splat step 66-67 against 68-71 ms at 90 x 360,
+    45-50 against 45-46 ms at 45 x 180. On an AVX2 host (earlier code, ``rfmitsuba bench splat``):
+    under load 3.5-4.5, 8 lanes took 58-63 ms per iteration against 72-80 ms for 16. The
+    environment variable ``RFMITSUBA_SPLAT_LANES`` (one of :data:`TILE_LANE_CHOICES`) overrides
+    the choice.
 
     Raises:
         ConfigError: ``RFMITSUBA_SPLAT_LANES`` is not one of :data:`TILE_LANE_CHOICES`.
@@ -64,9 +69,7 @@ def lanes_per_tile() -> int:
     if env:
         # ASCII digits only: str.isdigit() is true for "²", which int() refuses
         return checked_lanes(int(env) if env.isascii() and env.isdigit() else env, what="RFMITSUBA_SPLAT_LANES")
-    if B.is_cuda():
-        return 16
-    return 16 if _cpu_has_avx512() else 8
+    return 16 if B.is_cuda() else 8
 
 
 def checked_lanes(lanes, *, what: str) -> int:
@@ -87,11 +90,6 @@ def _cpu_flags() -> frozenset:
     except OSError:
         pass
     return frozenset()
-
-
-def _cpu_has_avx512() -> bool:
-    """Whether the host CPU reports AVX-512F (Linux ``/proc/cpuinfo``; False elsewhere)."""
-    return "avx512f" in _cpu_flags()
 
 
 def llvm_packet_width_at_least() -> int:
