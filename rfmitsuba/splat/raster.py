@@ -122,15 +122,10 @@ def _exp2(x):
 def _pair_records(params, lists):
     """Per pair, in tile-list order: ``u, v, -a k, -2b k, -c k, opacity, signal, 0`` of its entry
     with ``k = log2(e) / 2``, so that ``exp(-q/2) = 2^((-a k) du^2 + (-2b k) du dv + (-c k)
-    dv^2)``; and the backward pass's zeroed slots, written by the same kernel.
-
-    Returns:
-        (records, slots): Float [8 * P] each (P = ``lists.count``; one dummy record when there
-        are none).
-    """
+    dv^2)``: Float [8 * P] (P = ``lists.count``; one dummy record when there are none)."""
     u, v, ca, cb, cc, op, sig = params
     if lists.count == 0:
-        return dr.zeros(B.Float, RECORD), dr.zeros(B.Float, RECORD)
+        return dr.zeros(B.Float, RECORD)
     m = dr.width(u)
     k = 0.5 * LOG2E
     # Each entry's record once (Float [8 M]), then one packet per pair: two packet copies are
@@ -138,13 +133,11 @@ def _pair_records(params, lists):
     per_entry = dr.empty(B.Float, RECORD * m)
     dr.scatter(per_entry, B.jit.ArrayXf([u, v, -k * ca, -2.0 * k * cb, -k * cc, op, sig, B.Float(0.0)]),
                dr.arange(B.UInt32, m))
-    pairs = dr.arange(B.UInt32, lists.count)
     records = dr.empty(B.Float, RECORD * lists.count)
-    slots = dr.empty(B.Float, RECORD * lists.count)
-    dr.scatter(records, dr.gather(B.jit.ArrayXf, per_entry, lists.entries, shape=(RECORD, lists.count)), pairs)
-    dr.scatter(slots, B.jit.ArrayXf([B.Float(0.0)] * RECORD), pairs)
-    dr.eval(records, slots)
-    return records, slots
+    dr.scatter(records, dr.gather(B.jit.ArrayXf, per_entry, lists.entries, shape=(RECORD, lists.count)),
+               dr.arange(B.UInt32, lists.count))
+    dr.eval(records)
+    return records
 
 
 def _load(records, i):
@@ -155,9 +148,7 @@ def _load(records, i):
 
 def _alpha(par, px, py, width):
     u, v, qa, qb, qc, op, _ = par
-    du = px - u
-    du = dr.select(du >= 0.5 * width, du - width, du)
-    du = dr.select(du < -0.5 * width, du + width, du)
+    du = _tiles.wrap_offset(px - u, width)
     dv = py - v
     gauss = _exp2(qa * du * du + qb * du * dv + qc * dv * dv)  # exp(-q/2)
     raw = op * gauss
@@ -186,7 +177,7 @@ class Rasterize(dr.CustomOp):
 
     def eval(self, u, v, ca, cb, cc, op, sig, lists, views, height, width, tile_lanes):
         self.params = (u, v, ca, cb, cc, op, sig)
-        self.records, self.slots = _pair_records(self.params, lists)
+        self.records = _pair_records(self.params, lists)
         self.shape = (views, height, width, tile_lanes)
         self.lists = lists
         tile, rows, px, pix, active, any_active = _lanes(views, height, width, tile_lanes)
@@ -230,8 +221,8 @@ class Rasterize(dr.CustomOp):
         end = dr.select(any_active, dr.gather(B.UInt32, lists.offsets, tile + 1), start)
         gpix = [dr.gather(B.Float, grad_img, pix[q], active[q]) for q in range(sub)]
         m = dr.width(self.params[0])
-        # One slot of RECORD floats per pair, zeroed in eval: written by one tile only (see _slot_mode).
-        slots, self.slots = self.slots, None
+        # One slot of RECORD floats per pair: written by one tile only (see _slot_mode).
+        slots = dr.zeros(B.Float, RECORD * max(lists.count, 1))
         mode = _slot_mode(tile_lanes)
 
         def body(i, T, acc):

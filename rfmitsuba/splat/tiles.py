@@ -107,6 +107,13 @@ def llvm_packet_width_at_least() -> int:
     return 4
 
 
+def wrap_offset(du, width):
+    """An azimuth offset ``du`` (pixels, Float) taken to the nearest copy of the centre,
+    ``[-width/2, width/2)`` for ``|du| < 3 width / 2``: the rasteriser's wrap at 0/360 deg."""
+    du = dr.select(du >= 0.5 * width, du - width, du)
+    return dr.select(du < -0.5 * width, du + width, du)
+
+
 def tile_grid(height: int, width: int) -> tuple[int, int]:
     """Number of tile rows and tile columns covering a height x width image."""
     return -(-height // TILE_H), -(-width // TILE_W)
@@ -306,12 +313,7 @@ def _pair_reaches_tile(u, v, opacity, conic, e, tx, ty, height, width):
     x1 = dr.minimum(x0 + (TILE_W - 1), width - 1.0)
     y0 = Float(ty * TILE_H)
     y1 = dr.minimum(y0 + (TILE_H - 1), height - 1.0)
-
-    def wrap(du):  # as splat.raster wraps each pixel's offset
-        du = dr.select(du >= 0.5 * width, du - width, du)
-        return dr.select(du < -0.5 * width, du + width, du)
-
-    du0, du1 = wrap(x0 - uu), wrap(x1 - uu)
+    du0, du1 = wrap_offset(x0 - uu, width), wrap_offset(x1 - uu, width)
     cut = ~(dr.abs((du1 - du0) - (x1 - x0)) < 0.5)
     return cut | _reaches(ca, cb, cc, du0, du1, y0 - vv, y1 - vv, k2)
 
