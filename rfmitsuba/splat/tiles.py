@@ -244,7 +244,8 @@ _CULL_REL, _CULL_ABS = 1e-4, 1e-2
 
 def _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width):
     """Per entry: tile rows [ty0, ty0 + nrows), tile columns [tx0, tx0 + ncol1) and
-    [0, ncol2) (the part that wrapped past 360 deg); count = nrows*(ncol1+ncol2)."""
+    [0, ncol2) (the part that wrapped past 360 deg); count = nrows*(ncol1+ncol2); and k2, the
+    ellipse's bound ``q <= k2 = 2 ln(opacity / ALPHA_MIN)``."""
     UInt32, Int32 = B.UInt32, B.Int32
     nty, ntx = tile_grid(height, width)
     ok = (dr.isfinite(u) & dr.isfinite(v) & dr.isfinite(cov_uu) & dr.isfinite(cov_vv)
@@ -279,7 +280,7 @@ def _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width):
     ty0 = Int32(dr.select(ok, r0, 0.0)) // TILE_H
     nrows = Int32(dr.select(ok, r1, 0.0)) // TILE_H - ty0 + 1
     count = dr.select(ok, UInt32(nrows * ncols), 0)
-    return count, UInt32(ty0), UInt32(tx0), UInt32(ncol1), UInt32(ncols)
+    return count, UInt32(ty0), UInt32(tx0), UInt32(ncol1), UInt32(ncols), k2
 
 
 def _edge_min(a, b, c, x, y0, y1):
@@ -300,15 +301,14 @@ def _reaches(ca, cb, cc, du0, du1, dv0, dv1, k2):
     return inside | ~definite | ~(q > k2 * (1.0 + _CULL_REL) + _CULL_ABS)
 
 
-def _pair_reaches_tile(u, v, opacity, conic, e, tx, ty, height, width):
+def _pair_reaches_tile(u, v, k2, conic, e, tx, ty, height, width):
     """Per pair (entry ``e``, tile column ``tx`` and row ``ty``): whether some pixel of the
     tile may get ``alpha >= ALPHA_MIN`` from the entry (:func:`_reaches` on the tile's pixel
-    rectangle, azimuth offsets wrapped as the rasteriser wraps them; a rectangle that the wrap
-    would cut counts as reached)."""
+    rectangle against the entry's bound ``k2``, azimuth offsets wrapped as the rasteriser wraps
+    them; a rectangle that the wrap would cut counts as reached)."""
     Float = B.Float
     ca, cb, cc = (dr.gather(Float, x, e) for x in conic)
-    uu, vv, op = dr.gather(Float, u, e), dr.gather(Float, v, e), dr.gather(Float, opacity, e)
-    k2 = 2.0 * dr.log(dr.maximum(op, ALPHA_MIN) * (1.0 / ALPHA_MIN))
+    uu, vv, k2 = dr.gather(Float, u, e), dr.gather(Float, v, e), dr.gather(Float, k2, e)
     x0 = Float(tx * TILE_W)
     x1 = dr.minimum(x0 + (TILE_W - 1), width - 1.0)
     y0 = Float(ty * TILE_H)
@@ -340,8 +340,8 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     nty, ntx = tile_grid(height, width)
     tiles_per_view = nty * ntx
     num_tiles = views * tiles_per_view
-    count, ty0, tx0, ncol1, ncols = _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width)
-    dr.eval(count, ty0, tx0, ncol1, ncols)  # one kernel (each gather below would re-run it)
+    count, ty0, tx0, ncol1, ncols, k2 = _rects(u, v, cov_uu, cov_vv, opacity, depth, height, width)
+    dr.eval(count, ty0, tx0, ncol1, ncols, k2)  # one kernel (each gather below would re-run it)
     # Front to back: one global depth sort. The tile sort below is stable and tiles
     # belong to one view, so every tile list is in depth order of its own view.
     key = dr.select(count > 0, depth, dr.inf)
@@ -371,7 +371,7 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     ty = dr.gather(UInt32, ty0, e) + row
     tile = view * tiles_per_view + ty * ntx + tx
     if conic is not None:  # dead pairs take the key num_tiles: after every tile, in no list
-        tile = dr.select(_pair_reaches_tile(u, v, opacity, conic, e, tx, ty, height, width), tile, num_tiles)
+        tile = dr.select(_pair_reaches_tile(u, v, k2, conic, e, tx, ty, height, width), tile, num_tiles)
     dr.eval(tile, e)
     buckets = 1 << max(int(num_tiles).bit_length(), 1)
     perm = dr.detail.block_mkperm(tile, total, buckets)
