@@ -89,3 +89,55 @@ def test_alignment_of_the_host_memory_decides_the_kernel(variant):
     assert borrowed[0] == 1 and borrowed[1] == 0 and borrowed[2] == 1 and borrowed[3:] == [0, 0]
     uploaded = _misses([upload(B.Float, v) for v in views], constant)
     assert uploaded == [0] * 5
+
+
+@pytest.mark.parametrize("rows", [0, 1, 15, 37])
+@pytest.mark.parametrize("cols", [1, 3, 64])
+def test_upload_rows_gives_every_column(variant, rows, cols):
+    """Columns gathered from the rows of one buffer: the same values as the host array's columns,
+    from an aligned array (borrowed) or from a strided, misaligned one (copied first)."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.upload import empty_aligned, is_aligned, upload_rows
+
+    values = np.random.default_rng(rows * cols).normal(size=(rows, cols)).astype(np.float32)
+    kept = empty_aligned(values.shape)
+    kept[...] = values
+    assert is_aligned(kept) or rows == 0      # NumPy may move an empty array's pointer
+    strided = np.zeros((rows, 2 * cols + 1), np.float32)[:, 1::2]
+    strided[...] = values
+    assert not is_aligned(strided)
+    for host in (kept, strided):
+        out = upload_rows(B.Float, host)
+        assert len(out) == cols
+        for k, c in enumerate(out):
+            np.testing.assert_array_equal(c.numpy(), values[:, k])
+
+
+def test_upload_rows_borrows_an_aligned_array(variant):
+    """An aligned array is read where it lies (LLVM: no copy), so the caller must not write it
+    afterwards; a misaligned one is copied first."""
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.upload import empty_aligned, upload_rows
+
+    if B.is_cuda():
+        pytest.skip("a CUDA upload is a copy into device memory")
+    host = empty_aligned((8, 2))
+    host[...] = 1.0
+    cols = upload_rows(B.Float, host)
+    host[3, 1] = 5.0
+    assert cols[1].numpy()[3] == 5.0 and cols[0].numpy()[3] == 1.0
+
+
+def test_upload_rows_needs_a_matrix(variant):
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.core.upload import upload_rows
+
+    with pytest.raises(ValueError, match=r"\[M, D\].*\(4,\)"):
+        upload_rows(B.Float, np.zeros(4, np.float32))
+
+
+def test_zeros_aligned():
+    from rfmitsuba.core.upload import ALIGN, zeros_aligned
+
+    z = zeros_aligned((7, 3), np.float64)
+    assert z.ctypes.data % ALIGN == 0 and z.dtype == np.float64 and z.shape == (7, 3) and not z.any()
