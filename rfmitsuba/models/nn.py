@@ -262,14 +262,17 @@ def _host_columns(groups: list) -> list:
     """Lists of D ``Float`` [M] -> float32 [M, D] host arrays (read only), one per list: the
     array a list was uploaded from when it is the columns of a recent :func:`_upload_kept`
     (nothing runs), otherwise the list evaluated (one kernel for all such lists; the call waits
-    for it) and stacked. An empty list gives None."""
+    for it) and stacked (an F-ordered array). An empty list gives None."""
     import drjit as dr
 
     found = [_kept(g) if g else None for g in groups]
     missing = [g for g, f in zip(groups, found) if g and f is None]
     if missing:
         dr.eval(missing)
-    return [None if not g else f if f is not None else np.stack([np.asarray(v.numpy(), np.float32) for v in g], axis=1)
+    # a miss is stacked column by column into a [D, M] array and read through its transpose (an
+    # F-ordered [M, D] view, which the host's matrix products take as it is): 39 columns of 10 000
+    # took 0.09 ms against 0.37 ms when written row by row
+    return [None if not g else f if f is not None else np.stack([np.asarray(v.numpy(), np.float32) for v in g]).T
             for g, f in zip(groups, found)]
 
 

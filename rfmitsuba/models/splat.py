@@ -37,6 +37,7 @@ from ..core.upload import upload, upload_columns
 from ..data.scene_xml import read_shapes
 from ..rf.readout import BartlettReadout
 from ..splat import render
+from ..splat.per_view import per_view
 from .base import Field, Views, register
 from .nn import EMNetwork, NetConfig
 
@@ -480,18 +481,17 @@ class SplatField(Field):
             e = np.asarray(extra, dtype=np.float32).reshape(nb, self.extra_inputs)
             ex = columns(e)
         sig_logit, att, dscale = self.net(pos01, ant01, ex)
-        idx = dr.arange(B.UInt32, n * nb) % dr.opaque(B.UInt32, n)
-        op_logit = dr.gather(B.Float, self.params["opacity_logits"], idx) + att
+        op_logit = per_view([self.params["opacity_logits"]], views=nb, n=n)[0] + att
         q = dr.unravel(B.Array4f, self.params["rotations"])
         q = q / dr.sqrt(dr.squared_norm(q) + 1e-12)
         log_scales = dr.unravel(B.Array3f, self.params["log_scales"])
         if self.cfg.scale_mode == "angular" or self.cfg.scale_net:
-            ls = dr.gather(B.Array3f, log_scales, idx)
+            ls = per_view([log_scales], views=nb, n=n)[0]
             if self.cfg.scale_mode == "angular":
                 vp = np.asarray(antenna_pos if view_pos is None else view_pos, dtype=np.float32).reshape(nb, 3)
                 vpa = dr.gather(B.Array3f, B.Array3f(*upload_columns(B.Float, vp)),
                                 dr.arange(B.UInt32, n * nb) // dr.opaque(B.UInt32, n))
-                dist = dr.norm(dr.gather(B.Array3f, means, idx) - vpa)
+                dist = dr.norm(per_view([means], views=nb, n=n)[0] - vpa)
                 ls = ls + dr.log(dr.maximum(dist, 0.05))
             if self.cfg.scale_net:
                 ls = ls + dr.tanh(dscale)

@@ -15,12 +15,16 @@ Pipeline (one call):
    tile, 8 pixels per lane, on the LLVM backend) with a hand-written backward
    (``dr.CustomOp``).
 
+Per-Gaussian arrays are repeated for the B views by :mod:`.per_view`, whose
+gradient sums the views with gathers instead of atomic additions.
+
 No kernel depends on N, on the number of pairs or on the batch size B (for
 B >= 2), so densification does not recompile anything. ``render(...,
-check=True)`` (the default) validates the parameter values with one fused
-reduction and a synchronisation; a training loop passes ``check=False``:
-non-finite or degenerate geometry then drops those Gaussians (never a crash),
-non-finite signals give non-finite pixels.
+check=True)`` (the default, and the trainer's) validates the parameter values
+with one fused reduction per array size and a synchronisation, and names the
+problem; with ``check=False`` (the benchmarks) non-finite or degenerate
+geometry drops those Gaussians (never a crash), non-finite signals give
+non-finite pixels.
 
 Definitions: ``I = sum_i T_i alpha_i s_i``, ``T_i = prod_{j<i}(1 - alpha_j)``,
 ``alpha_i = min(0.99, opacity_i exp(-d^T Sigma^-1 d / 2))``, contributions with

@@ -202,7 +202,7 @@ class Rasterize(dr.CustomOp):
                                 labels=("i", "T", "C"), label="splat_forward")
         self.T_final = T
         dr.eval(T, C)  # one kernel for the loop (each scatter below would otherwise re-run it)
-        image = dr.zeros(B.Float, views * height * width)
+        image = dr.empty(B.Float, views * height * width)   # every pixel is one lane's (no memset)
         for q in range(sub):
             dr.scatter(image, C[q], pix[q], active[q])
         dr.eval(image)
@@ -295,7 +295,7 @@ def _sum_pairs(slots, lists, params, m):
     entry = lists.order  # a permutation of the entries
     ca, cb, cc, op = (dr.gather(B.Float, params[k], entry) for k in (2, 3, 4, 5))
     grads = _moments_to_grads(sums, ca, cb, cc, op)
-    out = [dr.zeros(B.Float, m) for _ in grads]
+    out = [dr.empty(B.Float, m) for _ in grads]    # every entry is written once (no memset)
     for o, g in zip(out, grads):
         dr.scatter(o, g, entry)
     dr.eval(out)
