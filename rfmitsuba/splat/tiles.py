@@ -8,21 +8,20 @@ synchronisation is reading the number of pairs. :func:`build_numpy` is the
 same construction in NumPy (kept as an independent check for the tests). The image is cut into tiles of
 ``TILE_H x TILE_W`` pixels (8 x 8 = 64 pixels, drawn by 8 lanes of eight
 pixels on the LLVM backend -- :func:`lanes_per_tile` -- so the lanes of a tile
-walk the same list in one packet, and the backward pass's per-pair sums are
-added to one slot without atomics, shared by 64 pixels; on AVX-512, 2x8, 4x8
-and 16x8 tiles measured slower). A Gaussian touches the
+walk the same list in one packet, and a backward step's sums over a lane's
+eight pixels are one addition; on AVX-512, 2x8, 4x8 and 16x8 tiles measured
+slower). A Gaussian touches the
 pixels where ``opacity * exp(-q/2) >= ALPHA_MIN``, i.e. inside the ellipse
 ``q <= 2 ln(opacity / ALPHA_MIN)``; its axis-aligned bounding box decides its
 tiles, so no contribution the rasteriser would keep is lost. Given the conic,
 :func:`build` also drops the tiles of the box that the ellipse misses (the
 least ``q`` over a tile's pixel rectangle, exact; 11.7% of the pairs of
-``rfmitsuba bench splat``'s scene), which changes no bit of the image or its
-gradients. Azimuth wraps: a box crossing column 0 / W touches tiles at both
+``rfmitsuba bench splat``'s scene), which changes no bit of the image and
+its gradients only by float32 rounding (another summation order). Azimuth wraps: a box crossing column 0 / W touches tiles at both
 ends of the row.
 """
 from __future__ import annotations
 
-import functools
 import os
 from dataclasses import dataclass
 
@@ -55,8 +54,8 @@ def lanes_per_tile() -> int:
     reduced each pair's gradients across the packet): a training iteration at 10 000 Gaussians
     7.1-7.3 ms against 8.1-8.3 ms for 16 lanes (alternating processes), at 50 000 29.6-32.2
     against 33.8-37.1 ms, at 2000 3.8 against 3.9-4.1 ms; the op alone on 2 threads, forward 1.74
-    against 1.85 ms, backward 3.1 against 3.8 ms (a step's record load and slot addition shared
-    by eight pixels instead of four); the Stage-1 splat step 66-67 against 68-71 ms at 90 x 360,
+    against 1.85 ms, backward 3.1 against 3.8 ms (a step's record load and moment addition
+    shared by eight pixels instead of four); the Stage-1 splat step 66-67 against 68-71 ms at 90 x 360,
     45-50 against 45-46 ms at 45 x 180. On an AVX2 host (earlier code, ``rfmitsuba bench splat``):
     under load 3.5-4.5, 8 lanes took 58-63 ms per iteration against 72-80 ms for 16. The
     environment variable ``RFMITSUBA_SPLAT_LANES`` (one of :data:`TILE_LANE_CHOICES`) overrides
@@ -77,34 +76,6 @@ def checked_lanes(lanes, *, what: str) -> int:
     if isinstance(lanes, bool) or lanes not in TILE_LANE_CHOICES:
         raise ConfigError(f"{what} must be one of {TILE_LANE_CHOICES}, got {lanes!r}")
     return int(lanes)
-
-
-@functools.cache
-def _cpu_flags() -> frozenset:
-    """The host CPU's feature flags (Linux ``/proc/cpuinfo``; empty elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
-            for line in f:
-                if line.startswith("flags"):
-                    return frozenset(line.split(":", 1)[-1].split())
-    except OSError:
-        pass
-    return frozenset()
-
-
-def llvm_packet_width_at_least() -> int:
-    """A lower bound on the LLVM backend's packet width (lanes), from the CPU's flags.
-
-    Dr.Jit's LLVM backend runs 16 lanes per packet where the CPU has AVX-512VL, 8 with AVX and
-    4 with SSE 4.2 or NEON. This mirrors that rule from ``/proc/cpuinfo`` and answers 4 where
-    it cannot tell: a caller relies on "a tile's lanes lie in one packet" only where the packet
-    is at least this wide, so an underestimate is safe (and merely slower)."""
-    flags = _cpu_flags()
-    if {"avx512f", "avx512vl"} <= flags:
-        return 16
-    if "avx" in flags:
-        return 8
-    return 4
 
 
 def wrap_offset(du, width):
@@ -216,23 +187,11 @@ def build_numpy(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, height: int
 @dataclass
 class DeviceTileLists:
     """Like :class:`TileLists`, as Dr.Jit UInt32 arrays (``entries`` may be a
-    size-1 dummy when there are no pairs; ``count`` says how many there are).
-
-    For the backward pass's per-Gaussian sums, the pairs also have an
-    entry-major order (Gaussians front to back, each Gaussian's pairs
-    contiguous): ``sorted_pos`` UInt32 [P] maps an entry-major pair to its
-    position in ``entries``; ``order`` UInt32 [B*N] lists entries front to
-    back; ``first`` / ``length`` UInt32 [B*N] give the entry-major pair range
-    of ``order[s]``.
-    """
+    size-1 dummy when there are no pairs; ``count`` says how many there are)."""
 
     entries: object
     offsets: object
     count: int
-    sorted_pos: object = None
-    order: object = None
-    first: object = None
-    length: object = None
 
 
 #: Relative and absolute widening of the boxes (pixels), so that float32
@@ -352,7 +311,7 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     total = int((dr.gather(UInt32, start, last) + dr.gather(UInt32, count_s, last))[0])
     offsets_default = dr.zeros(UInt32, num_tiles + 1)
     if total == 0:
-        return DeviceTileLists(UInt32(0), offsets_default, 0, UInt32(0), order, start, count_s)
+        return DeviceTileLists(UInt32(0), offsets_default, 0)
     # Each pair's sorted-entry position: mark where each non-empty entry starts, max-scan.
     m = dr.width(count_s)
     mark = dr.zeros(UInt32, total)
@@ -383,7 +342,5 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     offsets = dr.binary_search(0, (1 << 31) - 1, lambda i: (i < total_o) & (
         dr.gather(UInt32, tile_sorted, dr.minimum(i, total_o - 1)) < t))
     offsets = dr.minimum(UInt32(offsets), total_o)
-    sorted_pos = dr.zeros(UInt32, total)
-    dr.scatter(sorted_pos, dr.arange(UInt32, total), perm)  # inverse permutation
-    dr.eval(entries, offsets, sorted_pos, order, start, count_s)
-    return DeviceTileLists(entries, offsets, total, sorted_pos, order, start, count_s)
+    dr.eval(entries, offsets)
+    return DeviceTileLists(entries, offsets, total)

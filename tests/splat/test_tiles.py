@@ -96,16 +96,6 @@ def test_no_pairs(variant):
     assert lists.count == 0 and not np.any(lists.offsets.numpy())
 
 
-def test_packet_width_lower_bound_follows_the_cpu_flags(monkeypatch):
-    # Dr.Jit's LLVM packets: 16 lanes with AVX-512VL, 8 with AVX, 4 with SSE 4.2 / NEON; an
-    # unreadable /proc/cpuinfo answers the smallest (an underestimate only costs speed).
-    cases = [({"avx512f", "avx512vl", "avx2", "avx"}, 16), ({"avx512f", "avx2", "avx"}, 8),
-             ({"avx2", "avx", "sse4_2"}, 8), ({"sse4_2"}, 4), (set(), 4)]
-    for flags, width in cases:
-        monkeypatch.setattr(tiles, "_cpu_flags", lambda flags=flags: frozenset(flags))
-        assert tiles.llvm_packet_width_at_least() == width, flags
-
-
 def test_ellipse_tile_test_never_misses_a_pixel(variant):
     # _reaches (the least q over a rectangle) against a dense grid in float64: wherever some
     # point of the rectangle has q <= k2 it must answer True; and it drops most rectangles the
