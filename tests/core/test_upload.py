@@ -105,7 +105,7 @@ def test_upload_rows_gives_every_column(variant, rows, cols):
     assert is_aligned(kept) or rows == 0      # NumPy may move an empty array's pointer
     strided = np.zeros((rows, 2 * cols + 1), np.float32)[:, 1::2]
     strided[...] = values
-    assert not is_aligned(strided)
+    assert not is_aligned(strided) or rows == 0
     for host in (kept, strided):
         out = upload_rows(B.Float, host)
         assert len(out) == cols
