@@ -260,14 +260,18 @@ def _reaches(ca, cb, cc, du0, du1, dv0, dv1, k2):
     return inside | ~definite | ~(q > k2 * (1.0 + _CULL_REL) + _CULL_ABS)
 
 
-def _pair_reaches_tile(u, v, k2, conic, e, tx, ty, height, width):
-    """Per pair (entry ``e``, tile column ``tx`` and row ``ty``): whether some pixel of the
-    tile may get ``alpha >= ALPHA_MIN`` from the entry (:func:`_reaches` on the tile's pixel
-    rectangle against the entry's bound ``k2``, azimuth offsets wrapped as the rasteriser wraps
-    them; a rectangle that the wrap would cut counts as reached)."""
+#: Floats per entry record of :func:`build`'s tile test (centre, bound, conic; one packet load).
+RECORD_TILE = 8
+
+
+def _pair_reaches_tile(uu, vv, k2, conic, tx, ty, height, width):
+    """Per pair (its entry's centre ``uu, vv``, bound ``k2`` and conic, Float each; tile column
+    ``tx`` and row ``ty``): whether some pixel of the tile may get ``alpha >= ALPHA_MIN`` from
+    the entry (:func:`_reaches` on the tile's pixel rectangle against the entry's bound ``k2``,
+    azimuth offsets wrapped as the rasteriser wraps them; a rectangle that the wrap would cut
+    counts as reached)."""
     Float = B.Float
-    ca, cb, cc = (dr.gather(Float, x, e) for x in conic)
-    uu, vv, k2 = dr.gather(Float, u, e), dr.gather(Float, v, e), dr.gather(Float, k2, e)
+    ca, cb, cc = conic
     x0 = Float(tx * TILE_W)
     x1 = dr.minimum(x0 + (TILE_W - 1), width - 1.0)
     y0 = Float(ty * TILE_H)
@@ -315,22 +319,35 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     # Each pair's sorted-entry position: mark where each non-empty entry starts, max-scan.
     m = dr.width(count_s)
     mark = dr.zeros(UInt32, total)
-    pos = dr.arange(UInt32, m)
-    dr.scatter(mark, pos, start, count_s > 0)
+    dr.scatter(mark, dr.arange(UInt32, m), start, count_s > 0)
     s = dr.block_prefix_reduce(dr.ReduceOp.Max, mark, block_size=total, exclusive=False)
+    # What a pair reads of its entry, packed per sorted entry (one packet load per pair instead
+    # of a gather per value: a vector gather is slow on x86): its first pair, the entry, its
+    # first tile (column | row << 16) and its tile columns (first part | all << 16); tile
+    # coordinates are below 2^16. With the conic also its centre, bound and conic.
+    pos = dr.arange(UInt32, m)
+    rec_int = dr.empty(UInt32, 4 * m)
+    dr.scatter(rec_int, B.jit.ArrayXu([start, order, dr.gather(UInt32, tx0 | (ty0 << 16), order),
+                                       dr.gather(UInt32, ncol1 | (ncols << 16), order)]), pos)
+    if conic is not None:
+        rec_f = dr.empty(B.Float, RECORD_TILE * m)
+        dr.scatter(rec_f, B.jit.ArrayXf([dr.gather(B.Float, x, order) for x in (u, v, k2) + tuple(conic)]
+                                        + [B.Float(0.0)] * (RECORD_TILE - 6)), pos)
     p = dr.arange(UInt32, total)
-    k = p - dr.gather(UInt32, start, s)
-    e = dr.gather(UInt32, order, s)
-    nc = dr.maximum(dr.gather(UInt32, ncols, e), 1)  # >= 1 also in padding lanes (no SIGFPE)
-    n1 = dr.gather(UInt32, ncol1, e)
+    first, e, txy, cols = dr.gather(B.jit.ArrayXu, rec_int, s, shape=(4, total))
+    k = p - first
+    nc = dr.maximum(cols >> 16, 1)  # >= 1 also in padding lanes (no SIGFPE)
+    n1 = cols & 0xFFFF
     row = k // nc
     col = k - row * nc
-    tx = dr.select(col < n1, dr.gather(UInt32, tx0, e) + col, col - n1)
+    tx = dr.select(col < n1, (txy & 0xFFFF) + col, col - n1)
     view = e // dr.opaque(UInt32, n)
-    ty = dr.gather(UInt32, ty0, e) + row
+    ty = (txy >> 16) + row
     tile = view * tiles_per_view + ty * ntx + tx
     if conic is not None:  # dead pairs take the key num_tiles: after every tile, in no list
-        tile = dr.select(_pair_reaches_tile(u, v, k2, conic, e, tx, ty, height, width), tile, num_tiles)
+        r = dr.gather(B.jit.ArrayXf, rec_f, s, shape=(RECORD_TILE, total))
+        tile = dr.select(_pair_reaches_tile(r[0], r[1], r[2], (r[3], r[4], r[5]), tx, ty, height, width),
+                         tile, num_tiles)
     dr.eval(tile, e)
     buckets = 1 << max(int(num_tiles).bit_length(), 1)
     perm = dr.detail.block_mkperm(tile, total, buckets)
