@@ -70,8 +70,9 @@ def upload_rows(array_type, values) -> list:
     :class:`rfmitsuba.models.nn.MLP` write into such arrays) Dr.Jit borrows its memory: no copy
     and no transpose on the host; the columns are lazy gathers that the kernels reading them
     compute, at a stride of D elements. The caller must not write ``values`` afterwards.
-    :func:`upload_columns` instead copies into one contiguous array per column. A [40 000, 3]
-    array took 0.35 ms to copy column by column, a [10 000, 64] one 1.3 ms; here, nothing.
+    :func:`upload_columns` instead copies into one contiguous array per column: a [10 000, 64]
+    array took 0.72 ms that way against 0.065 ms here (the call alone, warm caches); the EM
+    network's uploads in a splat training step 3.0 against 0.9 ms per step.
 
     Raises:
         ValueError: ``values`` is not two-dimensional.
