@@ -26,7 +26,8 @@ loop step reads its Gaussian with one aligned 8-wide packet load per lane and
 no indirection through the list's entry index; ``exp(-q/2)`` is evaluated as
 ``2^x`` by :func:`_exp2`.
 Tiles are visited in a scrambled order so that the two equal lane blocks
-Dr.Jit gives its threads hold a similar amount of work.
+Dr.Jit gives its threads hold a similar amount of work, view after view
+(:func:`_lanes`).
 
 Forward: a symbolic ``dr.while_loop`` over the tile list (one kernel).
 Backward (``dr.CustomOp``): the same list back to front, recovering
@@ -62,7 +63,7 @@ from ..core import backend as B
 from . import tiles as _tiles
 from .tiles import ALPHA_MAX, ALPHA_MIN, TILE_H, TILE_SIZE, TILE_W
 
-#: Primes for the tile scrambling (the first one not dividing the tile count is used).
+#: Primes for the tile scrambling (the first one not dividing a view's tile count is used).
 _STRIDES = (37, 41, 43)  # small: slot * stride stays far below 2^32
 
 
@@ -76,13 +77,24 @@ def _lanes(views: int, height: int, width: int, tile_lanes: int):
     lanes = dr.arange(B.UInt32, num_tiles * tile_lanes)
     slot = lanes // tile_lanes
     k = lanes - slot * tile_lanes
-    # Tiles in a scrambled order (slot * stride mod T, a permutation), so that the
-    # contiguous lane blocks Dr.Jit hands to its threads mix busy and idle tiles.
-    stride = next((p for p in _STRIDES if num_tiles % p), 1)
-    tile = (slot * dr.opaque(B.UInt32, stride)) % dr.opaque(B.UInt32, num_tiles)
     tiles_per_view = nty * ntx
-    view = tile // tiles_per_view
-    t = tile - view * tiles_per_view
+    # Each view's tiles in a scrambled order (j * stride mod its tile count), dealt into two
+    # halves; the lanes hold the first halves of all views, view after view, then the second
+    # halves. Each of the two lane blocks Dr.Jit hands to its threads thus mixes busy and idle
+    # tiles of every view, and works on one view's Gaussians at a time, whose accumulators of
+    # the backward pass then stay in the core's cache (the whole batch's tiles scrambled
+    # together: backward 16.8-17.5 against 16.1-16.3 ms at 4 x 10 000, alternating in one
+    # process). One view: the order of the whole-batch scramble.
+    stride = next((p for p in _STRIDES if tiles_per_view % p), 1)
+    a = (tiles_per_view + 1) // 2
+    b = max(tiles_per_view - a, 1)
+    views_o = dr.opaque(B.UInt32, views)
+    first_half = slot < views_o * a
+    rest = slot - views_o * a
+    view = dr.select(first_half, slot // a, rest // b)
+    j = dr.select(first_half, slot - view * a, a + (rest - view * b))
+    t = (j * stride) % tiles_per_view
+    tile = view * tiles_per_view + t
     ty = t // ntx
     tx = t - ty * ntx
     lane_row = k // TILE_W

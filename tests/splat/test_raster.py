@@ -178,3 +178,20 @@ def test_culled_tile_pairs_change_nothing(variant):
     np.testing.assert_array_equal(img_culled, img_full)
     for g, g_full in zip(grads_culled, grads_full):
         np.testing.assert_allclose(g, g_full, rtol=1e-5, atol=1e-6 * float(np.abs(g_full).max()))
+
+
+@pytest.mark.parametrize("views,height,width", [(1, 90, 360), (4, 90, 360), (3, 8, 8), (2, 24, 40), (5, 17, 9)])
+def test_lanes_visit_every_tile_once_view_by_view(variant, views, height, width):
+    # The lane -> tile map is a permutation of the tiles (every tile drawn once, by its
+    # tile_lanes lanes); each half of the lanes holds about half of every view's tiles, the views
+    # in order (the backward pass's accumulators of one view at a time).
+    lanes = tiles.lanes_per_tile()
+    tile = raster._lanes(views, height, width, lanes)[0].numpy()
+    nty, ntx = tiles.tile_grid(height, width)
+    per_view = nty * ntx
+    slots = tile[::lanes]
+    assert np.all(tile.reshape(-1, lanes) == slots[:, None])
+    assert sorted(slots.tolist()) == list(range(views * per_view))
+    first = slots[:views * ((per_view + 1) // 2)] // per_view
+    assert np.all(np.diff(first) >= 0)                      # view after view
+    assert np.bincount(first, minlength=views).tolist() == [(per_view + 1) // 2] * views
