@@ -34,7 +34,9 @@ Backward (``dr.CustomOp``): the same list back to front, recovering
 ``T_k = T_{k+1} / (1 - alpha_k)`` from the final transmittance as 3DGS does.
 Each step sums, over the lane's pixels, seven moments of the pair
 (with ``e = dL/dalpha * exp(-q/2)``: ``e, e du, e dv, e du^2, e du dv, e dv^2``
-and ``dL/dsignal``) and adds them, one 8-wide packet per lane, into its
+and ``dL/dsignal``; a lane's pixels share one column, so ``du``, and the
+pixels sum ``e, e dv, e dv^2`` and ``dL/dsignal`` only, the ``du`` factors
+applied once per lane) and adds them, one 8-wide packet per lane, into its
 Gaussian's (entry's) accumulator; the entry index travels in the pair record's
 last float. On the LLVM backend the addition goes into a copy of the
 accumulators per thread (``ReduceMode.Expand``, :func:`_moment_mode`), lane by
@@ -176,7 +178,9 @@ def _alpha(par, px, py, width):
     u, v, qa, qb, qc, op, _ = par
     du = _tiles.wrap_offset(px - u, width)
     dv = py - v
-    gauss = _exp2(qa * du * du + qb * du * dv + qc * dv * dv)  # exp(-q/2)
+    # exp(-q/2), q = a du^2 + dv (2b du + c dv) in base 2: a lane's pixels share du (one column),
+    # so the du terms are computed once per lane and each pixel takes two fused multiply-adds
+    gauss = _exp2(dr.fma(dv, dr.fma(qc, dv, qb * du), qa * du * du))
     raw = op * gauss
     alpha = dr.minimum(raw, ALPHA_MAX)
     return alpha, raw, gauss, du, dv
@@ -249,7 +253,9 @@ class Rasterize(dr.CustomOp):
             par, entry = _load(self.records, i, entry=True)
             s = par[6]
             T, acc = list(T), list(acc)
-            sums = [B.Float(0.0) for _ in range(RECORD - 1)]
+            # per lane: sums over its pixels of e, e dv, e dv^2 and dL/dsignal; a lane's pixels
+            # share du (one column), so the moments with du are these sums times du after the loop
+            sums = [B.Float(0.0) for _ in range(4)]
             for q in range(sub):
                 alpha, raw, gauss, du, dv = _alpha(par, px, rows[q], width)
                 use = (alpha >= ALPHA_MIN) & active[q]
@@ -259,12 +265,15 @@ class Rasterize(dr.CustomOp):
                 g_alpha = gpix[q] * (T_k * s - acc[q] * inv_one_m)
                 g_alpha = dr.select(use & (raw < ALPHA_MAX), g_alpha, 0.0)  # clamped: no dependence
                 e = g_alpha * gauss
-                e_du, e_dv = e * du, e * dv
-                pixel = (e, e_du, e_dv, e_du * du, e_du * dv, e_dv * dv, dr.select(use, gpix[q] * w, 0.0))
+                e_dv = e * dv
+                pixel = (e, e_dv, e_dv * dv, dr.select(use, gpix[q] * w, 0.0))
                 sums = [a + b for a, b in zip(sums, pixel)]
                 acc[q] = dr.select(use, dr.fma(w, s, acc[q]), acc[q])
                 T[q] = dr.select(use, T_k, T[q])
-            dr.scatter_reduce(dr.ReduceOp.Add, moments, B.jit.ArrayXf(sums + [B.Float(0.0)]), entry, mode=mode)
+            s_e, s_edv, s_edv2, s_g = sums
+            du_e = du * s_e
+            lane = [s_e, du_e, s_edv, du * du_e, du * s_edv, s_edv2, s_g, B.Float(0.0)]
+            dr.scatter_reduce(dr.ReduceOp.Add, moments, B.jit.ArrayXf(lane), entry, mode=mode)
             return i, tuple(T), tuple(acc)
 
         zero = tuple(B.Float(0.0) for _ in range(sub))
