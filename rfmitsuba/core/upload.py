@@ -62,6 +62,14 @@ def is_aligned(values: np.ndarray) -> bool:
     return bool(values.flags.c_contiguous) and values.ctypes.data % ALIGN == 0
 
 
+def _matrix(values, what: str) -> np.ndarray:
+    """``values`` as a NumPy array [M, D]; ValueError naming ``what`` otherwise."""
+    values = np.asarray(values)
+    if values.ndim != 2:
+        raise ValueError(f"{what}: expected a host array [M, D], got shape {values.shape}")
+    return values
+
+
 def upload_rows(array_type, values) -> list:
     """The D columns of a host array [M, D] as D ``array_type`` arrays of width M that gather
     from one flat buffer holding ``values`` row by row (element ``m * D + k`` of the buffer).
@@ -79,9 +87,7 @@ def upload_rows(array_type, values) -> list:
     """
     import drjit as dr
 
-    values = np.asarray(values)
-    if values.ndim != 2:
-        raise ValueError(f"upload_rows: expected a host array [M, D], got shape {values.shape}")
+    values = _matrix(values, "upload_rows")
     m, d = values.shape
     if m == 0:
         return [array_type(np.zeros(0, values.dtype)) for _ in range(d)]
@@ -103,9 +109,7 @@ def upload_columns(array_type, values) -> list:
     Raises:
         ValueError: ``values`` is not two-dimensional.
     """
-    values = np.asarray(values)
-    if values.ndim != 2:
-        raise ValueError(f"upload_columns: expected a host array [M, D], got shape {values.shape}")
+    values = _matrix(values, "upload_columns")
     m, d = values.shape
     per_row = max(1, ALIGN // values.itemsize)
     buf = empty_aligned((d, -(-m // per_row) * per_row), values.dtype)
