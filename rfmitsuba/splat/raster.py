@@ -49,7 +49,7 @@ not recompile.
 
 Summation order: a thread adds in lane order, a lane in list order (back to
 front); so the gradients depend on the tile lists and on the number of Dr.Jit
-threads at the level of float32 rounding (culled lists: within 1e-6 relative),
+threads at the level of float32 rounding (culled lists: within 1e-5 relative),
 and a run repeated on the same machine gives the same bits. Before 2026-11-28
 each pair had its own slot and a second loop summed every entry's slots; that
 kept the bits under culling but cost a per-entry walk whose packets waited for

@@ -17,8 +17,8 @@ tiles, so no contribution the rasteriser would keep is lost. Given the conic,
 :func:`build` also drops the tiles of the box that the ellipse misses (the
 least ``q`` over a tile's pixel rectangle, exact; 11.7% of the pairs of
 ``rfmitsuba bench splat``'s scene), which changes no bit of the image and
-its gradients only by float32 rounding (another summation order). Azimuth wraps: a box crossing column 0 / W touches tiles at both
-ends of the row.
+its gradients only by float32 rounding (another summation order). Azimuth
+wraps: a box crossing column 0 / W touches tiles at both ends of the row.
 """
 from __future__ import annotations
 
