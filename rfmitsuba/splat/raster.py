@@ -39,9 +39,10 @@ pixels sum ``e, e dv, e dv^2`` and ``dL/dsignal`` only, the ``du`` factors
 applied once per lane) and adds them, one 8-wide packet per lane, into its
 Gaussian's (entry's) accumulator; the entry index travels in the pair record's
 last float. On the LLVM backend the addition goes into a copy of the
-accumulators per thread (``ReduceMode.Expand``, :func:`_moment_mode`), lane by
-lane without atomics, and the copies are added after the kernel; on CUDA it is
-a warp reduction and an atomic addition. The gradients of (u, v, a, b, c,
+accumulators per thread (``ReduceMode.Expand``, chosen by ``Auto`` below
+Dr.Jit's expand threshold, :func:`_moment_mode`), lane by lane without
+atomics, and the copies are added after the kernel; on CUDA it is a warp
+reduction and an atomic addition. The gradients of (u, v, a, b, c,
 opacity, signal) are linear in the moments with the Gaussian's own conic and
 opacity as coefficients (:func:`_moments_to_grads`), formed once per entry. No
 kernel contains N, the number of pairs or any other size: densification does
@@ -187,11 +188,15 @@ def _alpha(par, px, py, width):
 
 
 def _moment_mode():
-    """Scatter mode of the backward pass's per-entry moment sums: LLVM ``Expand`` (a copy of the
-    accumulators per thread, filled lane by lane without atomics and added after the kernel: the
-    lanes of a packet may add to one entry, and both threads may), CUDA ``Local`` (a warp
-    reduction of equal indices, then an atomic addition)."""
-    return dr.ReduceMode.Local if B.is_cuda() else dr.ReduceMode.Expand
+    """Scatter mode of the backward pass's per-entry moment sums.
+
+    LLVM: ``Auto``, which is ``Expand`` (a copy of the accumulators per thread, filled lane by
+    lane without atomics and added after the kernel; the lanes of a packet may add to one entry,
+    and so may both threads) while the accumulators hold at most :func:`drjit.expand_threshold`
+    floats (a million by default: 31 250 views x Gaussians, 8 floats each), and atomic additions
+    beyond, so that a many-core CPU does not hold a copy per core of a large array. CUDA:
+    ``Local`` (a warp reduction of equal indices, then an atomic addition)."""
+    return dr.ReduceMode.Local if B.is_cuda() else dr.ReduceMode.Auto
 
 
 class Rasterize(dr.CustomOp):

@@ -133,9 +133,46 @@ def test_moments_give_the_per_pixel_gradients(variant):
 
 
 def test_moment_mode(variant):
-    # A copy of the accumulators per thread on the LLVM backend (lanes of one packet, and both
-    # threads, may add to one Gaussian); the warp reduction on CUDA.
-    assert raster._moment_mode() == (dr.ReduceMode.Local if B.is_cuda() else dr.ReduceMode.Expand)
+    # LLVM: Dr.Jit's choice, a copy of the accumulators per thread below its expand threshold
+    # (lanes of one packet, and both threads, may add to one Gaussian); the warp reduction on CUDA.
+    assert raster._moment_mode() == (dr.ReduceMode.Local if B.is_cuda() else dr.ReduceMode.Auto)
+
+
+def test_gradients_do_not_depend_on_the_scatter_mode(variant):
+    # Above Dr.Jit's expand threshold the moments are added with atomics instead of per-thread
+    # copies: the same gradients up to float32 summation order.
+    import drjit as dr
+
+    from rfmitsuba.splat.project import Projected
+
+    rng = np.random.default_rng(4)
+    views, n, h, w = 2, 60, 24, 48
+    f = lambda a: B.Float(np.float32(a))  # noqa: E731
+    m = views * n
+    sig2 = rng.uniform(1.0, 9.0, m)
+    p = Projected(u=f(rng.uniform(0, w, m)), v=f(rng.uniform(0, h, m)), conic_a=f(1 / sig2), conic_b=f(np.zeros(m)),
+                  conic_c=f(1 / sig2), cov_uu=f(sig2), cov_vv=f(sig2), opacity=f(rng.uniform(0.1, 0.9, m)),
+                  signal=f(rng.uniform(0.0, 1.0, m)), depth=f(rng.uniform(0.5, 5.0, m)))
+    weights = B.Float(np.float32(rng.normal(size=views * h * w)))
+
+    def grads():
+        args = [B.Float(getattr(p, k)) for k in ("u", "v", "conic_a", "conic_b", "conic_c", "opacity", "signal")]
+        for a in args:
+            dr.enable_grad(a)
+        q = Projected(u=args[0], v=args[1], conic_a=args[2], conic_b=args[3], conic_c=args[4], cov_uu=p.cov_uu,
+                      cov_vv=p.cov_vv, opacity=args[5], signal=args[6], depth=p.depth)
+        dr.backward(dr.sum(raster.rasterize(q, views=views, height=h, width=w) * weights))
+        return [np.asarray(dr.grad(a).numpy()) for a in args]
+
+    expanded = grads()
+    before = dr.expand_threshold()
+    dr.set_expand_threshold(1)
+    try:
+        atomic = grads()
+    finally:
+        dr.set_expand_threshold(before)
+    for a, b in zip(atomic, expanded):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * float(np.abs(b).max()))
 
 
 def test_culled_tile_pairs_change_nothing(variant):
