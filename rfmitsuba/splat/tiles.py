@@ -319,13 +319,13 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     # Each pair's sorted-entry position: mark where each non-empty entry starts, max-scan.
     m = dr.width(count_s)
     mark = dr.zeros(UInt32, total)
-    dr.scatter(mark, dr.arange(UInt32, m), start, count_s > 0)
+    pos = dr.arange(UInt32, m)
+    dr.scatter(mark, pos, start, count_s > 0)
     s = dr.block_prefix_reduce(dr.ReduceOp.Max, mark, block_size=total, exclusive=False)
     # What a pair reads of its entry, packed per sorted entry (one packet load per pair instead
     # of a gather per value: a vector gather is slow on x86): its first pair, the entry, its
     # first tile (column | row << 16) and its tile columns (first part | all << 16); tile
     # coordinates are below 2^16. With the conic also its centre, bound and conic.
-    pos = dr.arange(UInt32, m)
     rec_int = dr.empty(UInt32, 4 * m)
     dr.scatter(rec_int, B.jit.ArrayXu([start, order, dr.gather(UInt32, tx0 | (ty0 << 16), order),
                                        dr.gather(UInt32, ncol1 | (ncols << 16), order)]), pos)
