@@ -217,18 +217,47 @@ def test_culled_tile_pairs_change_nothing(variant):
         np.testing.assert_allclose(g, g_full, rtol=1e-5, atol=1e-6 * float(np.abs(g_full).max()))
 
 
-@pytest.mark.parametrize("views,height,width", [(1, 90, 360), (4, 90, 360), (3, 8, 8), (2, 24, 40), (5, 17, 9)])
-def test_lanes_visit_every_tile_once_view_by_view(variant, views, height, width):
+@pytest.mark.parametrize("views,height,width", [(1, 90, 360), (4, 90, 360), (3, 8, 8), (2, 24, 40), (5, 17, 9),
+                                                (2, 8, 24)])
+def test_lanes_take_tiles_in_pairs_of_equal_lists_view_by_view(variant, views, height, width):
     # The lane -> tile map is a permutation of the tiles (every tile drawn once, by its
-    # tile_lanes lanes); each half of the lanes holds about half of every view's tiles, the views
-    # in order (the backward pass's accumulators of one view at a time).
-    lanes = tiles.lanes_per_tile()
-    tile = raster._lanes(views, height, width, lanes)[0].numpy()
+    # tile_lanes lanes). Each view's tiles go in pairs of neighbours in list-length order (one
+    # packet walks both lists), the pairs alternately (snake order) to the two halves of the
+    # lanes, and each half holds the views in order (the backward pass's accumulators of one
+    # view at a time).
     nty, ntx = tiles.tile_grid(height, width)
     per_view = nty * ntx
+    num = views * per_view
+    rng = np.random.default_rng(views * 1000 + height)
+    lengths = rng.integers(0, 5000, num).astype(np.uint32)     # some beyond the sort's levels
+    lengths[rng.random(num) < 0.2] = 0
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.uint32)
+    lanes = tiles.lanes_per_tile()
+    slot_tile = raster._slot_tiles(B.UInt32(offsets), views, per_view)
+    tile = raster._lanes(slot_tile, views, height, width, lanes)[0].numpy()
     slots = tile[::lanes]
     assert np.all(tile.reshape(-1, lanes) == slots[:, None])
-    assert sorted(slots.tolist()) == list(range(views * per_view))
-    first = slots[:views * ((per_view + 1) // 2)] // per_view
-    assert np.all(np.diff(first) >= 0)                      # view after view
-    assert np.bincount(first, minlength=views).tolist() == [(per_view + 1) // 2] * views
+    assert sorted(slots.tolist()) == list(range(num))
+    first = raster._first_half_tiles(per_view)
+    assert abs(2 * first - per_view) <= 2
+    sizes = [first if v % 2 == 0 else per_view - first for v in range(views)]   # the first half's
+    halves = (slots[:sum(sizes)], slots[sum(sizes):])
+    for half, size in zip(halves, (sizes, [per_view - s for s in sizes])):
+        assert np.all(np.diff(half // per_view) >= 0)                       # view after view
+        assert np.bincount(half // per_view, minlength=views).tolist() == size
+    assert abs(len(halves[0]) - len(halves[1])) <= 2
+    # packet partners: neighbours in the view's length order (clamped at the sort's levels)
+    key = np.minimum(lengths, raster._LENGTH_LEVELS - 1)
+    for v in range(views):
+        ranks = np.empty(per_view, np.int64)
+        ranks[np.argsort(key[v * per_view:(v + 1) * per_view], kind="stable")] = np.arange(per_view)
+        rank_of = dict(zip(range(v * per_view, (v + 1) * per_view), ranks))
+        for half in halves:
+            mine = [t for t in half.tolist() if t // per_view == v]
+            pairs = [mine[i:i + 2] for i in range(0, len(mine), 2)]
+            for pair in pairs:
+                r = sorted(rank_of[t] for t in pair)
+                assert r[0] % 2 == 0 and (len(r) == 1 or r[1] == r[0] + 1)
+    if per_view >= 8:   # the snake order splits the work about evenly
+        work = [int(key[h].sum()) for h in halves]
+        assert abs(work[0] - work[1]) <= 0.25 * sum(work)
