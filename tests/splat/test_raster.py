@@ -101,7 +101,7 @@ def test_lane_layout_errors(variant, monkeypatch):
 
 
 def test_exp2_relative_error_and_clamp(variant):
-    # The rasteriser's 2^x (range reduction and a degree-6 polynomial) against float64 NumPy
+    # The rasteriser's 2^x (range reduction and a degree-5 polynomial) against float64 NumPy
     # over its whole range, densely near 0 where the alphas that matter live.
     x = np.concatenate([np.linspace(-126.0, 127.0, 200_001), np.linspace(-12.0, 0.0, 100_001),
                         [-0.5, 0.5, -1.5, 2.5, -125.9999]]).astype(np.float32)
