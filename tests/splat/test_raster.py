@@ -218,7 +218,7 @@ def test_culled_tile_pairs_change_nothing(variant):
 
 
 @pytest.mark.parametrize("views,height,width", [(1, 90, 360), (4, 90, 360), (3, 8, 8), (2, 24, 40), (5, 17, 9),
-                                                (2, 8, 24)])
+                                                (2, 8, 24), (2, 8, 8 * 2100)])    # the last: sorted
 def test_lanes_take_tiles_in_pairs_of_equal_lists_view_by_view(variant, views, height, width):
     # The lane -> tile map is a permutation of the tiles (every tile drawn once, by its
     # tile_lanes lanes). Each view's tiles go in pairs of neighbours in list-length order (one
@@ -246,8 +246,9 @@ def test_lanes_take_tiles_in_pairs_of_equal_lists_view_by_view(variant, views, h
         assert np.all(np.diff(half // per_view) >= 0)                       # view after view
         assert np.bincount(half // per_view, minlength=views).tolist() == size
     assert abs(len(halves[0]) - len(halves[1])) <= 2
-    # packet partners: neighbours in the view's length order (clamped at the sort's levels)
-    key = np.minimum(lengths, raster._LENGTH_LEVELS - 1)
+    # packet partners: neighbours in the view's length order (exact lengths when counted by the
+    # rank loop, clamped at the sort's levels beyond)
+    key = lengths if per_view <= raster._RANK_LOOP_MAX else np.minimum(lengths, raster._LENGTH_LEVELS - 1)
     for v in range(views):
         ranks = np.empty(per_view, np.int64)
         ranks[np.argsort(key[v * per_view:(v + 1) * per_view], kind="stable")] = np.arange(per_view)
