@@ -25,9 +25,10 @@ one packet. Before the loops, each pair
 loop step reads its Gaussian with one aligned 8-wide packet load per lane and
 no indirection through the list's entry index; ``exp(-q/2)`` is evaluated as
 ``2^x`` by :func:`_exp2`.
-Tiles are visited in a scrambled order so that the two equal lane blocks
-Dr.Jit gives its threads hold a similar amount of work, view after view
-(:func:`_lanes`).
+Each view's tiles are ranked by list length and taken two by two, so the two
+tiles of a packet have lists of about equal length, and the pairs are dealt in
+turn to the two equal lane blocks Dr.Jit gives its threads, view after view
+(:func:`_slot_tiles`, :func:`_lanes`).
 
 Forward: a symbolic ``dr.while_loop`` over the tile list (one kernel).
 Backward (``dr.CustomOp``): the same list back to front, recovering
