@@ -486,12 +486,14 @@ class SplatField(Field):
         q = q / dr.sqrt(dr.squared_norm(q) + 1e-12)
         log_scales = dr.unravel(B.Array3f, self.params["log_scales"])
         if self.cfg.scale_mode == "angular" or self.cfg.scale_net:
-            ls = per_view([log_scales], views=nb, n=n)[0]
-            if self.cfg.scale_mode == "angular":
+            angular = self.cfg.scale_mode == "angular"
+            # one per-view op for both arrays (its backward is one kernel)
+            ls, *rest = per_view([log_scales] + ([means] if angular else []), views=nb, n=n)
+            if angular:
                 vp = np.asarray(antenna_pos if view_pos is None else view_pos, dtype=np.float32).reshape(nb, 3)
                 vpa = dr.gather(B.Array3f, B.Array3f(*upload_columns(B.Float, vp)),
                                 dr.arange(B.UInt32, n * nb) // dr.opaque(B.UInt32, n))
-                dist = dr.norm(per_view([means], views=nb, n=n)[0] - vpa)
+                dist = dr.norm(rest[0] - vpa)
                 ls = ls + dr.log(dr.maximum(dist, 0.05))
             if self.cfg.scale_net:
                 ls = ls + dr.tanh(dscale)
