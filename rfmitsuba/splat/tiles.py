@@ -351,13 +351,13 @@ def build(u, v, cov_uu, cov_vv, opacity, depth, *, views: int, n: int, height: i
     dr.eval(tile, e)
     buckets = 1 << max(int(num_tiles).bit_length(), 1)
     perm = dr.detail.block_mkperm(tile, total, buckets)
-    tile_sorted = dr.gather(UInt32, tile, perm)
     entries = dr.gather(UInt32, e, perm)
-    # offsets[t] = first sorted pair with tile >= t (binary search, fixed 32 steps).
+    # offsets[t] = first sorted pair with tile >= t (binary search, fixed 32 steps; each step reads
+    # the pair's tile through the permutation, instead of a gather of all the tiles into order)
     t = dr.arange(UInt32, num_tiles + 1)
     total_o = dr.opaque(UInt32, total)
     offsets = dr.binary_search(0, (1 << 31) - 1, lambda i: (i < total_o) & (
-        dr.gather(UInt32, tile_sorted, dr.minimum(i, total_o - 1)) < t))
+        dr.gather(UInt32, tile, dr.gather(UInt32, perm, dr.minimum(i, total_o - 1))) < t))
     offsets = dr.minimum(UInt32(offsets), total_o)
     dr.eval(entries, offsets)
     return DeviceTileLists(entries, offsets, total)
