@@ -393,9 +393,11 @@ class _HostPass:
         self.threads = max(1, min(int(threads), lanes))
         cut = [self.n * k // lanes for k in range(lanes + 1)]
         step = max(1, int(HOST_BLOCK_ROWS))
-        #: per lane: its (view, first item, end item) blocks, views outermost
-        self.lanes = [[(b, lo, min(lo + step, cut[k + 1])) for b in range(self.views)
-                       for lo in range(cut[k], cut[k + 1], step)] for k in range(lanes)]
+        #: per lane: its (view, first item, end item) blocks, views innermost, so a block's
+        #: inputs and input gradients stay in the cache across the views (the splat head, 4 x
+        #: 10 000 rows: forward 4.49-4.58 -> 4.30-4.47 ms, backward 8.50-8.55 -> 8.20-8.43 ms)
+        self.lanes = [[(b, lo, min(lo + step, cut[k + 1])) for lo in range(cut[k], cut[k + 1], step)
+                       for b in range(self.views)] for k in range(lanes)]
         self.width = max(max(n_out, n_in) for _, n_out, n_in, _, _ in layers)
         #: input of every linear layer over all rows: layer 0's is ``x`` itself without ``y``
         self.acts = [x if (li == 0 and y is None) else _BUFFERS.take((rows, n_in))
