@@ -115,3 +115,31 @@ def test_bad_shapes(variant):
         S.loss(B.TensorXf(np.zeros(10, np.float32)), B.TensorXf(np.zeros(10, np.float32)))
     with pytest.raises(S.ImageError):
         ssim_images(np.zeros((1, 10, 10)), np.zeros((1, 10, 11)))
+
+
+@pytest.mark.parametrize("outer,length,inner", [(3, 40, 1), (2, 23, 5), (1, 7, 4), (4, 9, 3)])
+def test_window_sums_and_adjoint_match_seven_term_sums_bit_for_bit(variant, outer, length, inner):
+    # The sliding passes of _BoxSum (the window kept in registers, SEGMENT positions per lane)
+    # against a plain NumPy twin that adds the seven terms in the same order, in float32: the
+    # same bits, forward and backward, for segments that end early (length - 6 not a multiple of
+    # SEGMENT) and a single window (length 7).
+    rng = np.random.default_rng(outer * 100 + length)
+    xs = [np.float32(rng.normal(size=(outer, length, inner))) for _ in range(2)]
+    lo = length - S.WIN + 1
+    args = [B.Float(x.ravel()) for x in xs]
+    for a in args:
+        dr.enable_grad(a)
+    out = dr.custom(S._BoxSum, args, outer, length, inner)
+    weights = [np.float32(rng.normal(size=(outer, lo, inner))) for _ in xs]
+    dr.backward(sum(dr.sum(o * B.Float(w.ravel())) for o, w in zip(out, weights)))
+    for x, o, a, w in zip(xs, out, args, weights):
+        want = np.zeros((outer, lo, inner), np.float32)
+        for d in range(S.WIN):
+            want += x[:, d:d + lo]
+        assert np.array_equal(o.numpy().reshape(outer, lo, inner), want)
+        grad = np.zeros((outer, length, inner), np.float32)
+        for d in range(S.WIN):     # input i gets the weights at i, i - 1, ..., i - 6, in that order
+            shifted = np.zeros_like(grad)
+            shifted[:, d:d + lo] = w
+            grad += shifted
+        assert np.array_equal(dr.grad(a).numpy().reshape(outer, length, inner), grad)
