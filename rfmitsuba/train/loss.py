@@ -73,7 +73,7 @@ class _BoxSum(dr.CustomOp):
     """
 
     def eval(self, xs, outer, length, inner):
-        self.dims, self.count = (outer, length, inner), len(xs)
+        self.dims = (outer, length, inner)
         lo = length - WIN + 1
         o, first, c, steps = _segments(outer, lo, inner)
         src = (o * length + first) * inner + c       # the lane's first window starts here
@@ -122,10 +122,7 @@ class _BoxSum(dr.CustomOp):
             nxt = []
             for g, t, w in zip(grads, totals, win):
                 w = w + (at(g, first + j + (WIN - 1)),)                            # p = i enters
-                total = B.Float(0.0)
-                for v in reversed(w):
-                    total += v
-                dr.scatter(t, total, dst + j * inner)
+                dr.scatter(t, sum(reversed(w)), dst + j * inner)
                 nxt.append(w[1:])
             return j + 1, tuple(nxt)
 
