@@ -27,7 +27,10 @@ with ``D`` the spreading (``L`` for an image, ``|y - p| |p - e_m|`` for a scatte
 lambda``, and ``cal_m`` a learned complex per-element calibration (cable and phase-centre errors of a
 measured array). For phase-only (NeRF2) spectra by default (``coupling``) the elements' channels are first mixed by ``I + K``,
 ``K`` a learned complex 16 x 16 matrix (zero at the start): a real array's mutual coupling, under
-which an element's response depends on the arrival direction and no per-element gain undoes it. Phase comes from the exact path length to each element (``wavefront =
+which an element's response depends on the arrival direction and no per-element gain undoes it.
+By default ``K`` is reciprocal (``K = K^T``) and couples neighbouring elements only (row, column
+and diagonal neighbours: 42 complex coefficients, ``coupling_model``), as a passive array's
+coupling does; a free ``K`` fits the training positions as well and extrapolates much worse. Phase comes from the exact path length to each element (``wavefront =
 "spherical"``) or from the plane-wave rule about the array centre (``"plane"``, what Sionna's
 synthetic array simulates). The array's pose is learned too: a small rotation (rotation vector
 ``omega`` [rad]) and a translation ``t`` [m] of the array relative to its stated pose.
@@ -88,7 +91,8 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``vis_grid``       (S+P)*G       1 (logit)   amp  (G = the grid's cells, ``vis_grid`` on only)
 ``vis_grid_box``   6             m           not trained: the grid's box (low corner, high corner)
 ``cal``            16*2          1           amp
-``coupling``       16*16*2       1           amp  (``coupling`` on only: ``K`` below)
+``coupling``       C*2           1           amp  (``coupling`` on only: ``K``'s C = 42 neighbour pairs, or
+                                                  256 entries with ``coupling_model = "full"``)
 ``pose``           6             rad, m      means in a known room (decays), else rotations (constant)
 =================  ============  ==========  ==========
 
@@ -182,9 +186,15 @@ class CoherentGaussianConfig:
     for measured folders), "plane" or "spherical".
     calibrate: learn the per-element complex calibration; learn_pose: learn the array's pose;
     coupling: also learn the elements' mutual coupling (``I + K`` before the calibration, ``K``
-    complex 16 x 16, zero at the start; 512 parameters). "auto" (the default): for a NeRF2
+    complex 16 x 16, zero at the start). "auto" (the default): for a NeRF2
     gateway's spectra (phase-only read-out, measured or NeRF2-like), not for the amplitude
     read-out of simulated rooms, whose synthetic arrays have none.
+    coupling_model: which entries of ``K`` are learned (:func:`coupling_index`): "neighbours"
+    (the default: reciprocal, ``K = K^T``, between row, column and diagonal neighbours only; 42
+    complex coefficients, 84 parameters) or "full" (all 256 entries, 512 parameters; states saved
+    before this option load as "full"). On the NeRF2-like spatial-block split the full ``K``
+    fit the training tags as well and extrapolated far worse where the room was known
+    (docs/measurements.md, issue 12).
     visibility: learn the visibility windows (False: every source keeps its initial, wide window,
     which extrapolates better beyond the training positions).
     init_extent: initial visibility extent sigma [m] (large: every source seen everywhere).
@@ -311,6 +321,7 @@ class CoherentGaussianConfig:
     wavefront: Literal["auto", "plane", "spherical"] = "auto"
     calibrate: bool = True
     coupling: bool | Literal["auto"] = "auto"
+    coupling_model: Literal["neighbours", "full"] = "neighbours"
     learn_pose: bool = True
     visibility: bool = True
     init_extent: float = 5.0
@@ -351,6 +362,9 @@ class CoherentGaussianConfig:
             raise ConfigError(f"CoherentGaussianConfig.init must be 'auto', 'room' or 'data', got {self.init!r}")
         if self.coupling not in (True, False, "auto"):
             raise ConfigError(f"CoherentGaussianConfig.coupling must be true, false or 'auto', got {self.coupling!r}")
+        if self.coupling_model not in ("neighbours", "full"):
+            raise ConfigError(f"CoherentGaussianConfig.coupling_model must be 'neighbours' or 'full', got "
+                              f"{self.coupling_model!r}")
         if self.readout not in ("auto", "amplitude", "phase_only"):
             raise ConfigError(f"CoherentGaussianConfig.readout must be 'auto', 'amplitude' or 'phase_only', "
                               f"got {self.readout!r}")
@@ -733,6 +747,33 @@ def _builtin_scene(xml: str) -> str:
     return str(found)
 
 
+def coupling_index(model: str = "neighbours") -> np.ndarray:
+    """Which learned coupling coefficient each entry ``K[m, n]`` of the mutual coupling ``I + K``
+    of the 4 x 4 array takes: int64 [16, 16], -1 where ``K[m, n] = 0``.
+
+    ``"neighbours"``: a reciprocal coupling (``K = K^T``, as for any passive array) between
+    elements that are row, column or diagonal neighbours (42 pairs, 84 parameters); elements
+    farther apart and ``K[m, m]`` (a per-element gain, which the calibration already holds)
+    take none. ``"full"``: every entry its own coefficient (256, 512 parameters).
+    """
+    M = antenna.NUM_ELEMENTS
+    if model == "full":
+        return np.arange(M * M, dtype=np.int64).reshape(M, M)
+    if model != "neighbours":
+        raise ConfigError(f"coupling model must be 'neighbours' or 'full', got {model!r}")
+    r, c = np.divmod(np.arange(M), antenna.COLS)
+    near = (np.abs(r[:, None] - r[None]) <= 1) & (np.abs(c[:, None] - c[None]) <= 1) & ~np.eye(M, dtype=bool)
+    out = np.full((M, M), -1, np.int64)
+    m, n = np.nonzero(np.triu(near, 1))
+    out[m, n] = out[n, m] = np.arange(len(m))
+    return out
+
+
+def coupling_size(model: str = "neighbours") -> int:
+    """Learned complex coupling coefficients of ``model`` (:func:`coupling_index`)."""
+    return int(coupling_index(model).max()) + 1
+
+
 def _rodrigues(w0, w1, w2, v0, v1, v2):
     """Rotate vectors ``v`` by the rotation vector ``w`` (Dr.Jit arrays, broadcast)."""
     import drjit as dr
@@ -794,6 +835,10 @@ class CoherentGaussianField(FlatParameterField):
         if cfg.coupling == "auto":
             cfg = dataclasses.replace(cfg, coupling=readout == "phase_only")
         self.cfg, self.readout, self.wavefront = cfg, readout, wavefront
+        #: K[m, n]'s coefficient per entry (UInt32 [256]) and 1 where it has one, else 0 (Float [256])
+        index = coupling_index(cfg.coupling_model).ravel()
+        self._coupling_lanes = (B.UInt32(np.maximum(index, 0).astype(np.uint32)),
+                                B.Float((index >= 0).astype(np.float32)))
         self.frequency_hz = float(frequency_hz)
         antenna.wavelength(self.frequency_hz)
         self.seed, self.name = int(seed), name
@@ -837,7 +882,7 @@ class CoherentGaussianField(FlatParameterField):
                       "vis_log_extent": np.full(S + P, np.log(cfg.init_extent)),
                       "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
             if cfg.coupling:
-                params["coupling"] = np.zeros(2 * antenna.NUM_ELEMENTS ** 2)
+                params["coupling"] = np.zeros(2 * coupling_size(cfg.coupling_model))
             if self._vis is not None:
                 params["img_through"] = cfg.init_through * params["img_amp"]
                 params["img_slope"] = np.zeros(S * 2)
@@ -1039,7 +1084,7 @@ class CoherentGaussianField(FlatParameterField):
         out = {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
         if self.cfg.coupling:
-            out["coupling"] = 2 * antenna.NUM_ELEMENTS ** 2
+            out["coupling"] = 2 * coupling_size(self.cfg.coupling_model)
         if self.grid_cells:
             out["vis_grid"], out["vis_grid_box"] = (S + P) * self.grid_cells, 6
         if self._vis is not None:
@@ -1086,6 +1131,8 @@ class CoherentGaussianField(FlatParameterField):
                 cfg = dataclasses.replace(cfg, material_through=False)
             if "coupling" not in state and cfg.coupling is not False:  # saved before (or without) coupling
                 cfg = dataclasses.replace(cfg, coupling=False)
+            if "coupling" in state and np.asarray(state["coupling"]).size == 2 * coupling_size("full"):
+                cfg = dataclasses.replace(cfg, coupling_model="full")  # saved before the neighbours' model
             f = cls(state["geometry.A"], state["geometry.order"], np.zeros((P, 3)),
                     cfg=cfg, readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
@@ -1250,7 +1297,7 @@ class CoherentGaussianField(FlatParameterField):
         """Every Dr.Jit array :meth:`channels_prepared` and :meth:`penalty` read: the field's
         parameters and image maps and ``prep``'s columns. One missing here fails the recording,
         and may abort the process (:mod:`rfmitsuba.train.frozen_step`)."""
-        return _jit_arrays(self.params) + list(self._A_cols) + _jit_arrays(prep)
+        return _jit_arrays(self.params) + list(self._A_cols) + list(self._coupling_lanes) + _jit_arrays(prep)
 
     def structure(self, prep: dict) -> tuple:
         """What :meth:`channels_prepared` takes from Python rather than from arrays (counts, which
@@ -1472,12 +1519,15 @@ class CoherentGaussianField(FlatParameterField):
 
         M = antenna.NUM_ELEMENTS
         if "coupling" in self.params:
-            # lane (b * 16 + m) * 16 + n: K[m, n] h_n[b], summed over n
+            # lane (b * 16 + m) * 16 + n: K[m, n] h_n[b], summed over n; K[m, n] is the parameter
+            # pair coupling_index(model)[m, n] (none: 0)
             lane = dr.arange(B.UInt32, prep["nb"] * M * M)
             mn = lane % (M * M)                                   # entry (m, n) of K
             src = (lane // (M * M)) * M + mn % M                  # channel n of view b
-            kr = dr.gather(B.Float, self.params["coupling"], 2 * mn)
-            ki = dr.gather(B.Float, self.params["coupling"], 2 * mn + 1)
+            pidx = dr.gather(B.UInt32, self._coupling_lanes[0], mn)
+            on = dr.gather(B.Float, self._coupling_lanes[1], mn)
+            kr = dr.gather(B.Float, self.params["coupling"], 2 * pidx) * on
+            ki = dr.gather(B.Float, self.params["coupling"], 2 * pidx + 1) * on
             gr, gi = dr.gather(B.Float, hr, src), dr.gather(B.Float, hi, src)
             hr, hi = hr + dr.block_sum(kr * gr - ki * gi, M), hi + dr.block_sum(kr * gi + ki * gr, M)
         m16 = dr.arange(B.UInt32, prep["nb"] * M) % M

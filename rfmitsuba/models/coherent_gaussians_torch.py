@@ -15,6 +15,7 @@ import numpy as np
 
 from ..rf import array as antenna
 from ..rf.bartlett_ref import beamformer
+from .coherent_gaussians import coupling_index
 
 
 def parameters_from(field, *, dtype=None) -> dict:
@@ -94,7 +95,9 @@ def channels(params: dict, field, views) -> tuple:
     hr = (w * (ar * c - ai * sn)).sum(-1)                                                  # [B, M]
     hi = (w * (ar * sn + ai * c)).sum(-1)
     if "coupling" in params:   # mutual coupling h + K h, K [M, M] complex: (K h)_m = sum_n K[m, n] h_n
-        K = params["coupling"].reshape(hr.shape[1], hr.shape[1], 2)
+        index = torch.as_tensor(coupling_index(field.cfg.coupling_model))           # [M, M], -1: none
+        coef = params["coupling"].reshape(-1, 2)
+        K = torch.where((index >= 0)[..., None], coef[index.clamp(min=0)], torch.zeros_like(coef[:1]))
         kr, ki = K[..., 0], K[..., 1]
         hr, hi = hr + hr @ kr.T - hi @ ki.T, hi + hi @ kr.T + hr @ ki.T
     cal = params["cal"].reshape(-1, 2)

@@ -186,7 +186,7 @@ def test_state_round_trip_and_frozen(tmp_path):
     assert (g.readout, g.wavefront, g.num_images, g.num_scatterers) == ("phase_only", "spherical", 2, 2)
     v = _views()
     np.testing.assert_allclose(render([g], v).numpy(), render([f], v).numpy(), atol=1e-6)
-    assert g.num_parameters == 6 + 4 + 6 + 4 + 12 + 4 + 32 + 6 + 512   # K: "auto" learns it for phase-only spectra
+    assert g.num_parameters == 6 + 4 + 6 + 4 + 12 + 4 + 32 + 6 + 84   # K: "auto" learns it for phase-only spectra (42 neighbour pairs)
     assert [x.name for x in g.export_ply(tmp_path, views=v)] == ["sources.ply"]
 
 
@@ -830,59 +830,91 @@ def test_amp_l1_penalty_is_the_mean_gain_magnitude(variant):
         CoherentGaussianConfig(amp_l1=-1.0)
 
 
-def _coupled_field(seed=0):
-    """_field's sources with the mutual coupling on, every parameter perturbed (K too)."""
+def _coupled_field(seed=0, model="neighbours"):
+    """_field's sources with the mutual coupling on (``model``), every parameter perturbed (K too)."""
     import dataclasses
 
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField, coupling_size
 
     f = _field(seed=seed)
     g = CoherentGaussianField(f.A, f.order, np.asarray(f.params["sc_pos"].numpy()).reshape(-1, 3),
-                              cfg=dataclasses.replace(f.cfg, coupling=True), readout=f.readout,
+                              cfg=dataclasses.replace(f.cfg, coupling=True, coupling_model=model), readout=f.readout,
                               wavefront=f.wavefront, vis_center=np.zeros(3), frequency_hz=F, seed=seed)
     assert np.all(g.params["coupling"].numpy() == 0)                    # starts as no coupling
     state = {k: np.asarray(v.numpy()) for k, v in f.params.items()}
-    state["coupling"] = 0.1 * np.random.default_rng(seed).normal(size=2 * 16 * 16)
+    state["coupling"] = 0.1 * np.random.default_rng(seed).normal(size=2 * coupling_size(model))
     g.load_state_dict(state)
     return f, g
 
 
+@pytest.mark.parametrize("model", ["neighbours", "full"])
 @pytest.mark.parametrize("name", ["coupling", "cal", "sc_amp"])
-def test_coupling_gradients(name):
+def test_coupling_gradients(name, model):
     """d/d(parameter) of <c, h> with the coupling on: AD against central differences."""
-    _, g = _coupled_field()
+    _, g = _coupled_field(model=model)
     _check_channel_gradient(g, name)
 
 
-def test_coupling_mixes_the_elements_as_i_plus_k(tmp_path):
+def test_coupling_index_is_reciprocal_between_neighbours():
+    """The neighbours' model: K = K^T, one coefficient per pair of row, column or diagonal
+    neighbours of the 4 x 4 array (12 + 12 + 18 = 42), none on the diagonal or farther apart; the
+    full model: every entry its own."""
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians import coupling_index, coupling_size
+
+    idx = coupling_index("neighbours")
+    np.testing.assert_array_equal(idx, idx.T)
+    assert coupling_size("neighbours") == 42 and sorted(set(idx[idx >= 0].tolist())) == list(range(42))
+    r, c = np.divmod(np.arange(16), 4)
+    far = np.maximum(np.abs(r[:, None] - r[None]), np.abs(c[:, None] - c[None]))
+    assert (idx[far != 1] == -1).all() and (idx[far == 1] >= 0).all()
+    assert (np.bincount(idx[idx >= 0]) == 2).all()                        # each pair: K[m, n] and K[n, m]
+    np.testing.assert_array_equal(coupling_index("full").ravel(), np.arange(256))
+    assert coupling_size("full") == 256
+    with pytest.raises(ConfigError, match="coupling model"):
+        coupling_index("ring")
+
+
+@pytest.mark.parametrize("model", ["neighbours", "full"])
+def test_coupling_mixes_the_elements_as_i_plus_k(tmp_path, model):
     """h_coupled = cal * ((I + K) h) against NumPy on the uncoupled field's channels; K = 0 gives
-    the uncoupled channels; the state round-trips with its coupling; older states load without."""
+    the uncoupled channels; the state round-trips with its coupling; older states load without,
+    and a state with a full K (saved before the neighbours' model) loads as the full model."""
     import json
 
     from rfmitsuba.core import backend as B
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
+    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField, coupling_index, coupling_size
 
-    f, g = _coupled_field(seed=1)
+    f, g = _coupled_field(seed=1, model=model)
     views = _views()
     with np.errstate(all="ignore"):
         cal = np.asarray(f.params["cal"].numpy(), np.float64).reshape(-1, 2) @ [1, 1j]
         f.params["cal"] = B.Float(np.tile([1.0, 0.0], 16).astype(np.float32))
         hr, hi = f.channels(views)
         h = (hr.numpy() + 1j * hi.numpy()).reshape(-1, 16)
-        K = np.asarray(g.params["coupling"].numpy(), np.float64).reshape(16, 16, 2) @ [1, 1j]
+        coef = np.asarray(g.params["coupling"].numpy(), np.float64).reshape(-1, 2) @ [1, 1j]
+        idx = coupling_index(model)
+        K = np.where(idx >= 0, coef[np.maximum(idx, 0)], 0)
         want = cal[None] * (h + h @ K.T)
         gr, gi = g.channels(views)
     np.testing.assert_allclose(gr.numpy() + 1j * gi.numpy(), want.ravel(), rtol=2e-4, atol=2e-4 * np.abs(want).max())
     g.save(tmp_path / "g.npz")
     back = CoherentGaussianField.load(tmp_path / "g.npz")
     np.testing.assert_array_equal(back.params["coupling"].numpy(), g.params["coupling"].numpy())
-    assert back.cfg.coupling and back.num_parameters == f.num_parameters + 512
+    assert back.cfg.coupling and back.cfg.coupling_model == model
+    assert back.num_parameters == f.num_parameters + 2 * coupling_size(model)
     old = f.state_dict()                          # a state saved before the option existed
     meta = json.loads(str(old["meta"]))
     del meta["config"]["coupling"]
     old["meta"] = np.asarray(json.dumps(meta))
     assert not CoherentGaussianField.from_state_dict(old).cfg.coupling
-    g.params["coupling"] = B.Float(np.zeros(512, np.float32))
+    full = g.state_dict()                         # a full K saved before coupling_model existed
+    meta = json.loads(str(full["meta"]))
+    del meta["config"]["coupling_model"]
+    full["meta"] = np.asarray(json.dumps(meta))
+    full["coupling"] = np.zeros(512, np.float32)
+    assert CoherentGaussianField.from_state_dict(full).cfg.coupling_model == "full"
+    g.params["coupling"] = B.Float(np.zeros(2 * coupling_size(model), np.float32))
     g.params["cal"] = f.params["cal"]
     zr, zi = g.channels(views)
     np.testing.assert_allclose(zr.numpy(), hr.numpy(), rtol=1e-6, atol=1e-7)
@@ -900,7 +932,7 @@ def test_coupling_auto_follows_the_readout():
     assert CoherentGaussianConfig().coupling == "auto"
     amp, pha = _field(), _field(readout="phase_only", wavefront="spherical")
     assert amp.cfg.coupling is False and "coupling" not in amp.params
-    assert pha.cfg.coupling is True and pha.num_parameters == amp.num_parameters + 512
+    assert pha.cfg.coupling is True and pha.num_parameters == amp.num_parameters + 84
     old = pha.state_dict()
     del old["coupling"]
     meta = json.loads(str(old["meta"]))
