@@ -164,6 +164,35 @@ class Views:
         """The extra inputs of ``field`` (None when it takes none)."""
         return self.inputs(field) if field.extra_inputs else None
 
+    def moved(self, offsets: np.ndarray) -> "Views":
+        """These views with the moving device displaced by ``offsets`` (float [B, 3] m): the
+        array with the receiver in the moving-RX task, the transmitter in the moving-TX task.
+        The extra inputs stay those of the original views."""
+        d = np.asarray(offsets, np.float64).reshape(self.count, 3)
+        rx = self.task == "rx"
+        return Views(antenna_pos=self.antenna_pos + d, view_pos=self.view_pos + d if rx else self.view_pos,
+                     transmitter=self.transmitter if rx else self.transmitter + d, rx_to_world=self.rx_to_world,
+                     frequency_hz=self.frequency_hz, task=self.task, inputs=self.inputs)
+
+    @staticmethod
+    def concat(parts: list["Views"]) -> "Views":
+        """One batch of the views of ``parts`` in order (one array frame, carrier and task)."""
+        first = parts[0]
+        if any(p.task != first.task or p.frequency_hz != first.frequency_hz
+               or (p.rx_to_world is None) != (first.rx_to_world is None)
+               or (p.rx_to_world is not None and not np.array_equal(p.rx_to_world, first.rx_to_world))
+               for p in parts[1:]):
+            raise ValueError("Views.concat: the parts differ in task, carrier or array frame")
+
+        def inputs(field):
+            got = [p.inputs(field) for p in parts]
+            return None if any(g is None for g in got) else np.concatenate([np.asarray(g) for g in got])
+
+        return Views(antenna_pos=np.concatenate([p.antenna_pos for p in parts]),
+                     view_pos=np.concatenate([p.view_pos for p in parts]),
+                     transmitter=np.concatenate([p.transmitter for p in parts]), rx_to_world=first.rx_to_world,
+                     frequency_hz=first.frequency_hz, task=first.task, inputs=inputs)
+
 
 class Field:
     """Base class of every model (see the module table). Subclasses set the class attributes
@@ -191,6 +220,14 @@ class Field:
         """Training starts this initial field advises (``TrainConfig.starts = 0``): 1 unless its
         start is known to lead training into local minima now and then (a subclass says why)."""
         return 1
+
+    @property
+    def jitter_advised(self) -> float:
+        """Spread of the jittered copies of each training view this initial field advises
+        (``TrainConfig.jitter = -1``), in carrier wavelengths: 0 (none) unless the field is known
+        to change faster than its data between the training positions (a subclass says why;
+        :mod:`rfmitsuba.train.jitter`)."""
+        return 0.0
 
     @property
     def epochs_advised(self) -> float:

@@ -101,6 +101,12 @@ class TrainConfig:
     checks, came in 4 of 5 runs, and one run ended in one (validation 0.962 -> 0.942, test 0.945
     against the best floor's 0.952; docs/measurements.md). Not where the field's primitives
     changed after that check (density control).
+    jitter: spread of jittered training views [carrier wavelengths] (:mod:`rfmitsuba.train.jitter`):
+    each step also trains on ``jitter_views`` copies of its batch with the moving device displaced
+    by ``N(0, (jitter * wavelength)^2)`` per axis, each with the spectrum of the view it was copied
+    from as its target, so the field changes no faster than the data across that distance. -1
+    (the default): as the field advises (``Field.jitter_advised``); 0: none. A copy costs a
+    batch's render and backward pass.
     model: "auto" (train each candidate field briefly and keep the best by validation SSIM,
     :mod:`rfmitsuba.train.select`) or a registered Stage-1 field kind
     (:func:`rfmitsuba.models.base.field_class`): "splat"
@@ -134,6 +140,8 @@ class TrainConfig:
     starts: int = 0
     members: int = 1
     revert_drop: float = 0.01
+    jitter: float = -1.0
+    jitter_views: int = 1
     model: str = "splat"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
@@ -173,6 +181,12 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.starts must be in 0..16 (0 = as the field advises), got {self.starts}")
         if not (isinstance(self.members, int) and not isinstance(self.members, bool) and 1 <= self.members <= 16):
             raise ConfigError(f"TrainConfig.members must be an integer in 1..16 (1 = one field), got {self.members!r}")
+        if not (math.isfinite(self.jitter) and (self.jitter >= 0 or self.jitter == -1)):
+            raise ConfigError(f"TrainConfig.jitter must be -1 (as the field advises) or a finite number >= 0 "
+                              f"[wavelengths], got {self.jitter!r}")
+        if not (isinstance(self.jitter_views, int) and not isinstance(self.jitter_views, bool)
+                and 1 <= self.jitter_views <= 8):
+            raise ConfigError(f"TrainConfig.jitter_views must be an integer in 1..8, got {self.jitter_views!r}")
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and self.threads >= 0):
             raise ConfigError(f"TrainConfig.threads must be an integer >= 0 (0 = all cores), got {self.threads!r}")
 

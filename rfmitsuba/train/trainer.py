@@ -61,6 +61,7 @@ from ..rf.grid import PAS_SHAPE
 from .config import TrainConfig, config_diff, training_downsample
 from .density import make_strategy
 from .frozen_step import FrozenLoss
+from .jitter import jittered
 from .pursuit import pursuit_for
 from .select import SELECT_DIR, select_model
 from .loss import loss
@@ -126,6 +127,7 @@ class Trainer:
         #: (:mod:`rfmitsuba.train.frozen_step`; bit-identical, faster) where the fields allow it
         self.freeze = bool(freeze)
         self._frozen_loss = None
+        self.jitter = 0.0          # set from the configuration or the field's advice in _run
         self.extra = extra
         self.extra_inputs = int(extra_inputs)
         self.data = data
@@ -476,6 +478,8 @@ class Trainer:
         self._pull(field, opt)
 
         probe_views = self.views(probe)
+        #: spread of the jittered copies of each batch [wavelengths] (0: none; rfmitsuba.train.jitter)
+        self.jitter = cfg.jitter if cfg.jitter >= 0 else field.jitter_advised
         n_starts = cfg.starts or field.starts_advised
         if meta is None and n_starts > 1:
             field, opt, strategy, rng, start, train_time, val_hist = self._choose_start(
@@ -557,11 +561,14 @@ class Trainer:
         for k in list(opt.keys()):
             opt.set_learning_rate({k: lrs[field.lr_group(k[len(self.prefix):])]})
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
-        gt = upload(B.TensorXf, gt_fit[pick])   # aligned: the loss's kernels compile once
+        views, gt_np = self.views(fit[pick]), gt_fit[pick]
+        if self.jitter > 0:
+            views, gt_np = jittered(views, gt_np, spread=self.jitter, copies=self.cfg.jitter_views, rng=rng)
+        gt = upload(B.TensorXf, gt_np)   # aligned: the loss's kernels compile once
         if self._records(field):
-            loss = self._frozen_loss(self.frozen + [field], self.views(fit[pick]), gt, loss_fn)
+            loss = self._frozen_loss(self.frozen + [field], views, gt, loss_fn)
         else:
-            loss = loss_fn(self.render(field, fit[pick]), gt)
+            loss = loss_fn(render(self.frozen + [field], views, height=self.h, width=self.w, normalize=True), gt)
             penalty = field.penalty()
             if penalty is not None:
                 loss = loss + penalty
