@@ -215,7 +215,7 @@ class Trainer:
         n_val = min(n_val, cfg.val_max, len(train) - 1)
         if n_val <= 0:
             val = np.zeros(0, np.int64)
-        elif cfg.split == "block":  # validation mirrors the split: the training block's own outer slab
+        elif cfg.val_positions == "slab":  # validation mirrors the block split: the training block's outer slab
             val = np.sort(train[np.argsort(self.data.antenna_pos[train, 0], kind="stable")[-n_val:]])
         else:
             val = np.sort(rng.choice(train, n_val, replace=False))

@@ -447,6 +447,7 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
     the gateway orientation reaches the renderer as rx_to_world; no scene -> random init with a
     warning, whatever field.init says; --split block holds out the slab of largest x."""
+    from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.data.views import TrainData
@@ -468,6 +469,23 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     x = data.antenna_pos[:, 0]
     assert len(sp["test"]) == 6 and x[sp["test"]].min() > x[sp["train"]].max()
     assert evaluate_run(tmp_path / "block")["split"] == "block"
+    # validation: by default seeded positions among the training ones, so the training block's
+    # outer tags stay in the fit; val_positions = "slab" holds out that outer slab instead
+    cfgs = {k: tiny_cfg(iterations=4, split='"block"', val_fraction=0.2, val_positions=f'"{k}"')
+            for k in ("random", "slab")}
+    for seed in range(3):
+        cfgs["random"].seed = cfgs["slab"].seed = seed
+        val = {k: np.asarray(Trainer(c, data, tmp_path / f"{k}{seed}", quiet=True)._make_split(
+            np.random.default_rng(seed))["val"]) for k, c in cfgs.items()}
+        train = np.asarray(sp["train"])
+        outer = np.sort(train[np.argsort(x[train], kind="stable")[-len(val["slab"]):]])
+        assert len(val["slab"]) == len(val["random"]) == 5
+        np.testing.assert_array_equal(val["slab"], outer)
+        assert np.isin(val["random"], train).all() and not np.array_equal(val["random"], outer)
+    with pytest.raises(ConfigError, match="val_positions = 'slab' needs split = 'block'"):
+        tiny_cfg(val_positions='"slab"')
+    with pytest.raises(ConfigError, match="val_positions"):
+        tiny_cfg(split='"block"', val_positions='"edge"')
 
 
 def test_a_run_that_fails_before_its_first_checkpoint_leaves_no_folder(tiny_ds, tmp_path):
