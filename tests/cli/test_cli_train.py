@@ -16,11 +16,13 @@ def test_train_cli_defaults_to_auto_and_takes_a_model(tmp_path, capsys):
     choice = json.loads((tmp_path / "auto" / "select" / "choice.json").read_text())
     assert choice["chosen"] in ("coherent_gaussians", "splat")
     assert f'model = "{choice["chosen"]}"' in (tmp_path / "auto" / "config.toml").read_text()
-    assert main(["train", str(ds), "--out", str(tmp_path / "splat"), "--model", "splat", "--split", "block"] + TINY) == 0
+    assert main(["train", str(ds), "--out", str(tmp_path / "splat"), "--model", "splat", "--split", "block",
+                 "--set", "val_positions=slab"] + TINY) == 0
     assert not (tmp_path / "splat" / "select").exists()
     text = (tmp_path / "splat" / "config.toml").read_text()
-    assert 'model = "splat"' in text and 'split = "block"' in text
-    # with a block split, validation is the training block's own outer slab (it measures extrapolation)
+    assert 'model = "splat"' in text and 'split = "block"' in text and 'val_positions = "slab"' in text
+    # with val_positions = "slab", validation is the training block's own outer slab (it measures
+    # extrapolation; the default draws it at random: tests/train/test_trainer.py)
     split = json.loads((tmp_path / "splat" / "split.json").read_text())
     from rfmitsuba.data.views import TrainData
 
