@@ -142,6 +142,8 @@ DENSE_POSITIONS = 1000
 #: least passes over the fitting positions a field with a grid of DENSE_VIS_GRID's cells or more
 #: advises (CoherentGaussianField.epochs_advised)
 DENSE_EPOCHS = 40.0
+#: most views whose ray-cast path visibility a known-room field remembers (CoherentGaussianField.path_trace)
+VIS_CACHE_VIEWS = 20000
 #: spread of the jittered training views the field advises for phase-only (NeRF2) spectra
 #: [carrier wavelengths]: 5.0 cm at NeRF2's 920 MHz (TrainConfig.jitter, rfmitsuba.train.jitter)
 JITTER_PHASE_ONLY = 0.153
@@ -1368,8 +1370,9 @@ class CoherentGaussianField(FlatParameterField):
         """The :class:`~rfmitsuba.sim.visibility.PathTrace` of every image path for array centres
         ``x`` and transmitters ``y`` (float [B, 3] m; known room with ray casts only), blocked
         paths deeper than :attr:`max_depth` or with a segment within :attr:`min_segment` marked
-        absent. Views already cast are remembered
-        (training revisits the same positions)."""
+        absent. Views already cast are remembered (training revisits the same positions), up to
+        :data:`VIS_CACHE_VIEWS` of them: positions seen once (jittered training views,
+        :mod:`rfmitsuba.train.jitter`) are cast every time once the cache is full."""
         from ..sim.visibility import PathTrace
 
         x = np.asarray(x, np.float64).reshape(-1, 3)
@@ -1382,9 +1385,15 @@ class CoherentGaussianField(FlatParameterField):
         if missing:
             idx = np.array(list(missing.values()))
             tr = self._vis.trace(x[idx], y[idx], self.planes, self.order)
-            for j, k in enumerate(missing):
-                self._vis_cache[k] = tuple(a[j] for a in tr)
-        tr = PathTrace(*(np.stack([self._vis_cache[k][i] for k in keys]) for i in range(len(PathTrace._fields))))
+            fresh = {k: tuple(a[j] for a in tr) for j, k in enumerate(missing)}
+            for k, row in fresh.items():
+                if len(self._vis_cache) >= VIS_CACHE_VIEWS:
+                    break
+                self._vis_cache[k] = row
+        else:
+            fresh = {}
+        rows = [fresh[k] if k in fresh else self._vis_cache[k] for k in keys]
+        tr = PathTrace(*(np.stack([r[i] for r in rows]) for i in range(len(PathTrace._fields))))
         return tr.within_depth(self.order, self.max_depth).without_short_segments(self.min_segment)
 
     def _lanes(self, prep: dict, K: int) -> dict:

@@ -338,6 +338,22 @@ def test_known_room_visibility_and_through_gain_gradients():
     np.testing.assert_allclose(h1[1], h0[1], atol=1e-6)
 
 
+def test_path_visibility_cache_is_bounded(monkeypatch):
+    """Ray-cast visibility is remembered for at most VIS_CACHE_VIEWS views; past that, new views
+    (jittered training views are each seen once) are cast every time, with the same result."""
+    from rfmitsuba.models import coherent_gaussians as cg
+
+    f, views = _room_field()
+    want = f.path_trace(views.view_pos, views.transmitter)
+    g, _ = _room_field()
+    monkeypatch.setattr(cg, "VIS_CACHE_VIEWS", 1)
+    for _ in range(2):
+        got = g.path_trace(views.view_pos, views.transmitter)
+        assert len(g._vis_cache) == 1 and len(views.view_pos) > 1
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_material_transmission_of_blocked_paths():
     """A blocked path keeps its clear gain times exp(sum n_g (rho_g + j phi_g)) over the surfaces it
     crosses: the views whose direct path the furniture blocks cross 2 wood surfaces; the gradient of
