@@ -272,8 +272,12 @@ class Trainer:
         """Render the trained field (and the frozen ones) at antenna indices ``idx``:
         TensorXf [K, h, w] (default the training resolution) on the loss's scale
         (:func:`rfmitsuba.models.base.render` with ``normalize``)."""
+        return self.render_views(field, self.views(idx), h=h, w=w)
+
+    def render_views(self, field: Field, views: Views, *, h: int | None = None, w: int | None = None):
+        """As :meth:`render`, for any :class:`Views` (a training batch with its jittered copies)."""
         h, w = h or self.h, w or self.w
-        return render(self.frozen + [field], self.views(idx), height=h, width=w, normalize=True)
+        return render(self.frozen + [field], views, height=h, width=w, normalize=True)
 
     def predict(self, field: Field, idx: np.ndarray, *, h: int = 90, w: int = 360,
                 batch: int = 8) -> np.ndarray:
@@ -568,7 +572,7 @@ class Trainer:
         if self._records(field):
             loss = self._frozen_loss(self.frozen + [field], views, gt, loss_fn)
         else:
-            loss = loss_fn(render(self.frozen + [field], views, height=self.h, width=self.w, normalize=True), gt)
+            loss = loss_fn(self.render_views(field, views), gt)
             penalty = field.penalty()
             if penalty is not None:
                 loss = loss + penalty
