@@ -44,7 +44,7 @@ from __future__ import annotations
 import importlib
 import json
 import pkgutil
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, ClassVar
 
@@ -169,19 +169,16 @@ class Views:
         array with the receiver in the moving-RX task, the transmitter in the moving-TX task.
         The extra inputs stay those of the original views."""
         d = np.asarray(offsets, np.float64).reshape(self.count, 3)
-        rx = self.task == "rx"
-        return Views(antenna_pos=self.antenna_pos + d, view_pos=self.view_pos + d if rx else self.view_pos,
-                     transmitter=self.transmitter if rx else self.transmitter + d, rx_to_world=self.rx_to_world,
-                     frequency_hz=self.frequency_hz, task=self.task, inputs=self.inputs)
+        if self.task == "rx":
+            return replace(self, antenna_pos=self.antenna_pos + d, view_pos=self.view_pos + d)
+        return replace(self, antenna_pos=self.antenna_pos + d, transmitter=self.transmitter + d)
 
     @staticmethod
     def concat(parts: list["Views"]) -> "Views":
         """One batch of the views of ``parts`` in order (one array frame, carrier and task)."""
         first = parts[0]
         if any(p.task != first.task or p.frequency_hz != first.frequency_hz
-               or (p.rx_to_world is None) != (first.rx_to_world is None)
-               or (p.rx_to_world is not None and not np.array_equal(p.rx_to_world, first.rx_to_world))
-               for p in parts[1:]):
+               or not np.array_equal(p.rx_to_world, first.rx_to_world) for p in parts[1:]):   # None too
             raise ValueError("Views.concat: the parts differ in task, carrier or array frame")
 
         def inputs(field):

@@ -69,6 +69,11 @@ def test_bad_spread_copies_and_mixed_views_are_refused():
             jittered(v, gt, spread=spread, copies=copies, rng=np.random.default_rng(0))
     with pytest.raises(ValueError, match="differ in task"):
         Views.concat([v, _views("rx", count=3)])
+    framed = Views.concat([v, v]).moved(np.zeros((6, 3)))
+    framed.rx_to_world = np.eye(3)
+    with pytest.raises(ValueError, match="array frame"):
+        Views.concat([v, framed])
+    assert Views.concat([framed, framed]).count == 12
     for bad in (-0.5, float("inf")):
         with pytest.raises(ConfigError, match="TrainConfig.jitter must be -1"):
             TrainConfig(jitter=bad)
