@@ -33,6 +33,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.errors import ConfigError
 from ..core.upload import empty_aligned, upload, upload_rows, zeros_aligned
+from . import host_loops
 
 
 @dataclass
@@ -176,24 +177,6 @@ def grad_barrier(values: list) -> list:
     import drjit as dr
 
     return list(dr.custom(_EvalGrad.op(), list(values)))
-
-
-def _leaky_into(z: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
-    """``out = LeakyReLU(0.01)(z)`` for float32 arrays of one shape, through ``tmp`` (no new
-    arrays; ``out`` may be ``z``)."""
-    np.multiply(z, np.float32(0.01), out=tmp)
-    np.maximum(z, tmp, out=out)
-
-
-def _leaky_backward(dz: np.ndarray, h: np.ndarray, slope: np.ndarray, mask: np.ndarray) -> None:
-    """``dz *= LeakyReLU'(.)`` in place, from the layer's output ``h`` (its input had the sign of
-    its output: slope 1 where ``h > 0``, else 0.01); ``slope`` (float32) and ``mask`` (bool) are
-    scratch arrays of ``dz``'s shape."""
-    np.greater(h, 0, out=mask)
-    np.copyto(slope, mask)
-    slope *= np.float32(0.99)
-    slope += np.float32(0.01)
-    dz *= slope
 
 
 _BLAS = None
@@ -376,16 +359,18 @@ class _HostPass:
         self.size = weights.shape[0]
         self.n = x.shape[0]
         block = min(max(1, int(HOST_BLOCK_ROWS)), max(self.n, 1))
-        # per layer: (W^T contiguous [in, out] for the forward, W [out, in], b tiled [block, out]):
-        # adding a whole block is one flat loop, adding a broadcast row takes one loop per row
-        # (2048 x 64: 17 against 31 us)
+        # per layer: (W^T contiguous [in, out] for the forward, W [out, in], b [out], b tiled
+        # [block, out]): the output layer's bias is added as a whole block (one flat loop; a
+        # broadcast row takes one loop per row, 2048 x 64: 17 against 31 us), a hidden layer's
+        # with its LeakyReLU in one fused pass (:func:`host_loops.add_leaky`)
         self.mats = []
         for wo, n_out, n_in, st, bo in layers:
             w = weights[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in]
-            self.mats.append((np.ascontiguousarray(w.T), np.ascontiguousarray(w),
-                              np.tile(weights[bo:bo + n_out], (block, 1))))
-        #: column sums over a block's rows as a product ``ones @ dz`` (BLAS: 7 against 40 us for
-        #: ``dz.sum(axis=0)`` on 2048 x 64)
+            bias = np.ascontiguousarray(weights[bo:bo + n_out])
+            self.mats.append((np.ascontiguousarray(w.T), np.ascontiguousarray(w), bias, np.tile(bias, (block, 1))))
+        #: the output layer's bias gradient as a product ``ones @ dz`` (BLAS: 7 against 40 us for
+        #: ``dz.sum(axis=0)`` on 2048 x 64); the other column sums come with the LeakyReLU's
+        #: derivative (:func:`host_loops.leaky_grad`)
         self.ones = np.ones(block, np.float32)
         self.views = y.shape[0] if y is not None else 1
         rows = self.views * self.n
@@ -418,28 +403,26 @@ class _HostPass:
 
     def forward(self, out: np.ndarray) -> np.ndarray:
         """Fill ``out`` float32 [rows, n_out] with the network's outputs; returns it."""
+        last = len(self.mats) - 1
+
         def lane(k):
-            tmp, z = self._scratch(2)
+            z, = self._scratch(1)
             try:
                 for b, lo, hi in self.lanes[k]:
                     r0, r1, r = b * self.n + lo, b * self.n + hi, hi - lo
                     if self.y is not None:
-                        h = self.acts[0][r0:r1]
-                        np.add(self.x[lo:hi], self.y[b], out=h)
-                        _leaky_into(h, h, tmp[:r, :h.shape[1]])
+                        h = host_loops.add_leaky(self.x[lo:hi], self.y[b], self.acts[0][r0:r1])
                     else:
                         h = self.x[lo:hi]
-                    for li, (wt, _, bias) in enumerate(self.mats):
-                        if li == len(self.mats) - 1:
+                    for li, (wt, _, bias, bias_block) in enumerate(self.mats):
+                        if li == last:
                             zz = np.matmul(h, wt, out=out[r0:r1])
-                            zz += bias[:r]
+                            zz += bias_block[:r]
                         else:
                             zz = np.matmul(h, wt, out=z[:r, :wt.shape[1]])
-                            zz += bias[:r]
-                            h = self.acts[li + 1][r0:r1]
-                            _leaky_into(zz, h, tmp[:r, :wt.shape[1]])
+                            h = host_loops.add_leaky(zz, bias, self.acts[li + 1][r0:r1])
             finally:
-                _BUFFERS.give([tmp, z])
+                _BUFFERS.give([z])
 
         self._run(lane)
         return out
@@ -451,31 +434,37 @@ class _HostPass:
             raise RuntimeError("HostMLP: the backward pass ran already (its activations are released)")
         gx = zeros_aligned(self.x.shape)          # uploaded as is (:func:`_upload_kept`)
         pairs = self.y is not None
+        last = len(self.layers) - 1
 
         def lane(k):
             gw = np.zeros(self.size, np.float32)
             gy = zeros_aligned(self.y.shape) if pairs else None
-            d0, d1, slope = self._scratch(3)
-            mask = _BUFFERS.take(slope.shape, np.bool_)
+            d0, d1 = self._scratch(2)
             try:
                 for b, lo, hi in self.lanes[k]:
                     r0, r1, r = b * self.n + lo, b * self.n + hi, hi - lo
                     dz = dz_all[r0:r1]
-                    for li in range(len(self.layers) - 1, -1, -1):
+                    for li in range(last, -1, -1):
                         wo, n_out, n_in, st, bo = self.layers[li]
                         a = self.acts[li][r0:r1]
                         gw[wo:wo + n_out * st].reshape(n_out, st)[:, :n_in] += dz.T @ a
-                        gw[bo:bo + n_out] += self.ones[:r] @ dz
+                        if li == last:
+                            gw[bo:bo + n_out] += self.ones[:r] @ dz
                         # the two scratch arrays take turns (layer li's output gradient is read here)
                         nxt = np.matmul(dz, self.mats[li][1], out=(d0, d1)[li % 2][:r, :n_in])
-                        if li > 0 or pairs:    # LeakyReLU's input had the sign of its output
-                            _leaky_backward(nxt, a, slope[:r, :n_in], mask[:r, :n_in])
+                        if li > 0:
+                            # through the LeakyReLU that made layer li's input; the column sums
+                            # are the previous layer's bias gradient
+                            _, p_out, _, _, p_bo = self.layers[li - 1]
+                            host_loops.leaky_grad(nxt, a, colsum=gw[p_bo:p_bo + p_out])
+                        elif pairs:
+                            # LeakyReLU(x_i + y_b): the rows' gradients go to x_i, their sum to y_b
+                            host_loops.leaky_grad(nxt, a, colsum=gy[b], acc=gx[lo:hi])
+                        else:
+                            gx[lo:hi] += nxt
                         dz = nxt
-                    gx[lo:hi] += dz
-                    if pairs:
-                        gy[b] += self.ones[:r] @ dz
             finally:
-                _BUFFERS.give([d0, d1, slope, mask])
+                _BUFFERS.give([d0, d1])
             return gw, gy
 
         parts = self._run(lane)
@@ -551,6 +540,74 @@ class _HostMLP:
                     return "HostMLP"
 
             cls._op = HostMLP
+        return cls._op
+
+
+class _HostEMNet:
+    """The whole EM-feature network on the host as one ``dr.CustomOp`` (LLVM backend, every MLP
+    with host products, no hash grid): the Gaussian branch on the encoded positions, the antenna
+    branch on the encoded antenna inputs and the head on every (view, Gaussian) pair, three
+    :class:`_HostPass` objects run one after the other in one host section, and their backward
+    passes in reverse order.
+
+    Values and gradients are those of the three :class:`_HostMLP` ops in a row (the same host
+    arithmetic, bit for bit: tests/models/test_nn.py); what goes is the traffic between them:
+    the branches' outputs uploaded to Dr.Jit and read back by the head, two more ops in the AD
+    graph and two more cuts of Dr.Jit's pool. A Stage-1 splat step (10 000 Gaussians, batch 4,
+    90 x 360) spent about 2 ms per step on it."""
+
+    _op = None
+
+    @classmethod
+    def op(cls):
+        if cls._op is None:
+            import drjit as dr
+
+            host = _host_columns
+
+            class HostEMNet(dr.CustomOp):
+                def eval(self, xs, ants, w_gaussian, w_antenna, w_head, layers):
+                    xs, ants = [dr.detach(v) for v in xs], [dr.detach(v) for v in ants]
+                    x, a = host([xs, ants])
+                    lg, la, lh = layers
+                    threads = dr.thread_count()
+                    # the branches' outputs: the head's inputs, filled before it runs
+                    g, y = empty_aligned((x.shape[0], lg[-1][1])), empty_aligned((a.shape[0], la[-1][1]))
+                    self.passes = (_HostPass(x, None, dr.detach(w_gaussian).numpy(), lg, threads=threads),
+                                   _HostPass(a, None, dr.detach(w_antenna).numpy(), la, threads=threads),
+                                   _HostPass(g, y, dr.detach(w_head).numpy(), lh, threads=threads))
+                    pg, pa, ph = self.passes
+                    with _host_threads(max(p.threads for p in self.passes)):
+                        pg.forward(g)
+                        pa.forward(y)
+                        out = ph.forward(empty_aligned((ph.views * ph.n, lh[-1][1])))
+                    self.ants_grad = any(dr.grad_enabled(v) for v in ants)
+                    return _upload_kept(type(w_head), out)
+
+                def forward(self):
+                    raise NotImplementedError("HostEMNet: forward-mode AD is not implemented (use reverse mode)")
+
+                def backward(self):
+                    go = list(self.grad_out())
+                    Float = type(go[0])
+                    dz, = host([go])                                 # waits for the gradients
+                    pg, pa, ph = self.passes
+                    with _host_threads(max(p.threads for p in self.passes)):
+                        gw_head, g_g, g_y = ph.backward(dz)
+                        gw_antenna, g_a, _ = pa.backward(g_y)
+                        gw_gaussian, g_x, _ = pg.backward(g_g)
+                    self.set_grad_in("w_head", upload(Float, gw_head))
+                    self.set_grad_in("w_antenna", upload(Float, gw_antenna))
+                    self.set_grad_in("w_gaussian", upload(Float, gw_gaussian))
+                    self.set_grad_in("xs", _upload_kept(Float, g_x))
+                    if self.ants_grad:
+                        self.set_grad_in("ants", _upload_kept(Float, g_a))
+                    self.passes = None
+
+                def name(self):
+                    return "HostEMNet"
+
+            cls._op = HostEMNet
         return cls._op
 
 
@@ -796,12 +853,16 @@ class EMNetwork:
     def antenna_features(self, ant01: list, extra: list | None = None) -> list:
         """Per-view branch: ant01 list of 3 ``Float`` [B] in [0, 1], extra list of
         ``extra_inputs`` ``Float`` [B] -> ``width`` ``Float`` [B]."""
+        return self.antenna(self._antenna_inputs(ant01, extra))
+
+    def _antenna_inputs(self, ant01: list, extra: list | None) -> list:
+        """The antenna branch's inputs: the encoded antenna position, then the extra inputs."""
         kind = "tri" if self.cfg.encoding == "tri" else "sin"
         x = encode([a * 0.5 for a in ant01], octaves=self.cfg.antenna_octaves, kind=kind)
         extra = list(extra or [])
         if len(extra) != self.extra_inputs:
             raise ValueError(f"EMNetwork expects {self.extra_inputs} extra inputs, got {len(extra)}")
-        return self.antenna(x + extra)
+        return x + extra
 
     def __call__(self, pos01: list, ant01: list, extra: list | None = None) -> tuple:
         """Signal and attenuation offsets for every (view, Gaussian) pair.
@@ -815,6 +876,19 @@ class EMNetwork:
             (signal_logit, attenuation_logit, log_scale_offset): ``Float`` [B*N] each,
             view-major (b*N + i).
         """
+        mods = (self.gaussian, self.antenna, self.head)
+        if self.hash is None and all(m._host_layers is not None for m in mods):
+            # the whole network in one host op (:class:`_HostEMNet`)
+            import drjit as dr
+
+            xs = encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
+            ants = self._antenna_inputs(ant01, extra)
+            for m, inputs in ((self.gaussian, xs), (self.antenna, ants)):
+                if len(inputs) != m.n_in:
+                    raise ValueError(f"MLP expects {m.n_in} inputs, got {len(inputs)}")
+            out = dr.custom(_HostEMNet.op(), list(xs), list(ants), self.gaussian.weights, self.antenna.weights,
+                            self.head.weights, tuple(m._host_layers for m in mods))
+            return out[0], out[1], out[2]
         out = self.head.pairs(self.gaussian_features(pos01), self.antenna_features(ant01, extra))
         return out[0], out[1], out[2]
 

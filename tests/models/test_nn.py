@@ -480,3 +480,54 @@ def test_host_threads_restore_drjits_pool(variant):
     finally:
         nn._HostPass._run = real
         dr.set_thread_count(before)
+
+
+@pytest.mark.parametrize("extra", [0, 2])
+def test_fused_host_network_matches_the_three_host_ops(variant, extra):
+    """The EM network as one host op (:class:`_HostEMNet`) gives the bits of its three host MLPs
+    called one after the other: outputs, and the gradients of every weight buffer and of the
+    Gaussian positions."""
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models import nn
+
+    if B.is_cuda():
+        pytest.skip("the host products run on the LLVM backend only")
+    net = nn.EMNetwork(nn.NetConfig(width=16, gaussian_octaves=2, antenna_octaves=2), extra_inputs=extra, seed=4)
+    rng = np.random.default_rng(15)
+    pos_np = rng.random((nn.HOST_THREAD_MIN_ROWS // 3 + 7, 3)).astype(np.float32)
+    ant_np = rng.random((3, 3)).astype(np.float32)
+    ex = [B.Float(rng.random(3).astype(np.float32)) for _ in range(extra)] or None
+
+    def run(fused):
+        pos = [B.Float(pos_np[:, k]) for k in range(3)]
+        ws = [B.Float(dr.detach(m.weights)) for m in (net.gaussian, net.antenna, net.head)]
+        for w, m in zip(ws, (net.gaussian, net.antenna, net.head)):
+            dr.enable_grad(w)
+            m.set_weights(w)
+        dr.enable_grad(pos)
+        ant = [B.Float(ant_np[:, k]) for k in range(3)]
+        if fused:
+            out = net(pos, ant, ex)
+        else:
+            out = net.head.pairs(net.gaussian_features(pos), net.antenna_features(ant, ex))
+        dr.backward(dr.sum(dr.square(out[0])) + dr.sum(out[1] * 0.5) + dr.sum(dr.gather(B.Float, out[2], B.UInt32([1, 4, 4]))))
+        return [o.numpy().copy() for o in out] + [dr.grad(w).numpy().copy() for w in ws] \
+            + [dr.grad(p).numpy().copy() for p in pos]
+
+    seen = []
+    real = nn._HostEMNet.op
+
+    def spy():
+        seen.append(True)
+        return real()
+
+    nn._HostEMNet.op = spy
+    try:
+        fused = run(True)
+    finally:
+        nn._HostEMNet.op = real
+    assert seen, "the network did not run as one host op"
+    for k, (a, b) in enumerate(zip(fused, run(False))):
+        assert np.array_equal(a, b), k
