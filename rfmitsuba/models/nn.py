@@ -2,10 +2,11 @@
 
 Everything here is part of one Dr.Jit AD graph with the splatting kernels. The MLPs run as
 cooperative vectors (``drjit.nn``); on the LLVM backend the EM network's matrix products run on
-the host's BLAS inside a custom AD op instead (:class:`_HostMLP`, :attr:`NetConfig.host_products`),
-because the cooperative-vector backward there adds weight gradients atomically (a Stage-1 splat
-step at batch 4 and 10 000 Gaussians: 354 -> 194 ms of kernel time, plus about 70 ms of host
-products).
+the host's BLAS inside a custom AD op instead (:class:`_HostMLP` per MLP, :class:`_HostEMNet` for
+the whole EM network; :attr:`NetConfig.host_products`), because the cooperative-vector backward
+there adds weight gradients atomically (a Stage-1 splat step at batch 4 and 10 000 Gaussians:
+354 -> 194 ms of kernel time, plus about 70 ms of host products). The host passes' element-wise
+steps are fused loops (:mod:`rfmitsuba.models.host_loops`).
 
 The EM-feature network of a Gaussian field maps (Gaussian position, antenna
 position[, extra inputs such as a human position]) to each Gaussian's signal and
