@@ -73,36 +73,20 @@ def _compile():
         return out
 
     @jit
-    def leaky_grad(d, h):
-        n, m = d.shape
-        for i in range(n):
-            for j in range(m):
-                if not h[i, j] > 0:
-                    d[i, j] *= SLOPE
-        return d
-
-    @jit
-    def leaky_grad_sum(d, h, colsum):
+    def leaky_grad(d, h, colsum, acc):
+        # colsum and acc may be None: Numba compiles a version without their branches
         n, m = d.shape
         for i in range(n):
             for j in range(m):
                 t = d[i, j] if h[i, j] > 0 else SLOPE * d[i, j]
                 d[i, j] = t
-                colsum[j] += t
+                if colsum is not None:
+                    colsum[j] += t
+                if acc is not None:
+                    acc[i, j] += t
         return d
 
-    @jit
-    def leaky_grad_sum_acc(d, h, colsum, acc):
-        n, m = d.shape
-        for i in range(n):
-            for j in range(m):
-                t = d[i, j] if h[i, j] > 0 else SLOPE * d[i, j]
-                d[i, j] = t
-                colsum[j] += t
-                acc[i, j] += t
-        return d
-
-    return add_leaky, leaky_grad, leaky_grad_sum, leaky_grad_sum_acc
+    return add_leaky, leaky_grad
 
 
 _LOOPS = None
@@ -131,15 +115,8 @@ def add_leaky(z: np.ndarray, row: np.ndarray, out: np.ndarray) -> np.ndarray:
 
 def leaky_grad(d: np.ndarray, h: np.ndarray, colsum: np.ndarray | None = None,
                acc: np.ndarray | None = None) -> np.ndarray:
-    """:func:`leaky_grad_numpy` in one pass (C-contiguous float32 arrays; ``acc`` needs
-    ``colsum``)."""
+    """:func:`leaky_grad_numpy` in one pass (float32 arrays)."""
     loops = _loops()
     if loops is None:
         return leaky_grad_numpy(d, h, colsum, acc)
-    if acc is not None:
-        if colsum is None:
-            raise ValueError("leaky_grad: acc needs colsum")
-        return loops[3](d, h, colsum, acc)
-    if colsum is not None:
-        return loops[2](d, h, colsum)
-    return loops[1](d, h)
+    return loops[1](d, h, colsum, acc)

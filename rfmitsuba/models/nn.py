@@ -487,6 +487,24 @@ class _HostPass:
         self.release()
 
 
+_HOST_OPS: dict = {}
+
+
+def _host_op(name: str, eval_fn, backward_fn):
+    """A ``dr.CustomOp`` class called ``name``, made once, whose ``eval`` and ``backward`` are
+    ``eval_fn(op, ...)`` and ``backward_fn(op)``; forward-mode AD raises (the host passes are
+    reverse mode only)."""
+    if name not in _HOST_OPS:
+        import drjit as dr
+
+        def forward(self):
+            raise NotImplementedError(f"{name}: forward-mode AD is not implemented (use reverse mode)")
+
+        _HOST_OPS[name] = type(name, (dr.CustomOp,), {
+            "eval": eval_fn, "backward": backward_fn, "forward": forward, "name": lambda self: name})
+    return _HOST_OPS[name]
+
+
 class _HostMLP:
     """An MLP's forward and backward as host matrix products (NumPy BLAS), for the LLVM backend:
     a ``dr.CustomOp`` on (inputs, per-view inputs, packed weights) around a :class:`_HostPass`;
@@ -504,44 +522,35 @@ class _HostMLP:
     Dr.Jit has (:data:`HOST_LANES` at most), with the same bits on any number.
     """
 
-    _op = None
+    @staticmethod
+    def op():
+        """The ``dr.CustomOp`` class (made once)."""
+        return _host_op("HostMLP", _HostMLP._eval, _HostMLP._backward)
 
-    @classmethod
-    def op(cls):
-        if cls._op is None:
-            import drjit as dr
+    # eval and backward of the op (``op`` is the CustomOp instance)
+    @staticmethod
+    def _eval(op, xs, ys, weights, layers):
+        import drjit as dr
 
-            host = _host_columns
+        xs, ys = [dr.detach(v) for v in xs], [dr.detach(v) for v in ys]
+        x, y = _host_columns([xs, ys])                    # one kernel for the inputs not kept
+        op.host = _HostPass(x, y, dr.detach(weights).numpy(), layers, threads=dr.thread_count())
+        with _host_threads(op.host.threads):
+            out = op.host.forward(empty_aligned((op.host.views * op.host.n, layers[-1][1])))
+        op.pairs = bool(ys)
+        return _upload_kept(type(weights), out)   # aligned: no recompilation downstream
 
-            class HostMLP(dr.CustomOp):
-                def eval(self, xs, ys, weights, layers):
-                    xs, ys = [dr.detach(v) for v in xs], [dr.detach(v) for v in ys]
-                    x, y = host([xs, ys])                    # one kernel for the inputs not kept
-                    self.host = _HostPass(x, y, dr.detach(weights).numpy(), layers, threads=dr.thread_count())
-                    with _host_threads(self.host.threads):
-                        out = self.host.forward(empty_aligned((self.host.views * self.host.n, layers[-1][1])))
-                    self.pairs = bool(ys)
-                    return _upload_kept(type(weights), out)   # aligned: no recompilation downstream
-
-                def forward(self):
-                    raise NotImplementedError("HostMLP: forward-mode AD is not implemented (use reverse mode)")
-
-                def backward(self):
-                    go = list(self.grad_out())
-                    Float = type(go[0])
-                    dz, = host([go])                                 # waits for the gradients
-                    with _host_threads(self.host.threads):
-                        gw, gx, gy = self.host.backward(dz)
-                    self.set_grad_in("weights", upload(Float, gw))
-                    if self.pairs:
-                        self.set_grad_in("ys", _upload_kept(Float, gy))
-                    self.set_grad_in("xs", _upload_kept(Float, gx))
-
-                def name(self):
-                    return "HostMLP"
-
-            cls._op = HostMLP
-        return cls._op
+    @staticmethod
+    def _backward(op):
+        go = list(op.grad_out())
+        Float = type(go[0])
+        dz, = _host_columns([go])                          # waits for the gradients
+        with _host_threads(op.host.threads):
+            gw, gx, gy = op.host.backward(dz)
+        op.set_grad_in("weights", upload(Float, gw))
+        if op.pairs:
+            op.set_grad_in("ys", _upload_kept(Float, gy))
+        op.set_grad_in("xs", _upload_kept(Float, gx))
 
 
 class _HostEMNet:
@@ -557,59 +566,49 @@ class _HostEMNet:
     graph and two more cuts of Dr.Jit's pool. A Stage-1 splat step (10 000 Gaussians, batch 4,
     90 x 360) spent about 2 ms per step on it."""
 
-    _op = None
+    @staticmethod
+    def op():
+        """The ``dr.CustomOp`` class (made once)."""
+        return _host_op("HostEMNet", _HostEMNet._eval, _HostEMNet._backward)
 
-    @classmethod
-    def op(cls):
-        if cls._op is None:
-            import drjit as dr
+    @staticmethod
+    def _eval(op, xs, ants, w_gaussian, w_antenna, w_head, layers):
+        import drjit as dr
 
-            host = _host_columns
+        xs, ants = [dr.detach(v) for v in xs], [dr.detach(v) for v in ants]
+        x, a = _host_columns([xs, ants])
+        lg, la, lh = layers
+        threads = dr.thread_count()
+        # the branches' outputs: the head's inputs, filled before it runs
+        g, y = empty_aligned((x.shape[0], lg[-1][1])), empty_aligned((a.shape[0], la[-1][1]))
+        op.passes = (_HostPass(x, None, dr.detach(w_gaussian).numpy(), lg, threads=threads),
+                     _HostPass(a, None, dr.detach(w_antenna).numpy(), la, threads=threads),
+                     _HostPass(g, y, dr.detach(w_head).numpy(), lh, threads=threads))
+        pg, pa, ph = op.passes
+        with _host_threads(max(p.threads for p in op.passes)):
+            pg.forward(g)
+            pa.forward(y)
+            out = ph.forward(empty_aligned((ph.views * ph.n, lh[-1][1])))
+        op.ants_grad = any(dr.grad_enabled(v) for v in ants)
+        return _upload_kept(type(w_head), out)
 
-            class HostEMNet(dr.CustomOp):
-                def eval(self, xs, ants, w_gaussian, w_antenna, w_head, layers):
-                    xs, ants = [dr.detach(v) for v in xs], [dr.detach(v) for v in ants]
-                    x, a = host([xs, ants])
-                    lg, la, lh = layers
-                    threads = dr.thread_count()
-                    # the branches' outputs: the head's inputs, filled before it runs
-                    g, y = empty_aligned((x.shape[0], lg[-1][1])), empty_aligned((a.shape[0], la[-1][1]))
-                    self.passes = (_HostPass(x, None, dr.detach(w_gaussian).numpy(), lg, threads=threads),
-                                   _HostPass(a, None, dr.detach(w_antenna).numpy(), la, threads=threads),
-                                   _HostPass(g, y, dr.detach(w_head).numpy(), lh, threads=threads))
-                    pg, pa, ph = self.passes
-                    with _host_threads(max(p.threads for p in self.passes)):
-                        pg.forward(g)
-                        pa.forward(y)
-                        out = ph.forward(empty_aligned((ph.views * ph.n, lh[-1][1])))
-                    self.ants_grad = any(dr.grad_enabled(v) for v in ants)
-                    return _upload_kept(type(w_head), out)
-
-                def forward(self):
-                    raise NotImplementedError("HostEMNet: forward-mode AD is not implemented (use reverse mode)")
-
-                def backward(self):
-                    go = list(self.grad_out())
-                    Float = type(go[0])
-                    dz, = host([go])                                 # waits for the gradients
-                    pg, pa, ph = self.passes
-                    with _host_threads(max(p.threads for p in self.passes)):
-                        gw_head, g_g, g_y = ph.backward(dz)
-                        gw_antenna, g_a, _ = pa.backward(g_y)
-                        gw_gaussian, g_x, _ = pg.backward(g_g)
-                    self.set_grad_in("w_head", upload(Float, gw_head))
-                    self.set_grad_in("w_antenna", upload(Float, gw_antenna))
-                    self.set_grad_in("w_gaussian", upload(Float, gw_gaussian))
-                    self.set_grad_in("xs", _upload_kept(Float, g_x))
-                    if self.ants_grad:
-                        self.set_grad_in("ants", _upload_kept(Float, g_a))
-                    self.passes = None
-
-                def name(self):
-                    return "HostEMNet"
-
-            cls._op = HostEMNet
-        return cls._op
+    @staticmethod
+    def _backward(op):
+        go = list(op.grad_out())
+        Float = type(go[0])
+        dz, = _host_columns([go])                          # waits for the gradients
+        pg, pa, ph = op.passes
+        with _host_threads(max(p.threads for p in op.passes)):
+            gw_head, g_g, g_y = ph.backward(dz)
+            gw_antenna, g_a, _ = pa.backward(g_y)
+            gw_gaussian, g_x, _ = pg.backward(g_g)
+        op.set_grad_in("w_head", upload(Float, gw_head))
+        op.set_grad_in("w_antenna", upload(Float, gw_antenna))
+        op.set_grad_in("w_gaussian", upload(Float, gw_gaussian))
+        op.set_grad_in("xs", _upload_kept(Float, g_x))
+        if op.ants_grad:
+            op.set_grad_in("ants", _upload_kept(Float, g_a))
+        op.passes = None
 
 
 class MLP:
