@@ -21,6 +21,8 @@ the sign of its input).
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 #: Negative slope of the networks' LeakyReLU.
@@ -61,7 +63,14 @@ def _compile():
     except ImportError:
         return None
 
-    jit = numba.njit(nogil=True, cache=True)
+    def jit(fn):
+        # compiled code is cached beside the module or in the user's cache folder; where neither
+        # can be written (a read-only install without a home), Numba refuses to cache, and the
+        # loops are compiled in each process instead
+        try:
+            return numba.njit(nogil=True, cache=True)(fn)
+        except RuntimeError:
+            return numba.njit(nogil=True, cache=False)(fn)
 
     @jit
     def add_leaky(z, row, out):
@@ -91,12 +100,16 @@ def _compile():
 
 _LOOPS = None
 _TRIED = False
+_LOCK = threading.Lock()
 
 
 def _loops():
+    """The compiled loops (made once; the host threads may ask at the same time), or None."""
     global _LOOPS, _TRIED
     if not _TRIED:
-        _LOOPS, _TRIED = _compile(), True
+        with _LOCK:
+            if not _TRIED:
+                _LOOPS, _TRIED = _compile(), True
     return _LOOPS
 
 

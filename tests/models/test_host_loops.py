@@ -60,3 +60,22 @@ def test_loops_take_strided_views():
 def test_the_loops_are_compiled_where_numba_is_installed():
     pytest.importorskip("numba")
     assert H.compiled()
+
+
+def test_loops_compile_where_numba_cannot_cache(monkeypatch):
+    """Numba refuses ``cache=True`` where no cache folder can be written (a read-only install):
+    the loops are then compiled without a cache and give the same bits."""
+    numba = pytest.importorskip("numba")
+    real = numba.njit
+
+    def njit(*args, **kw):
+        if kw.get("cache"):
+            raise RuntimeError("cannot cache function: no locator available")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(numba, "njit", njit)
+    add_leaky, leaky_grad = H._compile()
+    z, row = _case(np.random.default_rng(4))
+    assert np.array_equal(add_leaky(z, row, np.empty_like(z)), H.add_leaky_numpy(z, row, np.empty_like(z)))
+    d = z.copy()
+    assert np.array_equal(leaky_grad(d, z, None, None), H.leaky_grad_numpy(z.copy(), z))
