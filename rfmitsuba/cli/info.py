@@ -16,7 +16,7 @@ def run(args) -> int:
     from ..core import backend
 
     print(f"python      {platform.python_version()} ({platform.machine()})")
-    for pkg in ("rfmitsuba", "drjit", "mitsuba", "sionna-rt", "numpy", "scikit-image", "trimesh"):
+    for pkg in ("rfmitsuba", "drjit", "mitsuba", "sionna-rt", "numpy", "numba", "scikit-image", "trimesh"):
         try:
             print(f"{pkg:<11} {version(pkg)}")
         except PackageNotFoundError:
