@@ -387,12 +387,17 @@ def _host_pass_reference(x, y, w, layers, dz):
     return acts[-1], gw, g.sum(0), g.sum(1)
 
 
+@pytest.mark.parametrize("loops", ["compiled", "numpy twins"])
 @pytest.mark.parametrize("views", [0, 3])
-def test_host_pass_matches_numpy_reference(views, monkeypatch):
+def test_host_pass_matches_numpy_reference(views, loops, monkeypatch):
     """``_HostPass`` (blocks, lanes, kept arrays) against the whole MLP in float64 NumPy: outputs
-    and the gradients of weights, per-item and per-view inputs."""
-    from rfmitsuba.models import nn
+    and the gradients of weights, per-item and per-view inputs; with the fused loops and with
+    their NumPy twins (what runs without Numba)."""
+    from rfmitsuba.models import host_loops, nn
 
+    if loops == "numpy twins":
+        monkeypatch.setattr(host_loops, "_LOOPS", None)
+        monkeypatch.setattr(host_loops, "_TRIED", True)
     monkeypatch.setattr(nn, "HOST_BLOCK_ROWS", 8)
     monkeypatch.setattr(nn, "HOST_THREAD_MIN_ROWS", 0)
     x, y, w, layers, dz = _host_pass_case(np.random.default_rng(11), n=45, views=views, widths=(6, 16, 16, 4))
