@@ -14,6 +14,9 @@ Every loop computes what its twin computes with the same float32 operations in t
 order per element, so values are bit-identical (``tests/models/test_host_loops.py``); column
 sums are added row by row here and by a matrix product in the twins (equal up to float32
 rounding). Without Numba (it is a dependency, but an environment may lack it) the twins run.
+The first call in a process imports Numba and compiles or loads the loops: 0.63 s for
+``add_leaky`` and 0.32 s for two signatures of ``leaky_grad`` with an empty cache, 0.42 s and
+0.00 s from the cache (which Numba keeps beside this module or in the user's cache folder).
 
 The LeakyReLU's slope is :data:`SLOPE` (0.01, as ``drjit.nn.LeakyReLU(0.01)``); its derivative
 is taken from the layer's *output* ``h``: 1 where ``h > 0``, else the slope (a LeakyReLU keeps
