@@ -122,7 +122,7 @@ def compiled() -> bool:
 
 
 def add_leaky(z: np.ndarray, row: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """:func:`add_leaky_numpy` in one pass (C-contiguous float32 arrays; ``out`` may be ``z``)."""
+    """:func:`add_leaky_numpy` in one pass (float32 arrays; ``out`` may be ``z``)."""
     loops = _loops()
     if loops is None:
         return add_leaky_numpy(z, row, out)

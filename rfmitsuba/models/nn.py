@@ -845,11 +845,14 @@ class EMNetwork:
 
     def gaussian_features(self, pos01: list) -> list:
         """Per-Gaussian branch: pos01 list of 3 ``Float`` [N] in [0, 1] -> ``width`` ``Float`` [N]."""
+        return self.gaussian(self._gaussian_inputs(pos01))
+
+    def _gaussian_inputs(self, pos01: list) -> list:
+        """The Gaussian branch's inputs: the positions and their hash-grid features, or the
+        positions' encoding."""
         if self.hash is not None:
-            x = list(pos01) + self.hash(pos01)
-        else:
-            x = encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
-        return self.gaussian(x)
+            return list(pos01) + self.hash(pos01)
+        return encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
 
     def antenna_features(self, ant01: list, extra: list | None = None) -> list:
         """Per-view branch: ant01 list of 3 ``Float`` [B] in [0, 1], extra list of
@@ -882,7 +885,7 @@ class EMNetwork:
             # the whole network in one host op (:class:`_HostEMNet`)
             import drjit as dr
 
-            xs = encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
+            xs = self._gaussian_inputs(pos01)
             ants = self._antenna_inputs(ant01, extra)
             for m, inputs in ((self.gaussian, xs), (self.antenna, ants)):
                 if len(inputs) != m.n_in:
