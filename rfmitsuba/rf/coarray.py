@@ -168,14 +168,16 @@ def render_coefficients(c: np.ndarray, B: np.ndarray, shape: tuple) -> np.ndarra
 
 
 def invert_channels(c: np.ndarray, B: np.ndarray, *, starts: int = 12, seed: int = 0,
-                    tol: float = 1e-5) -> tuple[np.ndarray, float]:
+                    tol: float = 1e-5, phase_only: bool = False) -> tuple[np.ndarray, float]:
     """Rank-one channels of co-array coefficients: (h complex128 [16] with ``h_0`` real and
     positive, relative residual).
 
     Minimises ``|| B (c(h) - c) ||`` over ``h``, with ``c(h)`` the coefficients of ``h``
     (:func:`channel_lags`), from ``starts`` seeded starts (the first the leading eigenvector of
     the co-array's averaged covariance); it stops early once the relative residual is below
-    ``tol``. ``h`` is found up to the twin ``conj(h[::-1])``.
+    ``tol``. ``h`` is found up to the twin ``conj(h[::-1])``. ``phase_only`` fits unit-modulus
+    channels times one common magnitude (the read-out of ``h / |h|``): its residual against the
+    free fit's says whether a phase-only read-out can have drawn the image.
     """
     from scipy.linalg import cholesky
     from scipy.optimize import least_squares
@@ -206,19 +208,25 @@ def invert_channels(c: np.ndarray, B: np.ndarray, *, starts: int = 12, seed: int
 
     scale = np.linalg.norm(L @ c) or 1.0
 
+    def channels(x):
+        if phase_only:
+            return x[16] * np.exp(1j * x[:16])
+        return x[:16] + 1j * x[16:]
+
     def resid(x):
-        return L @ (coeffs(x[:16] + 1j * x[16:]) - c) / scale
+        return L @ (coeffs(channels(x)) - c) / scale
 
     rng = np.random.default_rng(seed)
     best = None
     for s in range(max(int(starts), 1)):
         h0 = x_eig if s == 0 else (rng.normal(size=16) + 1j * rng.normal(size=16)) * np.sqrt(abs(C[0].real) / 16)
-        o = least_squares(resid, np.r_[h0.real, h0.imag], method="lm", max_nfev=2000)
+        x0 = np.r_[np.angle(h0), np.sqrt(abs(C[0].real) / 16)] if phase_only else np.r_[h0.real, h0.imag]
+        o = least_squares(resid, x0, method="lm", max_nfev=2000)
         if best is None or o.cost < best.cost:
             best = o
         if np.sqrt(2 * best.cost) < tol:
             break
-    h = best.x[:16] + 1j * best.x[16:]
+    h = channels(best.x)
     h = h * np.exp(-1j * np.angle(h[0]))
     return h, float(np.sqrt(2 * best.cost))
 

@@ -101,3 +101,15 @@ def test_bad_input_is_named():
         fit.fit(np.zeros((90, 360)))
     with pytest.raises(ConfigError, match="NaN"):
         fit.fit(np.full((45, 180), np.nan))
+
+
+def test_phase_only_inversion_fits_phase_only_channels_and_not_free_ones():
+    B = coarray.basis(coarray.look_directions(elevation_start_deg=1.0), frequency_hz=F, pitch_m=PITCH)
+    rng = np.random.default_rng(8)
+    unit = np.exp(1j * rng.uniform(-np.pi, np.pi, 16))
+    est, res = coarray.invert_channels(_reals(coarray.channel_lags(unit)), B, starts=32, seed=0, phase_only=True)
+    assert res < 1e-4 and coarray.channel_error(est, unit) < 1e-3
+    np.testing.assert_allclose(np.abs(est), np.abs(est[0]))
+    free = _channels(9)[0]
+    _, res_free = coarray.invert_channels(_reals(coarray.channel_lags(free)), B, starts=8, seed=0, phase_only=True)
+    assert res_free > 0.05
