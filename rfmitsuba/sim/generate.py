@@ -132,6 +132,12 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
              stop_after: int | None = None, cluster: ClusterConfig | None = None) -> Dataset:
     """Simulate a dataset into folder ``out``, resuming from the first missing chunk.
 
+    One writer per dataset folder: the call holds ``out``'s lock
+    (:func:`rfmitsuba.core.folder_lock.folder_lock`) throughout, so a second ``generate`` into
+    ``out`` is refused at once, naming the first one's pid, instead of simulating the same states
+    twice. A folder this call created is removed again when the call fails before it wrote
+    ``meta.json``.
+
     Args:
         out: dataset folder (created; an existing one must hold the same configuration).
         cfg: :class:`GenerateConfig`.
@@ -150,6 +156,24 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         PlacementError: bad positions; SceneError: unknown or broken scene; JobsFailed (a
             RunError): on a cluster, runs of states failed (named; the written chunks are kept).
     """
+    import shutil
+
+    from ..core.folder_lock import folder_lock
+
+    root = Path(out)
+    created = not root.exists()
+    try:
+        with folder_lock(root, what="generate"):
+            return _generate_locked(root, cfg, repair=repair, quiet=quiet, stop_after=stop_after, cluster=cluster)
+    except BaseException:
+        if created and root.is_dir() and not (root / "meta.json").exists():
+            shutil.rmtree(root, ignore_errors=True)
+        raise
+
+
+def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: bool, stop_after: int | None,
+                     cluster: ClusterConfig | None) -> Dataset:
+    """:func:`generate`'s work, with ``out``'s lock held."""
     import time
 
 

@@ -46,6 +46,7 @@ from ..core import backend as B
 from ..core import config as C
 from ..core.atomic import write_json
 from ..core.errors import ConfigError, RunError
+from ..core.folder_lock import LOCK_NAME
 from ..core.progress import bar
 from ..core.ssim import ssim_images
 from ..core.upload import upload
@@ -156,7 +157,7 @@ class Trainer:
         cfg_file = rd / "config.toml"
         if rd.exists() and not rd.is_dir():
             raise RunError(f"run folder {rd} exists and is not a folder")
-        if rd.is_dir() and any(p.name != SELECT_DIR for p in rd.iterdir()):  # model = "auto" trials
+        if rd.is_dir() and any(p.name not in (SELECT_DIR, LOCK_NAME) for p in rd.iterdir()):  # "auto" trials, the lock
             if not cfg_file.is_file():
                 raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
             try:
@@ -739,12 +740,28 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``
     (``cfg.model == "auto"`` first chooses the field, :func:`rfmitsuba.train.select.select_model`).
 
-    ``freeze``: as :class:`Trainer`. Returns the summary dict (also in ``out/final/summary.json``)."""
-    cfg = cfg or TrainConfig()
-    data = TrainData.open(dataset, state=cfg.state)
-    if cfg.model == "auto":
-        cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
-    return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
+    ``freeze``: as :class:`Trainer`. Returns the summary dict (also in ``out/final/summary.json``).
+
+    One writer per run folder: the call holds ``out``'s lock (:func:`rfmitsuba.core.folder_lock.folder_lock`)
+    from before the data are opened to the end, so a second ``train`` into ``out`` is refused at once,
+    naming the first one's pid, instead of interleaving its steps with the first's. A folder this call
+    created is removed again when the call fails before any checkpoint (as :meth:`Trainer.run`)."""
+    from ..core.folder_lock import folder_lock
+
+    out = Path(out)
+    created = not out.exists()
+    try:
+        with folder_lock(out, what="train"):
+            cfg = cfg or TrainConfig()
+            data = TrainData.open(dataset, state=cfg.state)
+            if cfg.model == "auto":
+                cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
+            return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
+    except BaseException:
+        if created and out.is_dir() and not any((d / "checkpoint").is_dir() for d in
+                                                (out, *out.glob("members/*"), *out.glob("select/*"))):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
 
 
 def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | FieldMean]:
