@@ -50,10 +50,50 @@ def main(argv: list[str] | None = None) -> int:
     except RfmError as e:
         print(f"rfmitsuba {args.command}: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"rfmitsuba {args.command}: interrupted; finished work is kept, run the same command to resume",
-              file=sys.stderr)
-        return 130
+    except BaseException as e:                     # noqa: BLE001 - named below, or raised again
+        code, message = _named_fault(e)
+        if code is None:
+            raise
+        print(f"rfmitsuba {args.command}: {message}", file=sys.stderr)
+        return code
+
+
+def _cause_chain(e: BaseException):
+    """``e`` and the exceptions it was raised from (``__cause__``, else ``__context__``): Dr.Jit's
+    loops re-raise a Ctrl-C or an OSError inside them as a RuntimeError of their own."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        yield e
+        e = e.__cause__ or e.__context__
+
+
+def _named_fault(e: BaseException) -> tuple[int | None, str]:
+    """(exit code, one-line message) for a fault a user can cause, or (None, "") for a bug.
+
+    Ctrl-C: 130, "interrupted; finished work is kept"; a file-system error (disk full, read-only,
+    a file where a folder belongs, permission): 1, naming the path and the cause; out of memory:
+    1, with the size asked for."""
+    import errno
+
+    chain = list(_cause_chain(e))
+    if any(isinstance(x, KeyboardInterrupt) for x in chain):
+        return 130, "interrupted; finished work is kept, run the same command to resume"
+    mem = next((x for x in chain if isinstance(x, MemoryError)), None)
+    if mem is not None:
+        what = str(mem) or "an allocation failed"
+        return 1, (f"error: out of memory ({what}); ask for fewer positions, states or views per call "
+                   "(--positions, --human-positions, --batch)")
+    ose = next((x for x in chain if isinstance(x, OSError) and (x.filename or x.errno)), None)
+    if ose is not None:
+        path = ose.filename if ose.filename is not None else "(no path)"
+        cause = ose.strerror or errno.errorcode.get(ose.errno or 0, str(ose))
+        hint = {errno.ENOSPC: "; free space or write elsewhere (--out), finished work is kept",
+                errno.EROFS: "; write elsewhere (--out)", errno.EACCES: "; check the permissions or write elsewhere",
+                errno.ENOTDIR: "; a file stands where a folder belongs",
+                errno.EEXIST: "; a file stands where a folder belongs"}.get(ose.errno, "")
+        return 1, f"error: {path}: {cause}{hint}"
+    return None, ""
 
 
 if __name__ == "__main__":  # pragma: no cover
