@@ -44,6 +44,7 @@ from __future__ import annotations
 import importlib
 import json
 import pkgutil
+import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, ClassVar
@@ -93,8 +94,10 @@ def load_field(path: str | Path) -> "Field":
     try:
         with np.load(path, allow_pickle=False) as z:
             state = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as e:
-        raise RunError(f"{path}: not a readable field file ({e})") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
+        raise RunError(f"{path}: not a readable field file ({type(e).__name__}: {e}); if it is a run's "
+                       f"final field, delete {path.parent} and run the same `rfmitsuba train` again to write it "
+                       "from the run's checkpoint") from None
     if "meta" not in state:
         raise RunError(f"{path}: field file has no 'meta' entry")
     try:

@@ -38,6 +38,7 @@ import math
 import os
 import shutil
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -346,8 +347,12 @@ class Trainer:
             else:
                 return None
         meta = json.loads((ck / "meta.json").read_text())
-        with np.load(ck / "state.npz", allow_pickle=False) as z:
-            st = {k: z[k] for k in z.files}
+        try:
+            with np.load(ck / "state.npz", allow_pickle=False) as z:
+                st = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
+            raise RunError(f"{ck / 'state.npz'}: the checkpoint is damaged ({type(e).__name__}: {e}); delete {ck} "
+                           "to train this run from the start, or train into another --out") from None
         fs = {k[len("field/"):]: v for k, v in st.items() if k.startswith("field/")}
         field.load_state_dict(fs)
         for key in list(opt.state.keys()):
