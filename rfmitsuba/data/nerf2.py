@@ -177,8 +177,10 @@ def _read_index(path: Path, count: int) -> np.ndarray:
     vals = np.asarray([int(t) for t in tokens], np.int64)
     if vals.min() < 1 or vals.max() > count:
         raise DatasetError(f"{path}: image numbers outside 1..{count} (found {int(vals.min())}..{int(vals.max())})")
-    if len(np.unique(vals)) != len(vals):
-        raise DatasetError(f"{path}: image numbers repeat")
+    uniq, counts = np.unique(vals, return_counts=True)
+    if (counts > 1).any():
+        raise DatasetError(f"{path}: image number {int(uniq[counts > 1][0])} appears "
+                           f"{int(counts[counts > 1][0])} times")
     return np.sort(vals - 1)
 
 
@@ -252,7 +254,14 @@ class NerfDataset:
             numbers.append(int(f.stem))
         A = len(files)
         if sorted(numbers) != list(range(1, A + 1)):
-            raise DatasetError(f"{spec}: images must be numbered 1..{A} without gaps")
+            have = set(numbers)
+            repeated = sorted({n for n in numbers if numbers.count(n) > 1})
+            if repeated:   # 00001.png and 1.png
+                raise DatasetError(f"{spec}: image number {repeated[0]} appears twice (e.g. 00001.png and 1.png)")
+            missing = [n for n in range(1, max(numbers) + 1) if n not in have]
+            raise DatasetError(f"{spec}: image {missing[0]:05d}.png is missing"
+                               + (f" ({len(missing)} numbers missing in all)" if len(missing) > 1 else "")
+                               + f"; images must be numbered 1..{A} without gaps")
         extra = {}
         if (self.path / EXTRA).is_file():
             try:

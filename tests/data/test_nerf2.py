@@ -116,9 +116,19 @@ def test_bad_folders(small, tmp_path):
     with pytest.raises(DatasetError, match="00004.png: not a readable image"):
         nerf2.read(out)
     (out / "spectrum" / "00003.png").unlink()
-    with pytest.raises(DatasetError, match="without gaps"):
+    with pytest.raises(DatasetError, match="image 00003.png is missing; images must be numbered 1.* without gaps"):
         nerf2.read(out)
     (out / "spectrum" / "00003.png").write_bytes((out / "spectrum" / "00002.png").read_bytes())
+    (out / "spectrum" / "2.png").write_bytes((out / "spectrum" / "00002.png").read_bytes())
+    with pytest.raises(DatasetError, match="image number 2 appears twice"):
+        nerf2.read(out)
+    (out / "spectrum" / "2.png").unlink()
+    (out / "spectrum" / "00004.png").write_bytes((out / "spectrum" / "00002.png").read_bytes())
+    train = {int(t) for t in (out / "train_index.txt").read_text().split()}
+    free = min(set(range(1, 10_000)) - train)
+    (out / "test_index.txt").write_text(f"{free:05d}\n{free:05d}\n")
+    with pytest.raises(DatasetError, match=f"test_index.txt: image number {free} appears 2 times"):
+        nerf2.read(out)
     (out / "spectrum" / "\u00b2.png").write_bytes(b"")
     with pytest.raises(DatasetError, match="image names must be 1-based numbers"):
         nerf2.read(out)
