@@ -29,9 +29,21 @@ def run(args) -> int:
     if args.methods:
         sets.append("methods=[" + ",".join(f'"{m.strip()}"' for m in args.methods.split(",")) + "]")
     if args.seeds:
-        sets.append(f"seeds=[{args.seeds}]")
+        sets.append(f"seeds=[{','.join(str(s) for s in parse_seeds(args.seeds))}]")
     cfg = C.override(cfg, sets) if sets else cfg
     path = compare(args.dataset, args.out, cfg=cfg, reevaluate=args.reevaluate, cluster=cluster.from_cli(args))
     print(path.read_text())
     print(f"report: {path}")
     return 0
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds 0,1,2`` -> [0, 1, 2]; ConfigError naming the entry that is not a whole number >= 0."""
+    from ..core.errors import ConfigError
+
+    out = []
+    for tok in (t.strip() for t in text.split(",")):
+        if not (tok.isascii() and tok.isdigit()):
+            raise ConfigError(f"--seeds: {tok!r} is not a seed (whole numbers >= 0, comma-separated, e.g. 0,1,2)")
+        out.append(int(tok))
+    return out

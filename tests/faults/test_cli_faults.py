@@ -109,3 +109,11 @@ def test_ctrl_c_during_generate_exits_130_and_keeps_finished_work(tmp_path):
     from rfmitsuba.data.store import Dataset
 
     Dataset(out, check=False)                         # what was written opens (it resumes on the next call)
+
+
+@pytest.mark.parametrize("seeds, bad", [("0,x", "'x'"), ("0,,1", "''"), ("1.5", "'1.5'"), ("-1", "'-1'")])
+def test_compare_names_the_seed_that_is_not_one(tmp_path, capsys, seeds, bad):
+    assert cli.main(["compare", str(tmp_path / "ds"), "--out", str(tmp_path / "o"), "--seeds", seeds]) == 2
+    err = capsys.readouterr().err
+    assert "--seeds" in err and bad in err
+    assert not (tmp_path / "o").exists()
