@@ -97,9 +97,34 @@ def render_at(renderer: FieldSet | FieldMean, data, positions: np.ndarray, *, ba
     return out
 
 
-def _check_room_box(renderer: FieldSet, q: np.ndarray) -> None:
+#: how far [m] past the box of its training positions a field of an unknown room (no scene,
+#: no ``coherent_gaussians.room_box``) is asked to predict: the block split's slab is within
+#: about 0.1 m of its data; at 2 m the fields' image sources and scatterers no longer describe
+#: the position, and far outside the data (100 m) the field renders a constant image
+UNKNOWN_ROOM_MARGIN_M = 1.0
+
+
+def _check_training_region(data, q: np.ndarray) -> None:
+    """An unknown room trained without its dimensions: refuse a position more than
+    :data:`UNKNOWN_ROOM_MARGIN_M` outside the box of the data's moving-device positions, naming it
+    (PlacementError)."""
+    pos = np.asarray(data.antenna_pos, np.float64)
+    lo, hi = pos.min(0) - UNKNOWN_ROOM_MARGIN_M, pos.max(0) + UNKNOWN_ROOM_MARGIN_M
+    outside = ((q < lo) | (q > hi)).any(1)
+    if outside.any():
+        i = int(np.argmax(outside))
+        more = f" ({int(outside.sum()) - 1} more position(s) are outside too)" if outside.sum() > 1 else ""
+        raise PlacementError(
+            f"position {i} at ({', '.join(f'{v:.3f}' for v in q[i])}) is more than {UNKNOWN_ROOM_MARGIN_M:g} m "
+            f"outside the box of the run's training positions ({', '.join(f'{v:.3f}' for v in pos.min(0))}) to "
+            f"({', '.join(f'{v:.3f}' for v in pos.max(0))}) m, in a room the run does not know; the field does not "
+            f"describe it there{more} (--no-room-check renders it anyway)")
+
+
+def _check_room_box(renderer: FieldSet, q: np.ndarray, data=None) -> None:
     """An unknown room trained with its dimensions (``coherent_gaussians.room_box``): refuse a
-    position outside that box, naming it (PlacementError)."""
+    position outside that box, naming it (PlacementError). Without the box, a position far
+    outside the training positions (:func:`_check_training_region`, when ``data`` is given)."""
     for f in renderer.fields:
         box = getattr(getattr(f, "cfg", None), "room_box", None)
         if box is None:
@@ -112,6 +137,8 @@ def _check_room_box(renderer: FieldSet, q: np.ndarray) -> None:
             raise PlacementError(f"position {i} at ({', '.join(f'{v:.3f}' for v in q[i])}) is outside the room box "
                                  f"{box.tolist()} m the run was trained with (coherent_gaussians.room_box){more}")
         return
+    if data is not None:
+        _check_training_region(data, q)
 
 
 def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = False, batch: int = 8,
@@ -140,7 +167,7 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
 
         RoomGeometry.from_xml(data.scene_xml).check_points(q, what="position")
     elif check_room:
-        _check_room_box(renderer, q)
+        _check_room_box(renderer, q, data)
     how = "field"
     choice = None
     if anchor:
@@ -151,7 +178,16 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
         choice = json.loads(mfile.read_text()).get("anchored")
         if choice is None:
             raise RunError(f"{mfile}: this run has no validation positions, so no anchored prediction was chosen")
-    pred = minmax(render_at(renderer, data, q, batch=batch))
+    raw = render_at(renderer, data, q, batch=batch)
+    r64 = np.asarray(raw, np.float64).reshape(len(q), -1)
+    span = r64.max(1) - r64.min(1)
+    flat = ~np.isfinite(span) | (span <= 1e-9 * np.maximum(np.abs(r64).max(1), 1e-30))
+    if flat.any():          # min-max normalising a constant image would write zeros as if they were a PAS
+        i = int(np.argmax(flat))
+        raise RunError(f"the field renders a constant (or non-finite) image at position {i} "
+                       f"({', '.join(f'{v:.3f}' for v in q[i])}){f' and {int(flat.sum()) - 1} more' if flat.sum() > 1 else ''}: "
+                       "it has no signal there to normalise; nothing was written")
+    pred = minmax(raw)
     if choice is not None and choice.get("use") != "field":
         split = json.loads((rd / "split.json").read_text())
         train_idx = np.asarray(split["train"], np.int64)

@@ -197,3 +197,37 @@ def test_an_ensemble_run_evaluates_and_predicts_the_mean_of_its_members(tmp_path
     got = predict_run(run, q)["pas"]
     np.testing.assert_allclose(got, normalize(np.mean(parts, axis=0)), atol=1e-5)
     assert got.shape == (3, 90, 360) and not np.allclose(parts[0], parts[1])
+
+
+def test_an_unknown_room_without_a_box_refuses_positions_far_from_its_data():
+    from types import SimpleNamespace
+
+    from rfmitsuba.core.errors import PlacementError
+    from rfmitsuba.eval.predict import UNKNOWN_ROOM_MARGIN_M, _check_room_box
+
+    data = SimpleNamespace(antenna_pos=np.array([[0.0, 0.0, 1.0], [0.5, 1.0, 1.2]], np.float32))
+    unboxed = SimpleNamespace(fields=[SimpleNamespace(cfg=SimpleNamespace(room_box=None))])
+    _check_room_box(unboxed, np.array([[0.5 + UNKNOWN_ROOM_MARGIN_M - 0.01, -0.9, 0.3]]), data)
+    for far in ([100.0, 100.0, 100.0], [1e30, 1e30, 1e30], [0.0, 0.0, 1.2 + UNKNOWN_ROOM_MARGIN_M + 0.01]):
+        with pytest.raises(PlacementError, match=r"position 1 .* outside the box of the run's training positions"):
+            _check_room_box(unboxed, np.array([[0.0, 0.0, 1.0], far]), data)
+
+
+def test_predict_never_writes_a_constant_image(tmp_path, monkeypatch):
+    """A field that renders a constant image somewhere is refused there (min-max normalising it
+    would write zeros as a PAS), naming the position."""
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.eval import predict as P
+
+    data = type("D", (), {"scene_xml": None, "antenna_pos": np.zeros((2, 3), np.float32), "path": tmp_path,
+                          "task": "tx"})()
+    monkeypatch.setattr(P, "load_run", lambda rd: (None, data, type("R", (), {"fields": []})()))
+
+    def render(renderer, d, q, batch):
+        out = np.random.default_rng(0).random((len(q), 90, 360)).astype(np.float32)
+        out[1] = 0.25
+        return out
+
+    monkeypatch.setattr(P, "render_at", render)
+    with pytest.raises(RunError, match=r"constant .* position 1 \(0.100, 0.000, 0.000\)"):
+        P.predict_run(tmp_path, np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]))
