@@ -287,6 +287,16 @@ class Dataset:
                 raise DatasetError(f"chunk {f.parent}: chunk.json unreadable ({e})") from None
         return h.hexdigest()
 
+    def verify_state(self, state: int) -> None:
+        """Full check (sha256 against ``chunk.json``) of one state's chunk, as training and
+        evaluation open it; DatasetError naming the chunk and the way out when it fails. Costs one
+        read of the chunk (state 0 of a 900-position dataset: 117 MB)."""
+        try:
+            check_chunk(self.path, int(state), self.num_antennas, full=True)
+        except DatasetError as e:
+            raise DatasetError(f"{e}; re-simulate it with `rfmitsuba generate` and --repair into {self.path} "
+                               "(same options as it was made with)") from None
+
     def verify(self) -> list[int]:
         """Full check (sha256) of every chunk; returns the states whose chunk is bad or missing."""
         bad = []

@@ -203,6 +203,8 @@ class TrainData:
             raise DatasetError(f"{path}: task must be 'rx' or 'tx', got {task!r}")
         if not 0 <= state < int(getattr(ds, "num_states", 1)):
             raise DatasetError(f"{path}: state {state} does not exist (dataset has {ds.num_states} states)")
+        if hasattr(ds, "verify_state"):      # a chunk corrupted in place is found before it is fitted or scored
+            ds.verify_state(state)
         ap = np.asarray(ds.antenna_pos, dtype=np.float64)
         if ap.ndim != 2 or ap.shape[1] != 3:
             raise DatasetError(f"{path}: antenna_pos has shape {ap.shape}, expected [A, 3]")

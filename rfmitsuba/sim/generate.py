@@ -243,7 +243,7 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
             todo.append(s)
             continue
         try:
-            check_chunk(root, s, cfg.positions, full=repair)
+            check_chunk(root, s, cfg.positions, full=True)     # sha256 of every finished chunk on resume
         except DatasetError as e:
             if not repair:
                 raise DatasetError(f"{e}; run generate with --repair to simulate it again") from None
