@@ -335,6 +335,19 @@ class NerfDataset:
     def __repr__(self) -> str:
         return f"NerfDataset({str(self.path)!r}, task={self.task!r}, antennas={self.num_antennas})"
 
+    def fingerprint(self) -> str:
+        """A hex digest that changes when the folder's content does: sha256 over its images,
+        positions, gateway, index files and extra file, in name order."""
+        import hashlib
+
+        h = hashlib.sha256()
+        names = ["tx_pos.csv", "gateway_info.yml", "train_index.txt", "test_index.txt", EXTRA]
+        files = [self.path / n for n in names] + sorted((self.path / "spectrum").glob("*.png"))
+        for f in files:
+            if f.is_file():
+                h.update(str(f.relative_to(self.path)).encode() + b"\0" + f.read_bytes() + b"\0")
+        return h.hexdigest()
+
     def pas(self, state: int = 0) -> np.ndarray:
         """float32 [A, 90, 360] in [0, 1]; only state 0 exists."""
         if int(state) != 0:

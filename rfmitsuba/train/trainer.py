@@ -38,6 +38,7 @@ import math
 import os
 import shutil
 import time
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -46,7 +47,7 @@ import numpy as np
 from ..core import backend as B
 from ..core import config as C
 from ..core.atomic import write_json
-from ..core.errors import ConfigError, RunError
+from ..core.errors import ConfigError, DatasetError, RunError
 from ..core.folder_lock import LOCK_NAME
 from ..core.progress import bar
 from ..core.ssim import ssim_images
@@ -186,6 +187,7 @@ class Trainer:
                 "format": "rfmitsuba-run/1", "dataset": str(self.data.path.resolve()), "task": self.data.task,
                 "state": self.data.state, "scene_xml": str(self.data.scene_xml) if self.data.scene_xml else None,
                 "image": [self.h, self.w], "versions": _versions(),
+                "dataset_fingerprint": dataset_fingerprint(self.data.path),
                 "sizes": {k: len(v) for k, v in split.items()}})
         if not (rd / "split.json").exists():
             _write_json(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
@@ -782,7 +784,23 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | Fi
     cfg = C.load(TrainConfig, rd / "config.toml")
     info = json.loads((rd / "run.json").read_text())
     data = TrainData.open(info["dataset"], state=cfg.state)
+    trained_on = info.get("dataset_fingerprint")
+    if trained_on and dataset_fingerprint(data.path) != trained_on:
+        warnings.warn(f"{data.path} has changed since {rd} was trained on it (its content fingerprint differs from "
+                      "run.json's): scores and predictions compare the field with other data than it was fitted to",
+                      stacklevel=2)
     return cfg, data, _trained_renderer(rd)
+
+
+def dataset_fingerprint(path: str | Path) -> str | None:
+    """The content fingerprint of a dataset folder (:meth:`rfmitsuba.data.store.Dataset.fingerprint`,
+    or a NeRF2 folder's), or None where it cannot be made (a chunk without ``chunk.json``)."""
+    from ..data.store import open_dataset
+
+    try:
+        return open_dataset(path, check=False).fingerprint()
+    except (DatasetError, OSError):
+        return None
 
 
 def _trained_renderer(rd: Path) -> FieldSet | FieldMean:
