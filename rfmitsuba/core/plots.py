@@ -32,3 +32,17 @@ def save(fig: Figure, path: str | Path, *, dpi: int = 110, tight: bool = True) -
         fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     return Path(path)
+
+
+def pas_panel(ax, img, *, title: str, left: bool, bottom: bool, elevation_start_deg: float = 1.0) -> None:
+    """One PAS image [90, 360] in a grid of panels: azimuth across, elevation up (row 0 at
+    ``elevation_start_deg`` [degrees]), values 0..1; the axis labels on the ``left`` column and
+    the ``bottom`` row only."""
+    ax.imshow(img, origin="lower", aspect="auto", cmap="viridis", vmin=0, vmax=1,
+              extent=(0, 360, elevation_start_deg, elevation_start_deg + 89))
+    ax.set_title(title, fontsize=8)
+    ax.tick_params(labelsize=6)
+    if left:
+        ax.set_ylabel("elevation (deg)", fontsize=7)
+    if bottom:
+        ax.set_xlabel("azimuth (deg)", fontsize=7)

@@ -22,14 +22,7 @@ def plot_grid(path: Path, gt: np.ndarray, pred: np.ndarray, nn: np.ndarray, s_mo
     for r, i in enumerate(pick):
         for c, (img, title) in enumerate([(gt[i], "ground truth"), (pred[i], f"model SSIM {s_model[i]:.3f}"),
                                           (nn[i], f"nearest neighbour SSIM {s_nn[i]:.3f}")]):
-            ax = axes[r, c]
-            ax.imshow(img, origin="lower", aspect="auto", extent=(0, 360, 1, 90), vmin=0, vmax=1, cmap="viridis")
-            ax.set_title(title, fontsize=8)
-            ax.tick_params(labelsize=6)
-            if c == 0:
-                ax.set_ylabel("elevation (deg)", fontsize=7)
-            if r == len(pick) - 1:
-                ax.set_xlabel("azimuth (deg)", fontsize=7)
+            plots.pas_panel(axes[r, c], img, title=title, left=c == 0, bottom=r == len(pick) - 1)
     plots.save(fig, path, dpi=110)
 
 

@@ -190,13 +190,6 @@ def figure(images: np.ndarray, inv: Inversion, path: str | Path, *, rows: int = 
         for c, (im, title) in enumerate([(images[i], f"spectrum {i + 1}"),
                                          (inv.coarray_images[i], f"co-array fit, SSIM {inv.coarray_ssim[i]:.3f}"),
                                          (inv.channel_images[i], f"rank-one channels, SSIM {inv.channel_ssim[i]:.3f}")]):
-            ax = axes[r][c]
-            ax.imshow(im, origin="lower", aspect="auto", cmap="viridis", vmin=0, vmax=1,
-                      extent=[0, 360, inv.geometry.elevation_start_deg, inv.geometry.elevation_start_deg + 90])
-            ax.set_title(title, fontsize=8)
-            ax.tick_params(labelsize=6)
-            if c == 0:
-                ax.set_ylabel("elevation [deg]", fontsize=7)
-            if r == len(pick) - 1:
-                ax.set_xlabel("azimuth [deg]", fontsize=7)
+            plots.pas_panel(axes[r][c], im, title=title, left=c == 0, bottom=r == len(pick) - 1,
+                            elevation_start_deg=inv.geometry.elevation_start_deg)
     return plots.save(fig, path)
