@@ -10,7 +10,8 @@ FOLDER is a NeRF2 spectrum folder (or an rfmitsuba dataset), INVERT_DIR what
   coherence ``max(|<h_i, h_j>|, |<h_i, twin(h_j)>|)`` of their unit-norm recovered channels, in
   distance bins, beside the coherence a field at the carrier can keep at that distance when
   its waves arrive from all directions alike (``sin(k r) / (k r)``) and from one (1);
-- ``diagnosis.json``: those curves and the per-image ceilings of a phase-only and of a free
+- ``diagnosis.json``: those curves, consecutive images (measurement order) against other pairs at
+  the same distance, and the per-image ceilings of a phase-only and of a free
   (amplitude and phase) rank-one read-out on ``--ceiling-images`` evenly spaced images.
 """
 from __future__ import annotations
@@ -68,6 +69,20 @@ def main() -> None:
                      "image_ssim_mean": float(s.mean()), "coherence_mean": float(coh[m].mean()),
                      "isotropic_field_coherence": float(abs(np.sinc(k * mid / np.pi)))})
 
+    # measurement order: consecutive images against other pairs at the same distance
+    step = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+    s_next = ssim_images(imgs[:-1], imgs[1:])
+    order_rows = []
+    for lo, hi in [(0.0, 0.01), (0.01, 0.02), (0.02, 0.04), (0.04, 0.10)]:
+        m = (step > lo) & (step <= hi)
+        other = np.flatnonzero((dist > lo) & (dist <= hi) & (np.abs(i - j) > 1))
+        if not m.any() or not len(other):
+            continue
+        pick = rng.choice(other, min(100, len(other)), replace=False)
+        order_rows.append({"from_m": lo, "to_m": hi, "consecutive_pairs": int(m.sum()),
+                           "consecutive_ssim": float(s_next[m].mean()), "other_pairs": int(len(pick)),
+                           "other_ssim": float(ssim_images(imgs[i[pick]], imgs[j[pick]]).mean())})
+
     # per-image ceilings of the two rank-one read-outs
     fit = coarray.CoarrayFit(frequency_hz=geom.frequency_hz, pitch_m=geom.pitch_m,
                              elevation_start_deg=geom.elevation_start_deg)
@@ -89,12 +104,15 @@ def main() -> None:
     plots.label(ax, xlabel="distance between the two positions [cm] (bin medians)", ylabel="mean over pairs")
     ax.set_title(f"{Path(a.folder).name}: how fast the spectra change", fontsize=9)
     plots.save(fig, out / "pairs_by_distance.png")
-    (out / "diagnosis.json").write_text(json.dumps({"folder": str(a.folder), "pairs": rows, "ceilings": ceil,
+    (out / "diagnosis.json").write_text(json.dumps({"folder": str(a.folder), "pairs": rows, "order": order_rows, "ceilings": ceil,
                                                     "ceiling_means": {k2: float(np.mean(v)) for k2, v in ceil.items()
                                                                       if k2 != "images"}}, indent=1) + "\n")
     for r in rows:
         print(f"{r['from_m'] * 100:5.1f}-{r['to_m'] * 100:5.1f} cm  pairs {r['pairs']:6d}  SSIM {r['image_ssim_mean']:.3f}  "
               f"coherence {r['coherence_mean']:.3f}  isotropic field {r['isotropic_field_coherence']:.3f}")
+    for r in order_rows:
+        print(f"{r['from_m'] * 100:4.0f}-{r['to_m'] * 100:3.0f} cm  consecutive {r['consecutive_pairs']:4d} pairs SSIM "
+              f"{r['consecutive_ssim']:.3f}; other {r['other_pairs']} pairs SSIM {r['other_ssim']:.3f}")
     print(f"rank-one ceilings on {len(idx)} images: phase-only {np.mean(ceil['phase_only']):.3f}, "
           f"free {np.mean(ceil['free']):.3f}")
 
