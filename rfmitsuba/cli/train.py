@@ -50,6 +50,19 @@ def run(args) -> int:
     s = train(args.dataset, args.out, cfg=cfg, quiet=args.quiet)
     members = f" ({s['members']} members, their mean PAS)" if s.get("members", 1) > 1 else ""
     print(f"run {Path(args.out)}{members}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} "
-          f"Gaussians, {s['num_parameters']} parameters, validation SSIM {s['val_ssim']}")
+          f"Gaussians, {s['num_parameters']} parameters, {validation_text(s, cfg)}")
     print(f"next: rfmitsuba eval {args.out}")
     return 0
+
+
+def validation_text(summary: dict, cfg) -> str:
+    """"validation SSIM 0.735", or why there is none (too few training positions to hold any
+    back at ``val_fraction``)."""
+    import math
+
+    v = summary.get("val_ssim")
+    if isinstance(v, (int, float)) and math.isfinite(v):
+        return f"validation SSIM {v:.3f}"
+    return (f"no validation SSIM: no training position was held back for validation (val_fraction = "
+            f"{cfg.val_fraction:g} of the training positions, at least one is always fitted); the run kept its last "
+            "step. Use more positions, or --set val_fraction=0.2, to have one")

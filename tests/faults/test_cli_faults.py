@@ -117,3 +117,13 @@ def test_compare_names_the_seed_that_is_not_one(tmp_path, capsys, seeds, bad):
     err = capsys.readouterr().err
     assert "--seeds" in err and bad in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_run_without_validation_positions_says_why(synthetic_ds, tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["train", str(synthetic_ds), "--out", str(out), "--model", "splat", "--quiet", "--set", "val_fraction=0"]
+    for s in ["iterations=5", "downsample=5", "field.init=\"random\"", "field.num_gaussians=30", "field.net.width=8"]:
+        args += ["--set", s]
+    assert cli.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "no validation SSIM" in printed and "val_fraction" in printed and "nan" not in printed
