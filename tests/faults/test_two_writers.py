@@ -82,3 +82,22 @@ def test_the_lock_does_not_make_a_folder_foreign(tmp_path, synthetic_ds):
     assert cli.main(["train", str(synthetic_ds), "--out", str(out), "--quick", "--model", "splat",
                      "--set", "iterations=5", "--quiet"]) == 0
     assert (out / "final").is_dir()
+
+
+def test_a_second_predict_is_refused_naming_the_first(other_writer, tmp_path, capsys):
+    folder, pid = other_writer
+    pos = tmp_path / "p.csv"
+    pos.write_text("0 0 1\n")
+    assert cli.main(["predict", str(tmp_path / "some_run"), "--positions", str(pos), "--out", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert f"pid {pid}" in err and "predict" in err
+    assert sorted(p.name for p in folder.iterdir()) == [".lock"]
+
+
+def test_a_failed_predict_leaves_no_folder(tmp_path, capsys):
+    pos = tmp_path / "p.csv"
+    pos.write_text("0 0 1\n")
+    out = tmp_path / "pred"
+    assert cli.main(["predict", str(tmp_path / "no_run"), "--positions", str(pos), "--out", str(out)]) == 2
+    assert "no_run" in capsys.readouterr().err
+    assert not out.exists()
