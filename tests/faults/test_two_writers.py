@@ -101,3 +101,18 @@ def test_a_failed_predict_leaves_no_folder(tmp_path, capsys):
     assert cli.main(["predict", str(tmp_path / "no_run"), "--positions", str(pos), "--out", str(out)]) == 2
     assert "no_run" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_second_experiment_is_refused_naming_the_first(other_writer, synthetic_ds, capsys):
+    folder, pid = other_writer
+    assert cli.main(["experiment", "parsimony", str(synthetic_ds), "--out", str(folder), "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert f"pid {pid}" in err and "experiment" in err
+    assert sorted(p.name for p in folder.iterdir()) == [".lock"]
+
+
+def test_a_failed_experiment_leaves_no_folder(tmp_path, capsys):
+    out = tmp_path / "exp"
+    assert cli.main(["experiment", "parsimony", "--out", str(out)]) == 2
+    assert "needs a dataset" in capsys.readouterr().err
+    assert not out.exists()
