@@ -40,20 +40,10 @@ def register(sub) -> None:
 def run(args) -> int:
     """One writer per experiment folder: a second experiment into ``--out`` is refused, naming the
     first one's pid; a folder this call created is removed when it fails before writing anything."""
-    import shutil
-    from pathlib import Path
+    from ..core.folder_lock import writer
 
-    from ..core.folder_lock import LOCK_NAME, folder_lock
-
-    out = Path(args.out)
-    created = not out.exists()
-    try:
-        with folder_lock(out, what="experiment"):
-            return _run(args)
-    except BaseException:
-        if created and out.is_dir() and not any(p.name != LOCK_NAME for p in out.iterdir()):
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    with writer(args.out, what="experiment"):
+        return _run(args)
 
 
 def _run(args) -> int:

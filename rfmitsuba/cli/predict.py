@@ -19,23 +19,14 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import shutil
-    from pathlib import Path
-
-    from ..core.folder_lock import LOCK_NAME, folder_lock
+    from ..core.folder_lock import writer
     from ..eval.predict import new_folder, predict_run, read_positions, write_prediction
 
     new_folder(args.out)                      # before rendering: a full folder is refused at once
-    created = not Path(args.out).exists()
-    try:
-        with folder_lock(args.out, what="predict"):   # one writer: a second predict into it is refused
-            new_folder(args.out)                     # the first writer may have finished meanwhile
-            res = predict_run(args.run, read_positions(args.positions), anchor=args.anchored, batch=args.batch,
-                              check_room=args.check_room)
-            out = write_prediction(args.out, res)
-    except BaseException:
-        if created and Path(args.out).is_dir() and not any(p.name != LOCK_NAME for p in Path(args.out).iterdir()):
-            shutil.rmtree(args.out, ignore_errors=True)
-        raise
+    with writer(args.out, what="predict"):    # one writer: a second predict into it is refused
+        new_folder(args.out)                  # the first writer may have finished meanwhile
+        res = predict_run(args.run, read_positions(args.positions), anchor=args.anchored, batch=args.batch,
+                          check_room=args.check_room)
+        out = write_prediction(args.out, res)
     print(f"{len(res['positions'])} PAS ({res['how']}) of {res['run']} written to {out}")
     return 0

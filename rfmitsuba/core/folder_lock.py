@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import socket
 from pathlib import Path
 
@@ -46,3 +47,29 @@ def folder_lock(folder: str | Path, *, what: str):
         yield path
     finally:
         os.close(fd)  # closing the descriptor releases the lock
+
+
+def holds_work(folder: Path) -> bool:
+    """Whether ``folder`` holds anything besides its lock."""
+    return any(p.name != LOCK_NAME for p in Path(folder).iterdir())
+
+
+@contextlib.contextmanager
+def writer(folder: str | Path, *, what: str, keep=holds_work):
+    """:func:`folder_lock` for a command that may create ``folder``: when the ``with`` block fails
+    and this call created the folder, the folder is removed again unless ``keep(folder)`` says it
+    holds work worth keeping (default: anything besides the lock), so a corrected retry starts
+    clean and a failed call leaves nothing behind.
+
+    Args:
+        folder: the output folder; what: the command, for the error message; keep: Path -> bool.
+    """
+    folder = Path(folder)
+    created = not folder.exists()
+    try:
+        with folder_lock(folder, what=what) as path:
+            yield path
+    except BaseException:
+        if created and folder.is_dir() and not keep(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+        raise

@@ -33,7 +33,7 @@ import numpy as np
 from ..core.atomic import write_json
 from ..core.direct_io import save_npy, save_npy_blocks
 from ..core.errors import DatasetError, SceneError
-from ..core.folder_lock import LOCK_NAME
+from ..core.folder_lock import holds_work
 from ..rf import array as antenna
 from ..rf.array import NUM_ELEMENTS
 from ..rf.grid import PAS_SHAPE
@@ -404,7 +404,7 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
         if not np.array_equal(ap_old, np.asarray(antenna_pos, np.float32)):
             raise DatasetError(f"{root}/antenna_pos.npy differs from this configuration's positions")
         return root
-    if root.exists() and any(q.name != LOCK_NAME for q in root.iterdir()):   # the writer's own lock aside
+    if root.exists() and holds_work(root):   # the writer's own lock aside
         raise DatasetError(f"{root} is not empty and holds no dataset; refusing to write into it")
     root.mkdir(parents=True, exist_ok=True)
     np.save(root / "antenna_pos.npy", np.asarray(antenna_pos, np.float32), allow_pickle=False)

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..core.atomic import write_json
 from ..core.errors import ConfigError, DatasetError, PlacementError, RunError
-from ..core.folder_lock import LOCK_NAME
+from ..core.folder_lock import holds_work
 from ..models.base import FieldSet, Views
 from ..models.members import FieldMean, mean_image
 from ..models.coherent_gaussians import outside_room_box
@@ -203,7 +203,7 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
 def new_folder(out: str | Path) -> Path:
     """``out`` as a Path if it is new or empty, else RunError: a prediction never overwrites one."""
     o = Path(out)
-    if o.exists() and (not o.is_dir() or any(p.name != LOCK_NAME for p in o.iterdir())):
+    if o.exists() and (not o.is_dir() or holds_work(o)):
         raise RunError(f"{o} is not an empty folder; choose a new one for the prediction")
     return o
 

@@ -29,7 +29,7 @@ from ..core import config as C
 from ..core.atomic import write_json, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import ConfigError, RunError
-from ..core.folder_lock import LOCK_NAME, folder_lock
+from ..core.folder_lock import folder_lock, holds_work
 from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
@@ -71,7 +71,7 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
         if info.get("dataset") and Path(info["dataset"]).resolve() != dataset.resolve():
             raise RunError(f"output folder {out} compares on dataset {info['dataset']}, not {dataset} "
                            "(nothing was changed)")
-    elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
+    elif out.is_dir() and holds_work(out):
         raise RunError(f"{out} is not empty and holds no compare.toml: not a comparison folder (nothing was changed)")
 
 

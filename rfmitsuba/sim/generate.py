@@ -156,19 +156,11 @@ def generate(out: str | Path, cfg: GenerateConfig, *, repair: bool = False, quie
         PlacementError: bad positions; SceneError: unknown or broken scene; JobsFailed (a
             RunError): on a cluster, runs of states failed (named; the written chunks are kept).
     """
-    import shutil
-
-    from ..core.folder_lock import folder_lock
+    from ..core.folder_lock import writer
 
     root = Path(out)
-    created = not root.exists()
-    try:
-        with folder_lock(root, what="generate"):
-            return _generate_locked(root, cfg, repair=repair, quiet=quiet, stop_after=stop_after, cluster=cluster)
-    except BaseException:
-        if created and root.is_dir() and not (root / "meta.json").exists():
-            shutil.rmtree(root, ignore_errors=True)
-        raise
+    with writer(root, what="generate", keep=lambda f: (f / "meta.json").exists()):
+        return _generate_locked(root, cfg, repair=repair, quiet=quiet, stop_after=stop_after, cluster=cluster)
 
 
 def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: bool, stop_after: int | None,

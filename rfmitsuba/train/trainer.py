@@ -753,22 +753,17 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     from before the data are opened to the end, so a second ``train`` into ``out`` is refused at once,
     naming the first one's pid, instead of interleaving its steps with the first's. A folder this call
     created is removed again when the call fails before any checkpoint (as :meth:`Trainer.run`)."""
-    from ..core.folder_lock import folder_lock
+    from ..core.folder_lock import writer
 
-    out = Path(out)
-    created = not out.exists()
-    try:
-        with folder_lock(out, what="train"):
-            cfg = cfg or TrainConfig()
-            data = TrainData.open(dataset, state=cfg.state)
-            if cfg.model == "auto":
-                cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
-            return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
-    except BaseException:
-        if created and out.is_dir() and not any((d / "checkpoint").is_dir() for d in
-                                                (out, *out.glob("members/*"), *out.glob("select/*"))):
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    def trained(folder: Path) -> bool:
+        return any((d / "checkpoint").is_dir() for d in (folder, *folder.glob("members/*"), *folder.glob("select/*")))
+
+    with writer(out, what="train", keep=trained):
+        cfg = cfg or TrainConfig()
+        data = TrainData.open(dataset, state=cfg.state)
+        if cfg.model == "auto":
+            cfg = select_model(cfg, data, out, trainer=Trainer, quiet=quiet)
+        return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
 
 
 def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | FieldMean]:
