@@ -40,15 +40,12 @@ def run(args) -> int:
     from ..data.store import open_dataset
     from ..eval import invert as inv_mod
     from ..rf.array import SPEED_OF_LIGHT
+    from ..rf.bartlett_ref import normalize
 
     ds = open_dataset(args.dataset)
-    imgs = np.asarray(ds.pas(0), np.float64)
-    if args.images:
-        if args.images < 0:
-            raise ConfigError(f"--images must be >= 0, got {args.images}")
-        imgs = imgs[:args.images]
-    lo, hi = imgs.min((1, 2), keepdims=True), imgs.max((1, 2), keepdims=True)
-    imgs = (imgs - lo) / np.maximum(hi - lo, 1e-300)
+    if args.images < 0:
+        raise ConfigError(f"--images must be >= 0, got {args.images}")
+    imgs = normalize(ds.pas(0)[:args.images or None]).astype(np.float64)
     f_hz = float(args.frequency_hz or ds.frequency_hz)
     pitch = float(args.pitch_m) if args.pitch_m else 0.5 * SPEED_OF_LIGHT / f_hz
     if not (f_hz > 0 and pitch > 0):
