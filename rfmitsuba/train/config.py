@@ -70,7 +70,7 @@ class TrainConfig:
     own outer slab of largest x, so that validation measures extrapolation too, at the price of
     the fit losing the positions nearest the test slab: on the NeRF2-like block split one field
     scored 0.909 +- 0.006 over 10 seeds with "slab" validation and about 0.92 with the slab in
-    the fit, docs/measurements.md); val_every / checkpoint_every / log_every: steps;
+    the fit, docs/lab-notes/measurements.md); val_every / checkpoint_every / log_every: steps;
     time_limit_s: stop early after this much training wall time (0 = no limit; the learning-rate
     schedules then also advance with the share of this time used);
     max_train_positions: use only this many training positions (0 = all; motivation table);
@@ -93,7 +93,7 @@ class TrainConfig:
     tames what one fit guesses where the data do not reach: on the NeRF2-like spatial-block
     split one field scored 0.861 +- 0.028 (30 seeds) with the defaults of 2026-11-26 to 28, the
     mean of 10 0.901 +- 0.003 and its neighbour-anchored prediction 0.917 +- 0.003 against
-    nearest neighbour's 0.911 (3 seeds, docs/measurements.md); with today's (``jitter``,
+    nearest neighbour's 0.911 (3 seeds, docs/lab-notes/measurements.md); with today's (``jitter``,
     ``val_positions``, the neighbours' coupling) one field scores 0.921 +- 0.005 (10 seeds) and
     two members gained nothing on one seed (0.908); under the random split, where positions interpolate, 5 members scored
     0.958 +- 0.001 against one field's 0.954 +- 0.003 (seeds 0, 5, 10). K members cost K times
@@ -105,7 +105,7 @@ class TrainConfig:
     the last state. It catches a collapse that lands on the last check: on NeRF2-like tags with
     −15 dB element coupling, dips of 0.02–0.12 in the last 30% of a run, which recover at the next
     checks, came in 4 of 5 runs, and one run ended in one (validation 0.962 -> 0.942, test 0.945
-    against the best floor's 0.952; docs/measurements.md). Not where the field's primitives
+    against the best floor's 0.952; docs/lab-notes/measurements.md). Not where the field's primitives
     changed after that check (density control).
     jitter: spread of jittered training views [carrier wavelengths] (:mod:`rfmitsuba.train.jitter`):
     each step also trains on ``jitter_views`` copies of its batch with the moving device displaced
@@ -120,7 +120,9 @@ class TrainConfig:
     sources summed coherently and read out by the Bartlett beamformer,
     :mod:`rfmitsuba.models.coherent`; ``coherent``; needs the scene geometry; train it at downsample 1)
     or "coherent_gaussians" (virtual sources and scatterers with complex gains, for known and unknown
-    rooms and measured data, :mod:`rfmitsuba.models.coherent_gaussians`; ``coherent_gaussians``).
+    rooms and measured data, :mod:`rfmitsuba.models.coherent_gaussians`; ``coherent_gaussians``)
+    or "gaussian_process" (the spectra as a Gaussian process of position, conditioned in closed form
+    on the training spectra, :mod:`rfmitsuba.models.gaussian_process`; for measured folders).
     split: which positions are test positions: "dataset" (the dataset's own split: its
     split.json, or a NeRF2 folder's published index files), "block" (the 20% of all positions
     with the largest x, a held-out slab: :func:`rfmitsuba.data.split.block_split`) or "random"

@@ -15,7 +15,7 @@ room gain from the double reflections (moving RX 0.909 -> 0.947 test SSIM over 3
 NeRF2-like tags in a 1.6 m region seen from 5 m lose (0.955 -> 0.937, seed 0). The casts fit a
 room's shadows, the windows extrapolate more smoothly beyond the training positions (NeRF2-like,
 known room, block split, 3 seeds: 0.801 against 0.916 with the windows alone), and validation
-decides (it may not see such a difference: docs/measurements.md). The trial runs stay in ``RUN/select/``
+decides (it may not see such a difference: docs/lab-notes/measurements.md). The trial runs stay in ``RUN/select/``
 with ``choice.json``; the chosen field then trains with the full budget into ``RUN`` itself,
 whose ``config.toml`` names it. The same command resumes at any point, and a finished choice
 is not made again.
@@ -32,6 +32,12 @@ from ..data.views import TrainData
 
 #: candidate Stage-1 fields of ``model = "auto"``, in order of preference on a tie
 AUTO_KINDS = ("coherent_gaussians", "splat")
+#: candidates added for measured folders (``TrainData.measured``: a NeRF2 folder as published). The
+#: Gaussian-process field interpolates the measured spectra themselves: on the measured NeRF2 RFID
+#: folder it scores 0.939 / 0.977 (mean / median test SSIM, published split) against IDW-3's
+#: 0.933 / 0.973 and the coherent Gaussian field's 0.851 / 0.888 (docs/results/measured/fields.md).
+#: Not tried on simulated folders, where the coherent Gaussian field draws what an interpolator cannot.
+MEASURED_KINDS = ("gaussian_process",)
 #: the candidate name of the coherent Gaussian field without ray-cast visibility (known rooms only)
 WINDOWS = "coherent_gaussians_windows"
 #: the candidate name of the coherent Gaussian field with more image paths (known rooms only)
@@ -57,11 +63,12 @@ def trial_config(cfg, kind: str):
 
 
 def candidates(cfg, data: TrainData) -> list[str]:
-    """The candidate names for ``data``: :data:`AUTO_KINDS`, with :data:`PATHS` and
+    """The candidate names for ``data``: :data:`AUTO_KINDS` (and :data:`MEASURED_KINDS` for a measured
+    folder), with :data:`PATHS` and
     :data:`WINDOWS` after the coherent Gaussian field where the room is known (``cfg.scene``, or
     the dataset names it) and the field would cast visibility (:data:`PATHS` only where it adds
     paths to the configured orders)."""
-    names = list(AUTO_KINDS)
+    names = list(AUTO_KINDS) + (list(MEASURED_KINDS) if getattr(data, "measured", False) else [])
     c = cfg.coherent_gaussians
     known = bool(cfg.scene) or data.scene_xml is not None    # the trainer's room: cfg.scene first
     if "coherent_gaussians" in names and known and c.ray_visibility and c.init != "data":

@@ -474,6 +474,8 @@ class Trainer:
         self._init_run_dir(split)
         field = self._init_field(rng)
         self.field = field
+        if getattr(field, "closed_form", False):
+            return self._condition(field, split)
         self.iterations = planned_iterations(cfg, len(split["fit"]), field)
         loss_fn = load_loss()
         gt_fit = self.data.pas(split["fit"], d=self.d)
@@ -549,6 +551,29 @@ class Trainer:
         if step % cfg.checkpoint_every != 0:
             self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
         return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
+
+    def _condition(self, field: Field, split: dict) -> dict:
+        """Train a closed-form field (``Field.closed_form``, e.g. the Gaussian-process field): condition
+        it once on the fitting positions' spectra at 90 x 360, validate it, write ``final/`` and one
+        ``log.jsonl`` row. No gradient steps and no checkpoint; the run's config names the field."""
+        t0 = time.perf_counter()
+        fit = split["fit"]
+        hyper = field.condition(self.data.positions(fit)[2], self.data.pas(fit))
+        train_time = time.perf_counter() - t0
+        val_ssim = self.validate(field, split["val"], self.data.pas(split["val"])) if len(split["val"]) else None
+        self._log({"step": 0, "n_gaussians": field.num_primitives, "time_s": round(train_time, 3),
+                   **({"val_ssim": val_ssim} if val_ssim is not None else {})})
+        fd = self.run_dir / "final"
+        fd.mkdir(exist_ok=True)
+        field.save(fd / "field.npz")
+        summary = {"steps": 0, "iterations": 0, "stopped_by": "closed_form", "train_time_s": train_time,
+                   "model": self.cfg.model, "num_gaussians": field.num_primitives,
+                   "num_parameters": field.num_parameters, "network_parameters": field.network_parameters,
+                   "val_ssim": val_ssim, "best_val_ssim": val_ssim, "revert": None, "init": {"hyperparameters": hyper},
+                   "image": [PAS_SHAPE[0], PAS_SHAPE[1]], "task": self.data.task, "dataset": str(self.data.path.resolve()),
+                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+        _write_json(fd / "summary.json", summary)
+        return summary
 
     def _optimizer(self, field: Field, fit: np.ndarray, loss_fn) -> tuple:
         """A fresh Adam over ``field``'s trainable parameters and its density (or pursuit) strategy."""

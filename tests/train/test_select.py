@@ -101,3 +101,17 @@ def test_a_known_room_also_tries_more_paths_and_the_field_without_ray_casts(tmp_
     w = select.candidate_config(cfg, select.WINDOWS)
     assert w.model == "coherent_gaussians" and w.coherent_gaussians.ray_visibility is False
     assert select.candidate_config(cfg, "splat").model == "splat"
+
+
+def test_a_measured_folder_also_tries_the_gaussian_process_field():
+    from types import SimpleNamespace
+
+    from rfmitsuba.train import select
+    from rfmitsuba.train.config import TrainConfig
+
+    cfg = TrainConfig()
+    measured = SimpleNamespace(scene_xml=None, measured=True)
+    simulated = SimpleNamespace(scene_xml=None, measured=False)
+    assert select.candidates(cfg, measured) == [*select.AUTO_KINDS, *select.MEASURED_KINDS]
+    assert "gaussian_process" in select.MEASURED_KINDS
+    assert select.candidates(cfg, simulated) == list(select.AUTO_KINDS)

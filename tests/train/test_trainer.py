@@ -652,3 +652,31 @@ def test_coherent_needs_a_scene_and_takes_one_for_a_nerf2_folder(quick_dataset, 
         Trainer(coherent_cfg(iterations=2), data, tmp_path / "r0", quiet=True).run()
     s = Trainer(coherent_cfg(iterations=4, scene='"bedroom"'), data, tmp_path / "r1", quiet=True).run()
     assert s["steps"] == 4
+
+
+def test_a_closed_form_field_is_conditioned_once_validated_and_evaluated(tmp_path):
+    """model = "gaussian_process" on a folder as published (no rfmitsuba.json): no gradient steps,
+    validation on the held-out training positions, a run that load_run and evaluate_run read, and
+    the same command again changes nothing."""
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.train.trainer import load_run, train
+
+    folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=40, task="tx")), tmp_path / "n")
+    (folder / nerf2.EXTRA).unlink()
+    assert TrainData.open(folder).measured
+    out = tmp_path / "run"
+    s = train(folder, out, cfg=tiny_cfg(model='"gaussian_process"'), quiet=True)
+    assert s["stopped_by"] == "closed_form" and s["steps"] == 0 and 0 < s["val_ssim"] <= 1
+    assert set(s["init"]["hyperparameters"]) >= {"length_scales_m", "nugget", "signal_variance"}
+    rows = _rows(out)
+    assert len(rows) == 1 and rows[0]["val_ssim"] == s["val_ssim"]
+    cfg, data, renderer = load_run(out)
+    assert renderer.fields[0].kind == "gaussian_process" and renderer.num_primitives == s["num_gaussians"]
+    ev = evaluate_run(out)
+    assert ev["model"]["n"] == len(data.test) and 0 < ev["model"]["mean"] <= 1
+    stamp = (out / "final" / "field.npz").stat().st_mtime_ns
+    assert train(folder, out, cfg=tiny_cfg(model='"gaussian_process"'), quiet=True)["val_ssim"] == s["val_ssim"]
+    assert (out / "final" / "field.npz").stat().st_mtime_ns == stamp

@@ -1,0 +1,312 @@
+"""Gaussian-process field: the PAS as a Gaussian random field of the moving device's position.
+
+Why: measured spectra change with position faster than any field of the stated positions at the
+carrier can (docs/results/measured/diagnosis.md: channels 7 mm apart keep a coherence of 0.87,
+a 920 MHz field at least 0.997), and the rest of their change is smooth out to half a metre. A
+physical field fits such data at 0.85-0.90 SSIM; a lookup of the nearest training spectrum
+carries what it cannot draw but not how the spectrum changes. This field is the statistical
+model in between: every pixel of the normalised PAS is a Gaussian process of the position ``q``,
+all pixels sharing one covariance,
+
+    P(q) = m + sum_n a_n k(q, q_n),   a = (K + nu I)^-1 (Y - m),
+    k(q, q') = exp(-|| (q - q') / l ||),
+
+with ``Y`` [N, H*W] the training spectra, ``m`` their mean image (the prior mean), ``K`` the
+kernel matrix of the training positions and ``l`` [3] one length scale per axis [m]. Far from
+every training position the prediction falls back to the mean image; between close ones it
+interpolates the spectra themselves, with weights that know how the spectra decorrelate.
+
+The kernel is the exponential (Matern 1/2): a rough field, as the measured spectra are. The
+length scales ``l`` and the nugget ``nu`` (the part of a spectrum no neighbour predicts,
+relative to the signal variance) are chosen by type-II maximum likelihood on the fitting
+positions (:func:`fit_hyperparameters`); there are no other options. The field has no
+gradient training: the trainer conditions it once (:attr:`GaussianProcessField.closed_form`).
+
+What it stores: the 5 fitted scalars (``l``, ``nu``, the signal variance ``s2``), the training
+positions and the weights ``a`` [N, H, W] (as many numbers as the training spectra hold), and
+``(K + nu I)^-1`` for the predictive standard deviation (:meth:`GaussianProcessField.predictive_sd`).
+``num_parameters`` counts the fitted scalars; ``num_primitives`` the training spectra it is
+conditioned on.
+
+It takes the moving device's position as its only input: one fixed array and one fixed other
+end per dataset (a NeRF2 folder, a moving-RX or moving-TX dataset of one state). It takes no
+person inputs (Stage 2 refuses it).
+"""
+from __future__ import annotations
+
+import json
+from typing import ClassVar
+
+import numpy as np
+
+from ..core.errors import ConfigError, RunError
+from .base import Field, Views, register
+
+#: the largest number of conditioning spectra (weights [N, 90, 360] float32: 648 MB at 5000)
+MAX_POSITIONS = 5000
+#: the nugget's bounds, relative to the signal variance
+NUGGET_BOUNDS = (1e-6, 1.0)
+
+
+def exponential_kernel(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndarray:
+    """``exp(-|| (a_i - b_j) / l ||)`` of positions a float [N, 3] and b float [M, 3] [m] with
+    length scales l float [3] [m]: float64 [N, M]."""
+    d = (np.asarray(a, np.float64)[:, None, :] - np.asarray(b, np.float64)[None, :, :]) / np.asarray(length_scales)
+    return np.exp(-np.sqrt((d * d).sum(-1)))
+
+
+def profile_nll(log_theta: np.ndarray, positions: np.ndarray, gram: np.ndarray, outputs: int) -> float:
+    """Negative log marginal likelihood per output, the signal variance profiled out.
+
+    Args:
+        log_theta: float [4] ``log`` of the three length scales [m] and of the nugget.
+        positions: float [N, 3] [m]; gram: float [N, N] ``R R^T`` of the centred outputs R
+            [N, outputs]; outputs: the number of outputs (pixels) sharing the kernel.
+
+    Returns:
+        ``N/2 log s2 + 1/2 log|C|`` with ``C = K + nu I`` and ``s2 = tr(C^-1 R R^T) / (N outputs)``
+        (``inf`` where ``C`` is not positive definite).
+    """
+    ls, nu = np.exp(log_theta[:3]), float(np.exp(log_theta[3]))
+    n = len(positions)
+    c = exponential_kernel(positions, positions, ls) + nu * np.eye(n)
+    try:
+        chol = np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    inv_l = np.linalg.solve(chol, np.eye(n))
+    s2 = float(np.sum((inv_l @ gram) * inv_l)) / (n * outputs)
+    return 0.5 * n * np.log(max(s2, 1e-300)) + float(np.log(np.diag(chol)).sum())
+
+
+def fit_hyperparameters(positions: np.ndarray, residuals: np.ndarray) -> dict:
+    """Type-II maximum likelihood of the length scales and the nugget.
+
+    Args:
+        positions: float [N, 3] [m], at least two distinct ones.
+        residuals: float [N, M] the outputs minus their prior mean.
+
+    Returns:
+        {"length_scales_m": [3], "nugget": float, "signal_variance": float, "nll": float}:
+        the length scales lie between a tenth of the median nearest-neighbour distance and ten
+        times the extent of the positions (an axis along which the positions do not vary gets
+        the largest), the nugget within :data:`NUGGET_BOUNDS`.
+    """
+    from scipy.optimize import minimize
+
+    x = np.asarray(positions, np.float64)
+    r = np.asarray(residuals, np.float64)
+    n, m = r.shape
+    d = np.sqrt(((x[:, None] - x[None]) ** 2).sum(-1)) + np.diag(np.full(n, np.inf))
+    near = float(np.median(d.min(1)))
+    extent = float(np.linalg.norm(x.max(0) - x.min(0)))
+    if not extent > 0:
+        raise ConfigError("GaussianProcessField: the training positions are all the same point")
+    lo, hi = max(0.1 * near, 1e-4 * extent), 10.0 * extent
+    gram = r @ r.T
+    bounds = [(np.log(lo), np.log(hi))] * 3 + [tuple(np.log(NUGGET_BOUNDS))]
+    best = None
+    for start in (0.1, 0.5):          # a short and a long start: the likelihood may have two basins
+        x0 = np.r_[np.log(np.clip(start * extent, lo, hi)) * np.ones(3), np.log(1e-2)]
+        o = minimize(profile_nll, x0, args=(x, gram, m), method="L-BFGS-B", bounds=bounds)
+        if best is None or o.fun < best.fun:
+            best = o
+    ls, nu = np.exp(best.x[:3]), float(np.exp(best.x[3]))
+    c = exponential_kernel(x, x, ls) + nu * np.eye(n)
+    s2 = float(np.trace(np.linalg.solve(c, gram))) / (n * m)
+    return {"length_scales_m": [float(v) for v in ls], "nugget": nu, "signal_variance": s2, "nll": float(best.fun)}
+
+
+@register
+class GaussianProcessField(Field):
+    """The PAS as a Gaussian process of the moving device's position (module docstring).
+
+    Args:
+        height, width: the PAS grid it is conditioned on (90 x 360).
+
+    Use :meth:`condition`; an unconditioned field renders nothing (RunError).
+    """
+
+    kind = "gaussian_process"
+    family = "gaussian_process"
+    format = "rfmitsuba-gaussian-process/1"
+    #: conditioned once on the fitting spectra (:meth:`condition`), no gradient steps
+    closed_form: ClassVar[bool] = True
+
+    def __init__(self, *, height: int = 90, width: int = 360):
+        self.shape = (int(height), int(width))
+        self.positions = np.zeros((0, 3))
+        self.mean = np.zeros(self.shape, np.float32)
+        self.weights = np.zeros((0, *self.shape), np.float32)
+        self.precision = np.zeros((0, 0))
+        self.hyper: dict = {}
+
+    @classmethod
+    def for_training(cls, cfg, data, *, scene_xml=None, rng=None, extra_inputs: int = 0,
+                     name: str = "bg") -> "GaussianProcessField":
+        """An unconditioned field for the trainer (``cfg``, ``data``, ``scene_xml`` and ``rng`` are
+        not needed: the field is chosen by its likelihood alone). Refuses extra inputs (Stage 2)."""
+        if extra_inputs:
+            raise ConfigError("model = 'gaussian_process' takes the moving device's position alone; "
+                              "it cannot be a Stage-2 (person) field")
+        f = cls()
+        f.name = name
+        return f
+
+    # ---- conditioning ---------------------------------------------------------------------
+    def condition(self, positions: np.ndarray, images: np.ndarray, *, hyper: dict | None = None) -> dict:
+        """Condition the field on spectra at positions.
+
+        Args:
+            positions: float [N, 3] the moving device's positions [m].
+            images: float [N, H, W] their min-max normalised PAS.
+            hyper: the hyperparameters to use ({"length_scales_m", "nugget"}), or None to fit
+                them (:func:`fit_hyperparameters`).
+
+        Returns:
+            the hyperparameters used (also :attr:`hyper`).
+        """
+        x = np.asarray(positions, np.float64)
+        y = np.asarray(images, np.float64)
+        if x.ndim != 2 or x.shape[1] != 3 or y.shape[:1] != x.shape[:1] or y.shape[1:] != self.shape:
+            raise ConfigError(f"GaussianProcessField.condition: positions {x.shape} and images {y.shape} "
+                              f"do not match [N, 3] and [N, {self.shape[0]}, {self.shape[1]}]")
+        if len(x) < 2:
+            raise ConfigError(f"GaussianProcessField: needs at least 2 training spectra, got {len(x)}")
+        if len(x) > MAX_POSITIONS:
+            raise ConfigError(f"GaussianProcessField: {len(x)} training spectra, at most {MAX_POSITIONS} "
+                              "(its weights hold one image per spectrum); set TrainConfig.max_train_positions")
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise ConfigError("GaussianProcessField: positions or images contain NaN or inf")
+        flat = y.reshape(len(y), -1)
+        mean = flat.mean(0)
+        res = flat - mean
+        if hyper is None:
+            hyper = fit_hyperparameters(x, res)
+        ls, nu = np.asarray(hyper["length_scales_m"], np.float64), float(hyper["nugget"])
+        c = exponential_kernel(x, x, ls) + nu * np.eye(len(x))
+        prec = np.linalg.inv(c)
+        self.positions = x
+        self.mean = mean.reshape(self.shape).astype(np.float32)
+        self.weights = (prec @ res).reshape(len(x), *self.shape).astype(np.float32)
+        self.precision = prec
+        s2 = hyper.get("signal_variance")
+        if s2 is None:
+            s2 = float(np.sum(res * (prec @ res))) / res.size
+        self.hyper = {**hyper, "signal_variance": float(s2)}
+        return dict(self.hyper)
+
+    def _check(self) -> None:
+        if not len(self.positions):
+            raise RunError("GaussianProcessField: not conditioned on any spectra (call condition first)")
+
+    def predict(self, positions: np.ndarray) -> np.ndarray:
+        """The posterior mean PAS at positions float [K, 3] [m]: float32 [K, H, W] (raw: not
+        min-max normalised; on the scale of the normalised training spectra)."""
+        self._check()
+        k = exponential_kernel(positions, self.positions, self.hyper["length_scales_m"])
+        out = self.mean.reshape(1, -1) + k @ self.weights.reshape(len(self.positions), -1)
+        return out.reshape(len(k), *self.shape).astype(np.float32)
+
+    def predictive_sd(self, positions: np.ndarray) -> np.ndarray:
+        """The posterior standard deviation of each pixel at positions float [K, 3] [m]: float64
+        [K] (the same for every pixel, on the scale of the normalised spectra); it grows to
+        ``sqrt(s2 (1 + nu))`` far from the training positions."""
+        self._check()
+        k = exponential_kernel(positions, self.positions, self.hyper["length_scales_m"])
+        s2, nu = self.hyper["signal_variance"], self.hyper["nugget"]
+        var = s2 * (1.0 + nu - np.einsum("kn,nm,km->k", k, self.precision, k))
+        return np.sqrt(np.maximum(var, 0.0))
+
+    def loo_predictions(self) -> np.ndarray:
+        """Leave-one-out posterior means at the conditioning positions: float32 [N, H, W] (each
+        spectrum predicted from all the others, with the same hyperparameters; closed form)."""
+        self._check()
+        n = len(self.positions)
+        w = self.weights.reshape(n, -1).astype(np.float64)
+        y = self.mean.reshape(1, -1) + np.linalg.inv(self.precision) @ w      # the training spectra: m + C a
+        loo = y - w / np.diag(self.precision)[:, None]
+        return loo.reshape(n, *self.shape).astype(np.float32)
+
+    # ---- Field protocol -------------------------------------------------------------------
+    @property
+    def num_primitives(self) -> int:
+        return int(len(self.positions))
+
+    @property
+    def num_parameters(self) -> int:
+        return 5
+
+    @property
+    def network_parameters(self) -> int:
+        return 0
+
+    def parameters(self) -> dict:
+        return {}
+
+    def assign(self, values: dict) -> None:
+        if values:
+            raise ConfigError(f"GaussianProcessField has no trainable parameters, got {sorted(values)}")
+
+    def freeze(self) -> None:
+        self.frozen = True
+
+    def state_dict(self) -> dict:
+        meta = {"format": self.format, "kind": self.kind, "shape": list(self.shape), "hyper": self.hyper,
+                "name": self.name}
+        return {"meta": np.array(json.dumps(meta)), "positions": self.positions, "mean": self.mean,
+                "weights": self.weights, "precision": self.precision}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k in ("positions", "mean", "weights", "precision"):
+            if k not in state:
+                raise RunError(f"GaussianProcessField state lacks {k!r}")
+        x = np.asarray(state["positions"], np.float64)
+        n = len(x)
+        want = {"positions": (n, 3), "mean": self.shape, "weights": (n, *self.shape), "precision": (n, n)}
+        for k, shape in want.items():
+            v = np.asarray(state[k])
+            if v.shape != shape or not np.isfinite(v).all():
+                raise RunError(f"GaussianProcessField state {k!r}: expected {shape} finite values, got {v.shape}")
+        self.positions = x
+        self.mean = np.asarray(state["mean"], np.float32)
+        self.weights = np.asarray(state["weights"], np.float32)
+        self.precision = np.asarray(state["precision"], np.float64)
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> "GaussianProcessField":
+        meta = json.loads(str(state["meta"]))
+        f = cls(height=meta["shape"][0], width=meta["shape"][1])
+        f.hyper = dict(meta.get("hyper") or {})
+        f.name = meta.get("name", "bg")
+        if not {"length_scales_m", "nugget", "signal_variance"} <= set(f.hyper):
+            raise RunError("GaussianProcessField state: 'meta' lacks its hyperparameters")
+        f.load_state_dict(state)
+        return f
+
+    @classmethod
+    def render_family(cls, fields: list, views: Views, *, height: int, width: int, normalize: bool):
+        """The posterior mean PAS at the views' moving-device positions: ``TensorXf`` [B, height,
+        width] (block means where the grid is coarser than the conditioning one), min-max
+        normalised per image when ``normalize``. One Gaussian-process field at a time."""
+        from ..core import backend as B
+
+        if len(fields) != 1:
+            raise ConfigError(f"a Gaussian-process field renders alone, got {len(fields)} fields")
+        f = fields[0]
+        img = f.predict(views.antenna_pos)
+        h0, w0 = f.shape
+        if (height, width) != (h0, w0):
+            if h0 % height or w0 % width:
+                raise ConfigError(f"GaussianProcessField: cannot render {height} x {width} from its {h0} x {w0} grid")
+            img = img.reshape(len(img), height, h0 // height, width, w0 // width).mean((2, 4))
+        if normalize:
+            lo = img.min((1, 2), keepdims=True)
+            span = img.max((1, 2), keepdims=True) - lo
+            img = np.where(span > 0, (img - lo) / np.where(span > 0, span, 1.0), 0.0)
+        B.ensure()
+        return B.TensorXf(np.ascontiguousarray(img, np.float32))
+
+    def export_ply(self, folder, *, views: Views) -> list:
+        """Nothing to export: the field has no primitives in space."""
+        return []
