@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# CUDA check and GPU timings on a lent GPU machine (issue 13), as one prepared script.
+# CUDA check and GPU timings on a lent GPU machine, as one prepared script.
 #
 # The GPU machine has Python 3.12 with PyTorch, NumPy, SciPy, matplotlib, scikit-image, PyYAML,
 # tqdm, threadpoolctl, hypothesis and pytest, but no network: Dr.Jit, Mitsuba (stripped to the CUDA

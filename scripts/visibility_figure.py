@@ -6,7 +6,7 @@ Usage: python scripts/visibility_figure.py DATASET OUT.png [--images direct,x=0.
 The dataset must name its room (a Sionna dataset made by ``rfmitsuba generate``). The images are
 those of the coherent Gaussian field's known-room start (room order 2, furniture faces,
 every plane sequence its own image; ``rfmitsuba.rf.images.scene_image_maps``), cast by
-``rfmitsuba.sim.visibility.SpecularVisibility``. Made docs/results/issue12/bedroom_visibility.png
+``rfmitsuba.sim.visibility.SpecularVisibility``. Made docs/results/coherent_field/bedroom_visibility.png
 from ``rfmitsuba generate bedroom --task rx --positions 900 --human-positions 0``.
 """
 from __future__ import annotations

@@ -4,7 +4,7 @@ A job allocates and frees the same temporaries over and over (an SSIM's dozen 90
 images per pair, a batch's PAS, a state's images). By default glibc serves blocks over 128 KiB
 (raising that to at most 32 MiB as it sees them freed) with fresh ``mmap`` pages and gives the
 top of its heap back to the system, so the next temporary is new memory again, which the kernel
-must zero on first touch. On this project's 2-core machine (a virtual machine) that zeroing ran
+must zero on first touch. On a 2-core virtual machine where it was measured, that zeroing ran
 at under 1 GB/s: a sampled reproduction worker spent 27% of its CPU time in the kernel, most of it
 in ``clear_page_erms``, and 600 SSIMs took 2.5-3.7 s against 1.0-1.2 s with freed memory kept.
 

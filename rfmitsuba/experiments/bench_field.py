@@ -271,7 +271,7 @@ def measure_stage1(dataset: str | Path | None = None, *, model: str = "coherent_
 def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int = 110,
                         dataset: str | None = None) -> dict:
     """A Stage-1 step of the splat field as the trainer runs it (``gaussians`` Gaussians from a
-    random start, the EM network, ``batch`` views; issue 13's target is 60 ms at batch 4 and
+    random start, the EM network, ``batch`` views; the target is 60 ms at batch 4 and
     10 000), at full resolution (90x360) with the networks' products on the host's BLAS (the LLVM
     default) and as cooperative vectors, and at 45x180 (``downsample = 2``, the training images
     of ``reproduce``'s sizes) on the host's BLAS, in one run.

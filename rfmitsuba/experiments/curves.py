@@ -30,7 +30,7 @@ from ..core import plots
 from .methods import METHODS
 from .results import fmt
 
-TOL = 0.005  # "within 0.005 SSIM of the final value" (issue 13's Stage-1 target)
+TOL = 0.005  # "within 0.005 SSIM of the final value" (the Stage-1 convergence target)
 
 
 @dataclass

@@ -101,7 +101,7 @@ def bartlett(channels: np.ndarray, *, frequency_hz: float, positions: np.ndarray
     memory reused. Padding to multiples of 8 changed the last bits of the images in the last
     ``K mod 8`` places of a call (BLAS computes the columns past the last multiple of 8 with
     another kernel): 4 of a 900-channel state's images differ from those of datasets made before
-    2026-11-28, session 47.
+    2026-11-28.
     Calls from several threads at once each use their own work
     array; their images may differ from a lone call's in the last float bit (BLAS's thread limit
     is process-wide).

@@ -1,4 +1,4 @@
-"""Differentiable azimuth-elevation Gaussian splatting (issue 3).
+"""Differentiable azimuth-elevation Gaussian splatting.
 
 :func:`render` draws power angular spectra (PAS layout, docs/conventions.md, rows = elevation
 (i+1)*90/H degrees, columns = azimuth j*360/W degrees, array frame) of N 3D

@@ -49,7 +49,7 @@ def lanes_per_tile() -> int:
     Each lane draws ``TILE_SIZE / lanes`` pixels of one column, ``lanes / TILE_W`` rows apart.
     LLVM: 8 lanes of eight pixels, so an AVX-512 packet (16 lanes) walks two tiles' lists at
     once, an AVX2 packet one, a NEON packet half of one. CUDA: 16 (a warp draws two tiles).
-    Measured on AVX-512 (session 50, after the pair records and the moments of
+    Measured on AVX-512 (after the pair records and the moments of
     :mod:`rfmitsuba.splat.raster`; 16 lanes had been the AVX-512 choice since the backward pass
     reduced each pair's gradients across the packet): a training iteration at 10 000 Gaussians
     7.1-7.3 ms against 8.1-8.3 ms for 16 lanes (alternating processes), at 50 000 29.6-32.2

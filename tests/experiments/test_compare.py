@@ -89,7 +89,7 @@ def _flat(x, key=""):
 
 def _assert_same_results(actual, desired):
     """Equal to the last bit on LLVM. On CUDA, where gradients are summed with atomics in no fixed
-    order so that a job differs from itself between runs (README, Known limits), every count and
+    order so that a job differs from itself between runs (docs/limits.md, run-to-run spread), every count and
     name equal and every float within 1e-4 (absolute) or 1e-3 (relative); two seeds differ by far
     more (the test checks that too)."""
     from rfmitsuba.core import backend as B

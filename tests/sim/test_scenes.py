@@ -15,10 +15,10 @@ from rfmitsuba.sim.geometry import RoomGeometry
 
 ROOT = Path(__file__).resolve().parents[2]
 
-# interior sizes asked for in issue 2 (metres)
+# interior sizes of the built-in rooms (metres)
 SIZES = {"bedroom": (4.4, 3.5, 2.8), "living_room": (4.3, 3.5, 2.8), "dining_room": (4.5, 3.8, 2.8),
          "large_room": (11.0, 7.5, 2.8)}
-# furniture asked for in issue 2 (object ids in the scene)
+# furniture each built-in room holds (object ids in the scene)
 FURNITURE = {"bedroom": {"bed", "wardrobe", "desk", "chair", "nightstand", "radiator"},
              "living_room": {"sofa", "coffee_table", "tv_stand", "tv", "bookshelf"},
              "dining_room": {"table", "chair_1", "chair_2", "chair_3", "chair_4", "sideboard", "fridge"},

@@ -23,8 +23,8 @@ def _losses(run):
 
 def _same(actual, desired, what):
     """Bit for bit on LLVM. On CUDA, within 1e-4 (absolute or relative): CUDA sums gradients with
-    atomics in no fixed order, so a traced run differs from itself there too (README, Known
-    limits), and Adam turns a rounding-level difference of a near-zero gradient into up to a
+    atomics in no fixed order, so a traced run differs from itself there too (docs/limits.md,
+    run-to-run spread), and Adam turns a rounding-level difference of a near-zero gradient into up to a
     learning rate (1e-2) per step. Measured on an H100 (2026-11-27, 8 to 12 steps): losses within
     5e-8, parameters within 2.7e-5."""
     from rfmitsuba.core import backend as B
