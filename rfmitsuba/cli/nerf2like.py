@@ -20,6 +20,18 @@ def register(sub) -> None:
                    help="the stated tag positions (tx_pos.csv) are off from where each spectrum was taken by "
                         "Gaussian errors of this standard deviation per axis, in mm, as tracked positions are "
                         "(default 0)")
+    p.add_argument("--readout", choices=("phase_only", "amplitude"), default="phase_only",
+                   help="Bartlett read-out: phase_only (NeRF2's, the default) or amplitude (the measured RFID images')")
+    p.add_argument("--drift-db", type=float, default=0.0, metavar="DB",
+                   help="measurement drift: each measurement's element gains vary by this many dB (standard "
+                        "deviation; default 0: none)")
+    p.add_argument("--drift-deg", type=float, default=0.0, metavar="DEG",
+                   help="measurement drift: each measurement's element phases vary by this many degrees (default 0)")
+    p.add_argument("--drift-correlation", type=float, default=0.0, metavar="RHO",
+                   help="correlation of the drift between consecutive tags of a path, in [0, 1) (default 0)")
+    p.add_argument("--region", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="size of the tag region in metres (default 1.6 1.3 0.9; the measured RFID folder's "
+                        "tags span about 0.5 1.0 0.2)")
     p.add_argument("--seed", type=int, default=0, help="trajectories, offsets, noise and the 160/40 split")
     p.add_argument("--scene", default="large_room", help="built-in room or XML (default large_room, fits 5 m)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -32,7 +44,9 @@ def run(args) -> int:
     out = make_nerf2like(args.out, num_tags=args.tags, snr_db=args.snr, phase_error_deg=args.phase_error,
                          seed=args.seed, scene=args.scene, diffuse=args.diffuse,
                          coupling_db=args.coupling, position_error_m=args.position_error / 1000.0,
-                         quiet=args.quiet)
+                         readout=args.readout, drift_db=args.drift_db, drift_deg=args.drift_deg,
+                         drift_correlation=args.drift_correlation,
+                         **({"region_size": tuple(args.region)} if args.region else {}), quiet=args.quiet)
     print(f"NeRF2-like folder {out}")
     print(f"next: rfmitsuba train {out} --out RUN --set model=coherent_gaussians  (add --split block for the slab split)")
     return 0

@@ -21,6 +21,14 @@ The setup mirrors NeRF2's published RFID data:
   read-out (``h_m / |h_m|``, :func:`rfmitsuba.rf.bartlett_ref.bartlett` with ``phase_only=True``) on
   the 90 x 360 PAS grid, min-max normalised and stored as 8-bit PNG; optionally the stated tag
   positions (``tx_pos.csv``) are off by Gaussian errors (``position_error_m``), as a tracker's are.
+- **measured-style options**: an amplitude Bartlett read-out (``readout = "amplitude"``: the
+  measured NeRF2 RFID images are amplitude images, docs/results/measured/diagnosis.md), and a
+  **measurement drift** (:func:`measurement_drift`, after the phase offsets): every measurement
+  multiplies each element's channel by its own gain ``exp(a + j b)``, with ``a`` and ``b`` Gaussian
+  (``drift_db`` dB and ``drift_deg`` degrees standard deviation) and correlated from one tag of a
+  trajectory to the next by ``drift_correlation``, as a reader's gains and the tag's coupling drift
+  while it is carried along its path. It makes spectra of neighbouring tags differ more than any
+  field of position at the carrier can, as the measured ones do.
 
 The folder is written by :func:`rfmitsuba.data.nerf2.write` (spectrum/00001.png..., tx_pos.csv,
 gateway_info.yml, the seeded 80/20 split of :func:`rfmitsuba.data.split.make_split` as
@@ -264,6 +272,35 @@ def coupling_matrix(level_db: float, *, rng: np.random.Generator, rows: int = an
 
 
 # ---------------------------------------------------------------------------------- scene at the carrier
+def measurement_drift(trajectory: np.ndarray, *, magnitude_db: float, phase_deg: float, correlation: float,
+                      rng: np.random.Generator, elements: int = antenna.ROWS * antenna.COLS) -> np.ndarray:
+    """Per-measurement element gains ``exp(a + j b)``: complex128 [K, elements].
+
+    Args:
+        trajectory: int [K] the trajectory of each tag, tags of one trajectory consecutive and in
+            the order they were measured.
+        magnitude_db: standard deviation of each gain's magnitude [dB] (``a = ln(10)/20 * N(0, s^2)``).
+        phase_deg: standard deviation of each gain's phase [degrees].
+        correlation: correlation of a gain between consecutive tags of one trajectory [1, in [0, 1)]:
+            ``z_k = rho z_(k-1) + sqrt(1 - rho^2) e_k`` (a stationary AR(1) process per element, restarted
+            at each trajectory's first tag).
+        rng: the generator.
+    """
+    traj = np.asarray(trajectory)
+    if not 0 <= correlation < 1:
+        raise ConfigError(f"drift_correlation must be in [0, 1), got {correlation!r}")
+    k = len(traj)
+    e = rng.standard_normal((2, k, elements))
+    z = np.empty_like(e)
+    new = np.r_[True, traj[1:] != traj[:-1]]
+    c = math.sqrt(1.0 - correlation ** 2)
+    for i in range(k):
+        z[:, i] = e[:, i] if new[i] else correlation * z[:, i - 1] + c * e[:, i]
+    a = z[0] * (magnitude_db * math.log(10.0) / 20.0)
+    b = z[1] * math.radians(phase_deg)
+    return np.exp(a + 1j * b)
+
+
 def scene_for_carrier(xml: Path, frequency_hz: float, folder: Path) -> tuple[Path, dict]:
     """The scene XML to load at ``frequency_hz``: ``xml`` itself when Sionna's ITU table covers every
     material at that carrier, else a rewritten copy in ``folder`` (meshes referenced by absolute path)
@@ -369,7 +406,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                    region_center=None, region_size=REGION_SIZE, gateway_pos=None, num_trajectories: int = 4,
                    step_m: float = STEP_M, pitch_m: float | None = None, solver=None,
                    diffuse: float = 0.0, coupling_db: float = -math.inf, position_error_m: float = 0.0,
-                   quiet: bool = True) -> Path:
+                   readout: str = "phase_only", drift_db: float = 0.0, drift_deg: float = 0.0,
+                   drift_correlation: float = 0.0, quiet: bool = True) -> Path:
     """Simulate a NeRF2-like RFID dataset and write it as a NeRF2 spectrum folder (module docstring).
 
     Args:
@@ -402,6 +440,11 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             ``tx_pos.csv`` holds each tag's position plus Gaussian noise (seeded by ``seed``), while
             its spectrum comes from where the tag was, as a measured folder's tracked positions
             are off; the true positions go to ``rfmitsuba.json``. 0 (the default): exact.
+        readout: "phase_only" (NeRF2's, the default) or "amplitude" (the Bartlett image of the channels
+            as they are, element magnitudes included).
+        drift_db, drift_deg: standard deviations of the measurement drift's element gains [dB] and
+            phases [degrees] (:func:`measurement_drift`); 0 (the default): none.
+        drift_correlation: correlation of the drift between consecutive tags of a trajectory [1, in [0, 1)].
         quiet: no progress output.
     Returns:
         The folder [Path]; :func:`rfmitsuba.data.nerf2.read` reads it.
@@ -457,6 +500,12 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     if coupling > 0:                                   # +inf included
         raise ConfigError(f"coupling_db must be finite and <= 0 dB, or -inf (none), got {coupling_db!r}")
     pos_err = _number(position_error_m, "position_error_m", lo=0.0, hi=0.5)
+    if readout not in ("phase_only", "amplitude"):
+        raise ConfigError(f"readout must be 'phase_only' or 'amplitude', got {readout!r}")
+    drift_db = _number(drift_db, "drift_db", lo=0.0, hi=40.0)
+    drift_deg = _number(drift_deg, "drift_deg", lo=0.0, hi=180.0)
+    drift_rho = _number(drift_correlation, "drift_correlation", lo=0.0, hi=0.999)
+    drift = drift_db > 0 or drift_deg > 0
     if diffuse > 0:
         solver = dataclasses.replace(solver, diffuse_reflection=True)
     solver.check()
@@ -471,6 +520,10 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
         config["coupling_db"] = coupling
     if pos_err > 0:
         config["position_error_m"] = pos_err
+    if readout != "phase_only":    # as the other options: a folder made before them keeps its configuration
+        config["readout"] = readout
+    if drift:
+        config["drift"] = {"db": drift_db, "deg": drift_deg, "correlation": drift_rho}
     out.parent.mkdir(parents=True, exist_ok=True)
     _stale_tmp(out)
     if _existing(out, config):
@@ -505,6 +558,9 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             h = h @ C.T
         offsets_deg = np.random.default_rng([seed, 2]).uniform(-phase_err, phase_err, h.shape[1])
         h_cal = h * np.exp(1j * np.deg2rad(offsets_deg))[None]
+        if drift:
+            h_cal = h_cal * measurement_drift(traj, magnitude_db=drift_db, phase_deg=drift_deg, correlation=drift_rho,
+                                              rng=np.random.default_rng([seed, 6]), elements=h.shape[1])
         signal_power = float(np.mean(np.abs(h) ** 2))
         if math.isinf(snr):
             noise_power = 0.0
@@ -513,7 +569,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             noise_power = signal_power / 10 ** (snr / 10)
             g = np.random.default_rng([seed, 3]).normal(size=(*h.shape, 2))
             h_meas = h_cal + math.sqrt(noise_power / 2) * (g[..., 0] + 1j * g[..., 1])
-        pas = bartlett(h_meas, frequency_hz=f_hz, positions=pos, phase_only=True)
+        pas = bartlett(h_meas, frequency_hz=f_hz, positions=pos, phase_only=readout == "phase_only")
         stated = tags if pos_err == 0 else \
             np.round(tags + pos_err * np.random.default_rng([seed, 5]).normal(size=tags.shape), 7)
         pb.update(1)
@@ -548,8 +604,11 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                           "orientation": "horizontal: array frame = world frame, normal +z",
                           "element_positions_m": pos.tolist()},
                 "impairments": {
-                    "order": ["mutual coupling", "per-element phase offset", "additive complex Gaussian noise",
-                              "phase-only Bartlett", "stated tag positions"],
+                    "order": ["mutual coupling", "per-element phase offset", "measurement drift",
+                              "additive complex Gaussian noise", f"{readout} Bartlett", "stated tag positions"],
+                    "drift": None if not drift else {
+                        "magnitude_db": drift_db, "phase_deg": drift_deg, "correlation": drift_rho,
+                        "applied_as": "h_km * exp(a_km + j b_km), AR(1) along each trajectory"},
                     "position_error": None if pos_err == 0 else {
                         "sigma_m_per_axis": pos_err, "applied_as": "tx_pos.csv = true position + N(0, sigma^2) per axis",
                         "rms_m": float(np.sqrt(np.mean(np.sum((stated - tags) ** 2, axis=1)))),
@@ -564,12 +623,14 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
                                      "per_element_deg": offsets_deg.tolist(), "applied_as": "h_m * exp(+j offset_m)"},
                     "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,
                               "reference": "mean |h_m|^2 over all tags and elements (a fixed noise floor)"},
-                    "readout": "phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
-                               "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
-                               "8-bit PNG",
+                    "readout": ("phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
+                                "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
+                                "8-bit PNG") if readout == "phase_only" else
+                               ("amplitude Bartlett: |sum_m conj(v_m) h_m| / 16, v_m = exp(+j 2pi/lambda r_m.d); "
+                                "per-image min-max, 8-bit PNG"),
                 },
                 "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "coupling": [seed, 4],
-                          "position_error": [seed, 5],
+                          "position_error": [seed, 5], "drift": [seed, 6],
                           "split": seed,
                           "solver": solver.seed},
                 "solver": _config.to_dict(solver),
