@@ -49,3 +49,18 @@ def make_dataset(path: Path, *, num_antennas: int = 60, task: str = "rx", seed: 
     write_dataset(path, pas=pas[None], antenna_pos=ap, human_pos=np.full((1, 3), np.nan),
                   meta={"task": task, "fixed_pos": fixed.tolist()}, seed=seed)
     return Path(path)
+
+
+def tiny_cfg(**over):
+    """A TrainConfig for tests: 40 steps on 18 x 72 block means, a small splat field, with ``over``
+    (option -> TOML value) on top."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.train.config import TrainConfig
+
+    cfg = TrainConfig()
+    sets = ["iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
+            "val_fraction=0.1", "field.init=\"random\"", "field.num_gaussians=150", "field.net.width=16",
+            "field.net.gaussian_octaves=2", "field.net.antenna_octaves=2", "density.start=10",
+            "density.every=20", "density.reset_every=30", "density.max_gaussians=400",
+            "density.grad_threshold=1e-5", "optim.lr_net=5e-3"]
+    return C.override(cfg, sets + [f"{k}={v}" for k, v in over.items()])

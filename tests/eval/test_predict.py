@@ -82,7 +82,7 @@ def test_prediction_matches_the_runs_render_at_its_positions(tmp_path, task, cap
     """At the dataset's own positions the prediction is the run's normalised render there: the
     views are built as the dataset's (array or transmitter moved, the fixed device kept)."""
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.cli import main
     from rfmitsuba.core.errors import RunError
@@ -113,7 +113,7 @@ def test_prediction_matches_the_runs_render_at_its_positions(tmp_path, task, cap
 
 def test_anchored_prediction_and_room_check(tmp_path):
     from stage1_data import known_field, render_pas
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.core.errors import PlacementError
     from rfmitsuba.data.store import write_dataset
@@ -174,7 +174,7 @@ def test_an_ensemble_run_evaluates_and_predicts_the_mean_of_its_members(tmp_path
     import dataclasses
 
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.eval.predict import predict_run

@@ -9,7 +9,7 @@ import pytest
 
 def test_evaluate_run_writes_report(tmp_path, variant):
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.cli import main
     from rfmitsuba.core.errors import RunError
@@ -47,7 +47,7 @@ def test_evaluate_run_writes_report(tmp_path, variant):
 def test_motivation_table_and_parsimony_on_a_tiny_dataset(tmp_path, variant):
     """Two rows each; the table files exist and rows carry model and floor numbers."""
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.experiments.tables import motivation_table, parsimony_curve

@@ -14,7 +14,7 @@ def test_knee_on_hand_made_curves():
 
 def test_parsimony_curve_of_the_coherent_gaussian_field(tmp_path):
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.experiments.tables import parsimony_curve
 
@@ -37,7 +37,7 @@ def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_pa
 
     import pytest
     from stage1_data import make_dataset
-    from test_trainer import tiny_cfg
+    from stage1_data import tiny_cfg
 
     from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.experiments.tables import split_sensitivity

@@ -602,7 +602,6 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
     initial field's line of sight draws the data's PAS (the pose starts at the correction, the
     run summary's report says so); without it, it does not. By default ("auto" = "report" for a
     measured folder) the fit is reported and the frame left as stated."""
-    import sys
     import warnings
     from types import SimpleNamespace
 
@@ -612,10 +611,9 @@ def test_frame_search_starts_the_pose_at_the_corrected_frame():
     from rfmitsuba.rf.frame_fit import rotation_matrix
     from rfmitsuba.train.config import TrainConfig
 
-    sys.path.insert(0, str(Path(__file__).parents[1] / "rf"))
-    from test_frame_fit import F as F920, _los_data
+    from los_data import F as F920, los_spectra
 
-    pas, x, y = _los_data(np.eye(3), n=24)
+    pas, x, y = los_spectra(true_to_world=np.eye(3), n=24)
     stated = rotation_matrix(np.radians(30) * np.array([0.6, 0.7, 0.39]) / np.linalg.norm([0.6, 0.7, 0.39]))
     data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=stated, frequency_hz=F920, measured=True,
                            readout="phase_only", positions=lambda idx: (x[idx], y[idx], y[idx]),
@@ -756,7 +754,6 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
     +-180 degrees: by default ("auto") the initial field's line of sight draws the data's PAS at
     correlation > 0.99 (``cal`` starts at the fitted offsets, the run summary says so); with the
     search off, at under 0.5."""
-    import sys
     from types import SimpleNamespace
 
     from rfmitsuba.core import config as C
@@ -765,11 +762,10 @@ def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
     from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
     from rfmitsuba.train.config import TrainConfig
 
-    sys.path.insert(0, str(Path(__file__).parents[1] / "rf"))
-    from test_calibration_fit import F as F920, los_data_with_offsets
+    from los_data import F as F920, los_spectra
 
     true = np.random.default_rng(3).uniform(-np.pi, np.pi, 16)
-    pas, x, y = los_data_with_offsets(true, n=24)
+    pas, x, y = los_spectra(offsets_rad=true, n=24)
     data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=None, frequency_hz=F920, measured=False,
                            readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
                            pas=lambda idx, d=1: pas[idx] if d == 2 else None)

@@ -6,22 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-F = 920e6
+from los_data import F, los_spectra
 
 
 def los_data_with_offsets(offsets_rad: np.ndarray, *, n: int = 32, seed: int = 0):
-    """Tags in a 1.6 x 1.3 x 0.9 m region about 4.5 m from a fixed 4x4 array at the origin, and the
-    phase-only Bartlett PAS of the line of sight alone, each element's channel turned by
-    ``offsets_rad`` [16]. Returns (pas [n, 45, 180], x, y)."""
-    from rfmitsuba.rf import array as antenna
-    from rfmitsuba.rf.bartlett_ref import bartlett, normalize
-
-    rng = np.random.default_rng(seed)
-    y = np.array([-1.5, 1.0, 4.0]) + rng.random((n, 3)) * [1.6, 1.3, 0.9]
-    x = np.zeros((n, 3))
-    u = (y - x) / np.linalg.norm(y - x, axis=1, keepdims=True)
-    h = antenna.array_response(np.ones((n, 1)), u[:, None, :], frequency_hz=F) * np.exp(1j * offsets_rad)[None]
-    return normalize(bartlett(h, frequency_hz=F, resolution_deg=2.0, phase_only=True)), x, y
+    return los_spectra(offsets_rad=offsets_rad, n=n, seed=seed)
 
 
 def _wrapped_deg(a: np.ndarray) -> np.ndarray:

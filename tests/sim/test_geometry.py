@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -184,12 +183,13 @@ def test_sample_free_never_inside_furniture(bedroom):
     assert 0.1 < np.mean(pts[:, 0] < 1.1) < 0.4
 
 
-def test_sample_free_is_fast():
+def test_sample_free_gives_many_points_in_one_call():
+    """10 000 free points in one call, every one inside the height range and clear of furniture (its
+    speed is a benchmark's business, not a test's)."""
     g = RoomGeometry.from_scene("large_room")
-    g.sample_free(100, rng=0)
-    t = time.perf_counter()
-    g.sample_free(10000, rng=0, z_range=(0.5, 2.0), clearance=0.1)
-    assert time.perf_counter() - t < 2.0          # about 0.1 s measured on the 2-core dev machine
+    pts = g.sample_free(10000, rng=0, z_range=(0.5, 2.0), clearance=0.1)
+    assert pts.shape == (10000, 3) and (pts[:, 2] >= 0.5).all() and (pts[:, 2] <= 2.0).all()
+    assert g.free_mask(pts, clearance=0.1).all()
 
 
 def test_sample_free_impossible_requests(bedroom):

@@ -5,7 +5,7 @@ import json
 
 import pytest
 from stage1_data import make_dataset
-from test_trainer import tiny_cfg
+from stage1_data import tiny_cfg
 
 
 def test_auto_trains_each_candidate_keeps_the_best_and_resumes(tmp_path):

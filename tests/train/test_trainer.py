@@ -6,26 +6,13 @@ import shutil
 
 import numpy as np
 import pytest
-from stage1_data import make_dataset
+from stage1_data import make_dataset, tiny_cfg
 
 
 @pytest.fixture(scope="module")
 def tiny_ds(tmp_path_factory, variant):
     """60 positions (48 train, 12 test) rendered from a known 30-Gaussian field."""
     return make_dataset(tmp_path_factory.mktemp("tiny") / "ds", num_antennas=60)
-
-
-def tiny_cfg(**over):
-    from rfmitsuba.core import config as C
-    from rfmitsuba.train.config import TrainConfig
-
-    cfg = TrainConfig()
-    sets = ["iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
-            "val_fraction=0.1", "field.init=\"random\"", "field.num_gaussians=150", "field.net.width=16",
-            "field.net.gaussian_octaves=2", "field.net.antenna_octaves=2", "density.start=10",
-            "density.every=20", "density.reset_every=30", "density.max_gaussians=400",
-            "density.grad_threshold=1e-5", "optim.lr_net=5e-3"]
-    return C.override(cfg, sets + [f"{k}={v}" for k, v in over.items()])
 
 
 def _rows(run):
