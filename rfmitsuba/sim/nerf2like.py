@@ -60,6 +60,7 @@ import numpy as np
 from ..core import backend, progress
 from ..core import config as _config
 from ..core.errors import ConfigError, DatasetError, SceneError
+from ..core.folder_lock import folder_lock
 from ..data import nerf2
 from ..data.split import make_split
 from ..data.store import _scene_record, config_diff, resolve_scene
@@ -525,128 +526,131 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
     if drift:
         config["drift"] = {"db": drift_db, "deg": drift_deg, "correlation": drift_rho}
     out.parent.mkdir(parents=True, exist_ok=True)
-    _stale_tmp(out)
-    if _existing(out, config):
-        return out
+    # one writer per folder: a second nerf2like into the same --out is refused, naming the first
+    # (the lock sits in a sidecar folder, since --out itself appears only when complete)
+    with folder_lock(out.parent / f".{out.name}.writer", what=f"nerf2like into {out}"):
+        _stale_tmp(out)
+        if _existing(out, config):
+            return out
 
-    # ---- tags, then one Sionna solve from the gateway to every tag
-    tags, traj = tag_trajectories(num_tags, lo=r_lo, hi=r_hi, num_trajectories=num_trajectories, step_m=step,
-                                  rng=np.random.default_rng([seed, 1]))
-    tags = np.round(tags, 7)                      # what tx_pos.csv stores (%.9g), so truth and file agree
-    geom.check_points(tags, what="tag", clearance=0.05)
-    pos = antenna.element_positions(f_hz, spacing_wavelengths=pitch / lam)
-    with progress.bar(3, desc=f"nerf2-like {xml.stem}", unit="step", quiet=quiet) as pb, \
-            tempfile.TemporaryDirectory(prefix="rfm-nerf2like-") as tmpd:
-        load_xml, materials = scene_for_carrier(xml, f_hz, Path(tmpd))
-        sim = Simulator(load_xml, fixed_pos=gateway, frequency_hz=f_hz, solver=solver)
-        if diffuse > 0:
-            sim.set_scattering(diffuse)
-        sim.set_positions(tags)
-        paths = sim.solve()
-        solver_s = sim.timing.solver_s
-        del sim
-        pb.update(1)
-        none = np.flatnonzero(paths.num_paths == 0)
-        if none.size:
-            raise DatasetError(f"tag {int(none[0])} at {_fmt(tags[none[0]])} received no paths from the gateway")
-        # departure directions at the gateway (reciprocity, docs/conventions.md): the array's channel
-        h = antenna.array_response(paths.a, paths.u_fixed, frequency_hz=f_hz, positions=pos).astype(np.complex128)
+        # ---- tags, then one Sionna solve from the gateway to every tag
+        tags, traj = tag_trajectories(num_tags, lo=r_lo, hi=r_hi, num_trajectories=num_trajectories, step_m=step,
+                                      rng=np.random.default_rng([seed, 1]))
+        tags = np.round(tags, 7)                      # what tx_pos.csv stores (%.9g), so truth and file agree
+        geom.check_points(tags, what="tag", clearance=0.05)
+        pos = antenna.element_positions(f_hz, spacing_wavelengths=pitch / lam)
+        with progress.bar(3, desc=f"nerf2-like {xml.stem}", unit="step", quiet=quiet) as pb, \
+                tempfile.TemporaryDirectory(prefix="rfm-nerf2like-") as tmpd:
+            load_xml, materials = scene_for_carrier(xml, f_hz, Path(tmpd))
+            sim = Simulator(load_xml, fixed_pos=gateway, frequency_hz=f_hz, solver=solver)
+            if diffuse > 0:
+                sim.set_scattering(diffuse)
+            sim.set_positions(tags)
+            paths = sim.solve()
+            solver_s = sim.timing.solver_s
+            del sim
+            pb.update(1)
+            none = np.flatnonzero(paths.num_paths == 0)
+            if none.size:
+                raise DatasetError(f"tag {int(none[0])} at {_fmt(tags[none[0]])} received no paths from the gateway")
+            # departure directions at the gateway (reciprocity, docs/conventions.md): the array's channel
+            h = antenna.array_response(paths.a, paths.u_fixed, frequency_hz=f_hz, positions=pos).astype(np.complex128)
 
-        # ---- impairments: coupling, phase offsets, noise, phase-only Bartlett
-        C = coupling_matrix(coupling, rng=np.random.default_rng([seed, 4])) if math.isfinite(coupling) else None
-        if C is not None:
-            h = h @ C.T
-        offsets_deg = np.random.default_rng([seed, 2]).uniform(-phase_err, phase_err, h.shape[1])
-        h_cal = h * np.exp(1j * np.deg2rad(offsets_deg))[None]
-        if drift:
-            h_cal = h_cal * measurement_drift(traj, magnitude_db=drift_db, phase_deg=drift_deg, correlation=drift_rho,
-                                              rng=np.random.default_rng([seed, 6]), elements=h.shape[1])
-        signal_power = float(np.mean(np.abs(h) ** 2))
-        if math.isinf(snr):
-            noise_power = 0.0
-            h_meas = h_cal
-        else:
-            noise_power = signal_power / 10 ** (snr / 10)
-            g = np.random.default_rng([seed, 3]).normal(size=(*h.shape, 2))
-            h_meas = h_cal + math.sqrt(noise_power / 2) * (g[..., 0] + 1j * g[..., 1])
-        pas = bartlett(h_meas, frequency_hz=f_hz, positions=pos, phase_only=readout == "phase_only")
-        stated = tags if pos_err == 0 else \
-            np.round(tags + pos_err * np.random.default_rng([seed, 5]).normal(size=tags.shape), 7)
-        pb.update(1)
+            # ---- impairments: coupling, phase offsets, noise, phase-only Bartlett
+            C = coupling_matrix(coupling, rng=np.random.default_rng([seed, 4])) if math.isfinite(coupling) else None
+            if C is not None:
+                h = h @ C.T
+            offsets_deg = np.random.default_rng([seed, 2]).uniform(-phase_err, phase_err, h.shape[1])
+            h_cal = h * np.exp(1j * np.deg2rad(offsets_deg))[None]
+            if drift:
+                h_cal = h_cal * measurement_drift(traj, magnitude_db=drift_db, phase_deg=drift_deg, correlation=drift_rho,
+                                                  rng=np.random.default_rng([seed, 6]), elements=h.shape[1])
+            signal_power = float(np.mean(np.abs(h) ** 2))
+            if math.isinf(snr):
+                noise_power = 0.0
+                h_meas = h_cal
+            else:
+                noise_power = signal_power / 10 ** (snr / 10)
+                g = np.random.default_rng([seed, 3]).normal(size=(*h.shape, 2))
+                h_meas = h_cal + math.sqrt(noise_power / 2) * (g[..., 0] + 1j * g[..., 1])
+            pas = bartlett(h_meas, frequency_hz=f_hz, positions=pos, phase_only=readout == "phase_only")
+            stated = tags if pos_err == 0 else \
+                np.round(tags + pos_err * np.random.default_rng([seed, 5]).normal(size=tags.shape), 7)
+            pb.update(1)
 
-        # ---- write into a temporary folder, then rename
-        split = make_split(num_tags, 0, seed=seed)
-        tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-        shutil.rmtree(tmp, ignore_errors=True)
-        source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=stated, fixed_pos=gateway, split=split,
-                                 human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
-                                 path=f"sionna-rt:{xml.stem}")
-        try:
-            nerf2.write(source, tmp)
-            d_tags = np.linalg.norm(tags - gateway, axis=1)
-            steps = np.linalg.norm(np.diff(tags, axis=0), axis=1)[np.diff(traj) == 0]
-            extra = json.loads((tmp / nerf2.EXTRA).read_text())
-            extra.update({
-                "generator": GENERATOR,
-                "protocol": "NeRF2-like (docs/conventions.md): moving TX, blind room",
-                "config": config,
-                "scene": _scene_record(xml),
-                "materials": materials,
-                "layout": {"region_lo": r_lo.tolist(), "region_hi": r_hi.tolist(), "region_center": centre.tolist(),
-                           "gateway_pos": gateway.tolist(), "gateway_orientation_xyzw": [0.0, 0.0, 0.0, 1.0],
-                           "gateway_to_region_center_m": float(np.linalg.norm(centre - gateway)),
-                           "gateway_to_tag_m": {"min": float(d_tags.min()), "max": float(d_tags.max())},
-                           "line_of_sight_to_center": bool(geom.segment_clear(gateway, centre))},
-                "trajectories": {"count": num_trajectories, "step_m": step, "turn_rad_per_step": TURN_RAD,
-                                 "id": traj.tolist(), "step_m_measured_mean": float(steps.mean())},
-                "array": {"rows": antenna.ROWS, "cols": antenna.COLS, "pitch_m": pitch,
-                          "pitch_wavelengths": pitch / lam, "element_order": "x fastest: m = row * cols + col",
-                          "orientation": "horizontal: array frame = world frame, normal +z",
-                          "element_positions_m": pos.tolist()},
-                "impairments": {
-                    "order": ["mutual coupling", "per-element phase offset", "measurement drift",
-                              "additive complex Gaussian noise", f"{readout} Bartlett", "stated tag positions"],
-                    "drift": None if not drift else {
-                        "magnitude_db": drift_db, "phase_deg": drift_deg, "correlation": drift_rho,
-                        "applied_as": "h_km * exp(a_km + j b_km), AR(1) along each trajectory"},
-                    "position_error": None if pos_err == 0 else {
-                        "sigma_m_per_axis": pos_err, "applied_as": "tx_pos.csv = true position + N(0, sigma^2) per axis",
-                        "rms_m": float(np.sqrt(np.mean(np.sum((stated - tags) ** 2, axis=1)))),
-                        "true_tx_pos_m": tags.tolist()},
-                    "coupling": None if C is None else {
-                        "adjacent_db": coupling, "diagonal_db": coupling - 20 * math.log10(2),
-                        "applied_as": "h <- C h (C symmetric)", "matrix_re": C.real.tolist(),
-                        "matrix_im": C.imag.tolist()},
-                    "diffuse_scattering": {"scattering_coefficient": diffuse,
-                                           "traced": bool(solver.diffuse_reflection)},
-                    "phase_offset": {"distribution": "uniform", "max_deg": phase_err,
-                                     "per_element_deg": offsets_deg.tolist(), "applied_as": "h_m * exp(+j offset_m)"},
-                    "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,
-                              "reference": "mean |h_m|^2 over all tags and elements (a fixed noise floor)"},
-                    "readout": ("phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
-                                "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
-                                "8-bit PNG") if readout == "phase_only" else
-                               ("amplitude Bartlett: |sum_m conj(v_m) h_m| / 16, v_m = exp(+j 2pi/lambda r_m.d); "
-                                "per-image min-max, 8-bit PNG"),
-                },
-                "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "coupling": [seed, 4],
-                          "position_error": [seed, 5], "drift": [seed, 6],
-                          "split": seed,
-                          "solver": solver.seed},
-                "solver": _config.to_dict(solver),
-                "timing": {"solver_s": solver_s, "total_s": time.perf_counter() - t_start},
-                "versions": versions(),
-            })
-            (tmp / nerf2.EXTRA).write_text(json.dumps(extra, indent=1, allow_nan=False) + "\n")
-            _fsync_tree(tmp)
-            if out.exists():
-                out.rmdir()                            # empty (checked by _existing)
-            os.replace(tmp, out)
-        except BaseException:
+            # ---- write into a temporary folder, then rename
+            split = make_split(num_tags, 0, seed=seed)
+            tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
             shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        pb.update(1)
-    return out
+            source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=stated, fixed_pos=gateway, split=split,
+                                     human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
+                                     path=f"sionna-rt:{xml.stem}")
+            try:
+                nerf2.write(source, tmp)
+                d_tags = np.linalg.norm(tags - gateway, axis=1)
+                steps = np.linalg.norm(np.diff(tags, axis=0), axis=1)[np.diff(traj) == 0]
+                extra = json.loads((tmp / nerf2.EXTRA).read_text())
+                extra.update({
+                    "generator": GENERATOR,
+                    "protocol": "NeRF2-like (docs/conventions.md): moving TX, blind room",
+                    "config": config,
+                    "scene": _scene_record(xml),
+                    "materials": materials,
+                    "layout": {"region_lo": r_lo.tolist(), "region_hi": r_hi.tolist(), "region_center": centre.tolist(),
+                               "gateway_pos": gateway.tolist(), "gateway_orientation_xyzw": [0.0, 0.0, 0.0, 1.0],
+                               "gateway_to_region_center_m": float(np.linalg.norm(centre - gateway)),
+                               "gateway_to_tag_m": {"min": float(d_tags.min()), "max": float(d_tags.max())},
+                               "line_of_sight_to_center": bool(geom.segment_clear(gateway, centre))},
+                    "trajectories": {"count": num_trajectories, "step_m": step, "turn_rad_per_step": TURN_RAD,
+                                     "id": traj.tolist(), "step_m_measured_mean": float(steps.mean())},
+                    "array": {"rows": antenna.ROWS, "cols": antenna.COLS, "pitch_m": pitch,
+                              "pitch_wavelengths": pitch / lam, "element_order": "x fastest: m = row * cols + col",
+                              "orientation": "horizontal: array frame = world frame, normal +z",
+                              "element_positions_m": pos.tolist()},
+                    "impairments": {
+                        "order": ["mutual coupling", "per-element phase offset", "measurement drift",
+                                  "additive complex Gaussian noise", f"{readout} Bartlett", "stated tag positions"],
+                        "drift": None if not drift else {
+                            "magnitude_db": drift_db, "phase_deg": drift_deg, "correlation": drift_rho,
+                            "applied_as": "h_km * exp(a_km + j b_km), AR(1) along each trajectory"},
+                        "position_error": None if pos_err == 0 else {
+                            "sigma_m_per_axis": pos_err, "applied_as": "tx_pos.csv = true position + N(0, sigma^2) per axis",
+                            "rms_m": float(np.sqrt(np.mean(np.sum((stated - tags) ** 2, axis=1)))),
+                            "true_tx_pos_m": tags.tolist()},
+                        "coupling": None if C is None else {
+                            "adjacent_db": coupling, "diagonal_db": coupling - 20 * math.log10(2),
+                            "applied_as": "h <- C h (C symmetric)", "matrix_re": C.real.tolist(),
+                            "matrix_im": C.imag.tolist()},
+                        "diffuse_scattering": {"scattering_coefficient": diffuse,
+                                               "traced": bool(solver.diffuse_reflection)},
+                        "phase_offset": {"distribution": "uniform", "max_deg": phase_err,
+                                         "per_element_deg": offsets_deg.tolist(), "applied_as": "h_m * exp(+j offset_m)"},
+                        "noise": {"snr_db": config["snr_db"], "signal_power": signal_power, "noise_power": noise_power,
+                                  "reference": "mean |h_m|^2 over all tags and elements (a fixed noise floor)"},
+                        "readout": ("phase-only Bartlett: |sum_m conj(v_m) h_m/|h_m|| / 16, v_m = exp(+j 2pi/lambda r_m.d) "
+                                    "(NeRF2's exp(-j ...) on its opposite-sign phases: the same image); per-image min-max, "
+                                    "8-bit PNG") if readout == "phase_only" else
+                                   ("amplitude Bartlett: |sum_m conj(v_m) h_m| / 16, v_m = exp(+j 2pi/lambda r_m.d); "
+                                    "per-image min-max, 8-bit PNG"),
+                    },
+                    "seeds": {"trajectories": [seed, 1], "phase_offsets": [seed, 2], "noise": [seed, 3], "coupling": [seed, 4],
+                              "position_error": [seed, 5], "drift": [seed, 6],
+                              "split": seed,
+                              "solver": solver.seed},
+                    "solver": _config.to_dict(solver),
+                    "timing": {"solver_s": solver_s, "total_s": time.perf_counter() - t_start},
+                    "versions": versions(),
+                })
+                (tmp / nerf2.EXTRA).write_text(json.dumps(extra, indent=1, allow_nan=False) + "\n")
+                _fsync_tree(tmp)
+                if out.exists():
+                    out.rmdir()                            # empty (checked by _existing)
+                os.replace(tmp, out)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            pb.update(1)
+        return out
 
 
 def _fsync_tree(folder: Path) -> None:

@@ -116,3 +116,19 @@ def test_a_failed_experiment_leaves_no_folder(tmp_path, capsys):
     assert cli.main(["experiment", "parsimony", "--out", str(out)]) == 2
     assert "needs a dataset" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_second_nerf2like_into_one_folder_is_refused(tmp_path):
+    """nerf2like builds its folder beside --out and renames it when complete; while one writer holds
+    the folder's lock, a second call is refused naming the first's pid, and nothing is written."""
+    import os
+
+    from rfmitsuba.core.errors import RunError
+    from rfmitsuba.core.folder_lock import folder_lock
+    from rfmitsuba.sim.nerf2like import make_nerf2like
+
+    out = tmp_path / "n2l"
+    with folder_lock(tmp_path / ".n2l.writer", what="nerf2like"):
+        with pytest.raises(RunError, match=f"another nerf2like into .*n2l.*pid {os.getpid()}"):
+            make_nerf2like(out, num_tags=20)
+    assert not out.exists() and not list(tmp_path.glob(".n2l.tmp-*"))
