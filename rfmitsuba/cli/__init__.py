@@ -70,8 +70,7 @@ class _InterruptRecorder:
     """Within the block, SIGINT raises KeyboardInterrupt as Python's default handler does and is
     counted (:attr:`count`), so a Ctrl-C that a library catches (Dr.Jit re-raises one inside its
     loops as a RuntimeError, which an ``except Exception`` may swallow) still ends the command
-    with exit 130 instead of 0. Outside the main thread, or where SIGINT is not Python's default
-    handler (ignored in a background job, or the caller's own), it does nothing."""
+    with exit 130 instead of 0. Outside the main thread it does nothing."""
 
     def __init__(self):
         self.count = 0
@@ -82,10 +81,7 @@ class _InterruptRecorder:
         signal.default_int_handler(signum, frame)
 
     def __enter__(self):
-        # only where Ctrl-C raises KeyboardInterrupt now: an ignored SIGINT (a job started in the
-        # background) or a handler of the caller's own stays as it is
-        if threading.current_thread() is threading.main_thread() \
-                and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handler)
         return self
 
