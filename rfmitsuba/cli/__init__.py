@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
-import threading
 
 from ..core.errors import RfmError
 
@@ -43,18 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     from ..core.memory import keep_freed_memory
 
     keep_freed_memory()
-    interrupted = _InterruptRecorder()
     try:
-        with interrupted:
-            if args.variant:
-                from ..core import backend
+        if args.variant:
+            from ..core import backend
 
-                backend.set_variant(args.variant)
-            code = int(args.func(args) or 0)
-        if interrupted.count:     # a library caught the KeyboardInterrupt and went on: still not a success
-            print(f"rfmitsuba {args.command}: {_named_fault(KeyboardInterrupt())[1]}", file=sys.stderr)
-            return 130
-        return code
+            backend.set_variant(args.variant)
+        return int(args.func(args) or 0)
     except RfmError as e:
         print(f"rfmitsuba {args.command}: error: {e}", file=sys.stderr)
         return 2
@@ -64,31 +56,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"rfmitsuba {args.command}: {message}", file=sys.stderr)
         return code
-
-
-class _InterruptRecorder:
-    """Within the block, SIGINT raises KeyboardInterrupt as Python's default handler does and is
-    counted (:attr:`count`), so a Ctrl-C that a library catches (Dr.Jit re-raises one inside its
-    loops as a RuntimeError, which an ``except Exception`` may swallow) still ends the command
-    with exit 130 instead of 0. Outside the main thread it does nothing."""
-
-    def __init__(self):
-        self.count = 0
-        self._previous = None
-
-    def _handler(self, signum, frame):
-        self.count += 1
-        signal.default_int_handler(signum, frame)
-
-    def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handler)
-        return self
-
-    def __exit__(self, *exc):
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
-        return False
 
 
 def _cause_chain(e: BaseException):

@@ -76,26 +76,6 @@ def _with_func(parser, func):
     return parser
 
 
-def test_a_ctrl_c_that_a_library_swallows_still_exits_130(monkeypatch, capsys):
-    """SIGINT during the command, caught by library code that goes on (``except Exception`` around a
-    Dr.Jit loop that re-raised it): the command finishes, but exits 130, not 0."""
-    import signal as sig
-
-    def swallowed(args):
-        try:
-            os.kill(os.getpid(), sig.SIGINT)
-            time.sleep(0.5)                              # the handler runs here and raises
-        except KeyboardInterrupt:
-            pass                                        # a library that catches it and goes on
-        return 0
-
-    parser = cli.build_parser
-    monkeypatch.setattr(cli, "build_parser", lambda: _with_func(parser(), swallowed))
-    assert cli.main(["info"]) == 130
-    assert "interrupted; finished work is kept" in capsys.readouterr().err
-    assert sig.getsignal(sig.SIGINT) is sig.default_int_handler      # the handler is put back
-
-
 def test_a_bug_still_raises(monkeypatch):
     def bug(args):
         raise ValueError("a bug, not a user's fault")
