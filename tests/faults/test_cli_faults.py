@@ -86,6 +86,13 @@ def test_a_bug_still_raises(monkeypatch):
         cli.main(["info"])
 
 
+def _terminal_sigint() -> None:
+    """In the child: SIGINT as a terminal delivers it. A suite run as a background job (``nohup``,
+    ``cmd &``) ignores SIGINT, its children inherit that, and Python then never raises
+    KeyboardInterrupt: the interrupt would be lost before rfmitsuba sees it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.slow
 def test_ctrl_c_during_generate_exits_130_and_keeps_finished_work(tmp_path):
     out = tmp_path / "ds"
@@ -93,7 +100,7 @@ def test_ctrl_c_during_generate_exits_130_and_keeps_finished_work(tmp_path):
     exe = Path(sys.executable).parent / "rfmitsuba"       # the installed console script
     proc = subprocess.Popen([str(exe), "generate", "bedroom", "--task", "rx",
                              "--quick", "--human-positions", "40", "--out", str(out)], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            env=env, text=True)
+                            env=env, text=True, preexec_fn=_terminal_sigint)
     t0 = time.time()
     def chunks():
         return list((out / "chunks").glob("*/chunk.json"))
