@@ -153,7 +153,10 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
             unknown room trained with ``coherent_gaussians.room_box``, positions outside that box.
     Returns:
         {"pas": float32 [K, 90, 360] in [0, 1], "positions": float64 [K, 3], "how": "field" or
-        "anchored k=.. alpha=..", "run", "dataset", "task"}.
+        "anchored k=.. alpha=..", "run", "dataset", "task"}; for a field that states its uncertainty
+        (the Gaussian-process field) also "predictive_sd": float64 [K], the posterior standard
+        deviation of a pixel of the normalised training spectra's scale at each position, and
+        "prior_sd", what it grows to far from the data.
     Raises:
         RunError (not a finished run; anchored without an evaluation), PlacementError (a position
         outside the room), ConfigError (bad positions array).
@@ -196,8 +199,14 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
         pred = anchored(pred, field_train, data.pas(train_idx), data.antenna_pos[train_idx], q,
                         k=int(choice["k"]), alpha=float(choice["alpha"]))
         how = f"anchored k={int(choice['k'])} alpha={float(choice['alpha']):g}"
-    return {"pas": np.asarray(pred, np.float32), "positions": q, "how": how, "run": str(rd),
-            "dataset": str(data.path), "task": data.task}
+    out = {"pas": np.asarray(pred, np.float32), "positions": q, "how": how, "run": str(rd),
+           "dataset": str(data.path), "task": data.task}
+    fields = getattr(renderer, "fields", [])
+    if len(fields) == 1 and hasattr(fields[0], "predictive_sd"):      # a field that knows its uncertainty
+        f = fields[0]
+        out["predictive_sd"] = np.asarray(f.predictive_sd(q), np.float64)
+        out["prior_sd"] = float(np.sqrt(f.hyper["signal_variance"] * (1.0 + f.hyper["nugget"])))
+    return out
 
 
 def new_folder(out: str | Path) -> Path:
@@ -219,5 +228,7 @@ def write_prediction(out: str | Path, result: dict) -> Path:
     write_spectra(o, result["pas"])
     write_positions(o / "positions.csv", result["positions"])
     write_json(o / "predict.json", {k: result[k] for k in ("run", "dataset", "task", "how")}
-               | {"count": len(result["positions"])})
+               | {"count": len(result["positions"])}
+               | ({"predictive_sd": [float(v) for v in result["predictive_sd"]], "prior_sd": result["prior_sd"]}
+                  if "predictive_sd" in result else {}))
     return o

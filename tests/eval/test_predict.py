@@ -231,3 +231,29 @@ def test_predict_never_writes_a_constant_image(tmp_path, monkeypatch):
     monkeypatch.setattr(P, "render_at", render)
     with pytest.raises(RunError, match=r"constant .* position 1 \(0.100, 0.000, 0.000\)"):
         P.predict_run(tmp_path, np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]))
+
+
+def test_a_gaussian_process_run_predicts_with_its_uncertainty(tmp_path):
+    """predict on a Gaussian-process run: the spectra at the training positions are the field's own,
+    predict.json carries each position's predictive standard deviation, small at a training position
+    and larger between them, never above the prior's."""
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.eval.predict import predict_run, write_prediction
+    from rfmitsuba.train.trainer import load_run, train
+    from stage1_data import make_dataset, tiny_cfg
+
+    folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=40, task="tx")), tmp_path / "n")
+    (folder / nerf2.EXTRA).unlink()
+    run = tmp_path / "run"
+    train(folder, run, cfg=tiny_cfg(model='"gaussian_process"'), quiet=True)
+    _, data, renderer = load_run(run)
+    gp = renderer.fields[0]
+    at = gp.positions[:2]
+    between = (gp.positions[:1] + gp.positions[1:2]) / 2 + 0.05
+    r = predict_run(run, np.r_[at, between])
+    assert r["pas"].shape == (3, 90, 360) and r["predictive_sd"].shape == (3,)
+    assert r["predictive_sd"][:2].max() < r["predictive_sd"][2] <= r["prior_sd"]
+    out = write_prediction(tmp_path / "pred", r)
+    rec = json.loads((out / "predict.json").read_text())
+    assert rec["predictive_sd"] == pytest.approx(r["predictive_sd"].tolist()) and rec["prior_sd"] == r["prior_sd"]
