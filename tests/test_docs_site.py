@@ -16,7 +16,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: process talk that does not belong in the product (the changelog is where dated history goes)
-PROCESS_TALK = re.compile(r"\b(sessions? \d+|issues? \d+|" + "development" + r" machine)\b", re.IGNORECASE)
+PROCESS_TALK = re.compile(r"\b(sessions?[\s-]+\d+|issues?\s+\d+|this session|" + "development" + r"\s+machine)\b",
+                          re.IGNORECASE)
 SCANNED = ("rfmitsuba", "tests", "configs", "docs", "scripts", "notebooks")
 SUFFIXES = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".json", ".jsonl", ".ipynb", ".sh", ".csv"}
 
@@ -67,13 +68,14 @@ def test_the_product_speaks_about_the_software_only():
     """No development-process talk in code, tests, configs, scripts, notebooks, README or docs."""
     hits = []
     for p in _product_files():
-        for i, line in enumerate(p.read_text(encoding="utf-8", errors="ignore").splitlines(), 1):
-            m = PROCESS_TALK.search(line)
-            if m:
-                hits.append(f"{p.relative_to(ROOT)}:{i}: {m.group(0)!r}")
+        text = p.read_text(encoding="utf-8", errors="ignore")
+        for m in PROCESS_TALK.finditer(text):            # the whole text: a phrase may wrap a line
+            hits.append(f"{p.relative_to(ROOT)}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)!r}")
     assert not hits, f"{len(hits)} lines speak of the development process:\n" + "\n".join(hits[:40])
 
 
 def test_the_process_talk_pattern():
-    assert PROCESS_TALK.search("measured in session 47") and PROCESS_TALK.search("see Issue 12.")
+    # the examples are joined from parts: this file is product too, for any scanner but its own test
+    said = [w + " " + n for w, n in (("measured in session", "47"), ("see Issue", "12."), ("the session", "\n46"))]
+    assert all(PROCESS_TALK.search(t) for t in said + ["their session-" + "46 time", "in this " + "session"])
     assert not PROCESS_TALK.search("tissue 0.903 vs metal") and not PROCESS_TALK.search("lab run 48")

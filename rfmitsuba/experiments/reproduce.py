@@ -384,7 +384,7 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
 
 
 #: marks a run's row in runs.jsonl until the run ends: a run killed without unwinding (SIGKILL,
-#: a lost machine, a session's end) keeps it, with its time up to its row's last rewrite
+#: a lost machine, the end of a machine's lease) keeps it, with its time up to its row's last rewrite
 NO_END = "no end recorded (running, or killed)"
 
 #: how often a running reproduction rewrites its row of runs.jsonl [s]
