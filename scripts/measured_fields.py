@@ -43,26 +43,21 @@ def run_one(folder: Path, run: Path, split: str, seed: int, time_limit_s: float)
     return json.loads((run / "eval" / "metrics.json").read_text())
 
 
-def loo_ssim(run: Path) -> float | None:
-    """Leave-one-out mean SSIM of a Gaussian-process field at its conditioning positions."""
+def loo_ssim(run: Path, data, renderer) -> float | None:
+    """Leave-one-out mean SSIM of a Gaussian-process field at its conditioning positions (None for
+    another field); ``data`` and ``renderer`` as :func:`rfmitsuba.train.trainer.load_run` gives them."""
     from rfmitsuba.core.ssim import ssim_images
-    from rfmitsuba.models.base import load_field
     from rfmitsuba.rf.bartlett_ref import normalize
-    from rfmitsuba.train.trainer import load_run
 
-    f = load_field(run / "final" / "field.npz")
+    f = renderer.fields[0]
     if f.kind != "gaussian_process":
         return None
-    _, data, _ = load_run(run)
     fit = np.asarray(json.loads((run / "split.json").read_text())["fit"], np.int64)
     return float(np.mean(ssim_images(normalize(f.loo_predictions()), data.pas(fit))))
 
 
-def quartiles(run: Path) -> dict:
+def quartiles(run: Path, data) -> dict:
     """Mean SSIM per quartile of the distance to the nearest training position, every method."""
-    from rfmitsuba.train.trainer import load_run
-
-    _, data, _ = load_run(run)
     z = np.load(run / "eval" / "ssim.npz")
     split = json.loads((run / "split.json").read_text())
     test = z["test_index"]
@@ -142,6 +137,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--time-limit-s", type=float, default=500.0)
     a = ap.parse_args()
+    from rfmitsuba.train.trainer import load_run
+
     a.out_dir.mkdir(parents=True, exist_ok=True)
     result, first = {}, {}
     for split in SPLITS:
@@ -150,7 +147,9 @@ def main() -> None:
             run = a.runs_dir / f"{split}_s{seed}"
             m = run_one(a.folder, run, split, seed, a.time_limit_s)
             chosen = json.loads((run / "final" / "summary.json").read_text())["model"]
-            rows.append({"seed": seed, "chosen": chosen, "loo": loo_ssim(run), "quartiles": quartiles(run),
+            _, data, renderer = load_run(run)
+            rows.append({"seed": seed, "chosen": chosen, "loo": loo_ssim(run, data, renderer),
+                         "quartiles": quartiles(run, data),
                          **{k: m[k] for k in (*METHODS, "fit", "num_parameters", "train_time_s", "anchored")}})
             first.setdefault(split, run)
         result[split] = rows

@@ -202,10 +202,10 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
     out = {"pas": np.asarray(pred, np.float32), "positions": q, "how": how, "run": str(rd),
            "dataset": str(data.path), "task": data.task}
     fields = getattr(renderer, "fields", [])
-    if len(fields) == 1 and hasattr(fields[0], "predictive_sd"):      # a field that knows its uncertainty
+    if len(fields) == 1 and hasattr(fields[0], "predictive_sd"):      # a field that states its uncertainty
         f = fields[0]
         out["predictive_sd"] = np.asarray(f.predictive_sd(q), np.float64)
-        out["prior_sd"] = float(np.sqrt(f.hyper["signal_variance"] * (1.0 + f.hyper["nugget"])))
+        out["prior_sd"] = f.prior_sd
     return out
 
 

@@ -40,6 +40,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..core.errors import ConfigError, RunError
+from ..rf.bartlett_ref import normalize as minmax
 from .base import Field, Views, register
 
 #: the largest number of conditioning spectra (weights [N, 90, 360] float32: 648 MB at 5000)
@@ -211,12 +212,17 @@ class GaussianProcessField(Field):
     def predictive_sd(self, positions: np.ndarray) -> np.ndarray:
         """The posterior standard deviation of each pixel at positions float [K, 3] [m]: float64
         [K] (the same for every pixel, on the scale of the normalised spectra); it grows to
-        ``sqrt(s2 (1 + nu))`` far from the training positions."""
+        :attr:`prior_sd` far from the training positions."""
         self._check()
         k = exponential_kernel(positions, self.positions, self.hyper["length_scales_m"])
-        s2, nu = self.hyper["signal_variance"], self.hyper["nugget"]
-        var = s2 * (1.0 + nu - np.einsum("kn,nm,km->k", k, self.precision, k))
+        var = self.prior_sd ** 2 - self.hyper["signal_variance"] * np.einsum("kn,nm,km->k", k, self.precision, k)
         return np.sqrt(np.maximum(var, 0.0))
+
+    @property
+    def prior_sd(self) -> float:
+        """The prior standard deviation of a pixel, ``sqrt(s2 (1 + nu))``: what
+        :meth:`predictive_sd` grows to far from the data."""
+        return float(np.sqrt(self.hyper["signal_variance"] * (1.0 + self.hyper["nugget"])))
 
     def loo_predictions(self) -> np.ndarray:
         """Leave-one-out posterior means at the conditioning positions: float32 [N, H, W] (each
@@ -224,7 +230,9 @@ class GaussianProcessField(Field):
         self._check()
         n = len(self.positions)
         w = self.weights.reshape(n, -1).astype(np.float64)
-        y = self.mean.reshape(1, -1) + np.linalg.inv(self.precision) @ w      # the training spectra: m + C a
+        c = exponential_kernel(self.positions, self.positions, self.hyper["length_scales_m"]) \
+            + self.hyper["nugget"] * np.eye(n)
+        y = self.mean.reshape(1, -1) + c @ w                                  # the training spectra: m + C a
         loo = y - w / np.diag(self.precision)[:, None]
         return loo.reshape(n, *self.shape).astype(np.float32)
 
@@ -301,9 +309,7 @@ class GaussianProcessField(Field):
                 raise ConfigError(f"GaussianProcessField: cannot render {height} x {width} from its {h0} x {w0} grid")
             img = img.reshape(len(img), height, h0 // height, width, w0 // width).mean((2, 4))
         if normalize:
-            lo = img.min((1, 2), keepdims=True)
-            span = img.max((1, 2), keepdims=True) - lo
-            img = np.where(span > 0, (img - lo) / np.where(span > 0, span, 1.0), 0.0)
+            img = minmax(img)
         B.ensure()
         return B.TensorXf(np.ascontiguousarray(img, np.float32))
 

@@ -458,8 +458,7 @@ class Trainer:
                    "num_parameters": sum(s["num_parameters"] for s in summaries),
                    "network_parameters": sum(s.get("network_parameters") or 0 for s in summaries),
                    "val_ssim": val_ssim, "member_val_ssim": [s["val_ssim"] for s in summaries],
-                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
-                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+                   "image": [self.h, self.w], **self._run_facts()}
         _write_json(summary_file, summary)
         return summary
 
@@ -552,6 +551,12 @@ class Trainer:
             self._save_checkpoint(step, field, opt, strategy, rng, train_time, val_hist)
         return self._finish(field, split, step, train_time, val_hist, stopped, strategy)
 
+    def _run_facts(self) -> dict:
+        """What every ``final/summary.json`` records besides the training: the task, the dataset and
+        the machine (its cores and the load at the end)."""
+        return {"task": self.data.task, "dataset": str(self.data.path.resolve()),
+                "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+
     def _condition(self, field: Field, split: dict) -> dict:
         """Train a closed-form field (``Field.closed_form``, e.g. the Gaussian-process field): condition
         it once on the fitting positions' spectra at 90 x 360, validate it, write ``final/`` and one
@@ -570,8 +575,7 @@ class Trainer:
                    "model": self.cfg.model, "num_gaussians": field.num_primitives,
                    "num_parameters": field.num_parameters, "network_parameters": field.network_parameters,
                    "val_ssim": val_ssim, "best_val_ssim": val_ssim, "revert": None, "init": {"hyperparameters": hyper},
-                   "image": [PAS_SHAPE[0], PAS_SHAPE[1]], "task": self.data.task, "dataset": str(self.data.path.resolve()),
-                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+                   "image": [PAS_SHAPE[0], PAS_SHAPE[1]], **self._run_facts()}
         _write_json(fd / "summary.json", summary)
         return summary
 
@@ -739,8 +743,7 @@ class Trainer:
                    "val_ssim": val_ssim, "revert": revert,
                    "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
-                   "image": [self.h, self.w], "task": self.data.task, "dataset": str(self.data.path.resolve()),
-                   "cpu_count": os.cpu_count(), "load_average_1min_at_end": os.getloadavg()[0]}
+                   "image": [self.h, self.w], **self._run_facts()}
         if getattr(field, "init_report", None):   # what the field decided at its start (e.g. a frame fit)
             summary["init"] = field.init_report
         _write_json(fd / "summary.json", summary)
