@@ -30,6 +30,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from .array import COLS, ROWS, SPEED_OF_LIGHT
+from .grid import directions
 
 #: elevation [degrees] of row 0 in the images of a published NeRF2 folder
 NERF2_ELEVATION_START_DEG = 0.0
@@ -45,14 +46,12 @@ def lags(*, rows: int = ROWS, cols: int = COLS) -> np.ndarray:
 def look_directions(height: int = 90, width: int = 360, *, elevation_start_deg: float = 1.0) -> np.ndarray:
     """Unit look directions of an image grid: float64 [height * width, 3], array frame.
 
-    Row ``i`` is elevation ``elevation_start_deg + i * 90 / height`` [degrees], column ``j``
-    azimuth ``j * 360 / width`` [degrees]."""
-    if height < 1 or width < 1 or 90 % height or 360 % width:
+    The PAS grid of :func:`rfmitsuba.rf.grid.directions` with row 0 of the 1-degree grid at
+    ``elevation_start_deg`` [degrees]: at 90 x 360 row ``i`` is elevation ``elevation_start_deg + i``,
+    column ``j`` azimuth ``j`` [degrees]."""
+    if height < 1 or width < 1 or 90 % height or 360 % width or width * 90 != height * 360:
         raise ConfigError(f"an image grid must be 90/d x 360/d, got {height} x {width}")
-    el = np.deg2rad(elevation_start_deg + np.arange(height) * 90.0 / height)
-    az = np.deg2rad(np.arange(width) * 360.0 / width)
-    e, a = np.meshgrid(el, az, indexing="ij")
-    return np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
+    return directions(resolution_deg=90 // height, elevation_start_deg=elevation_start_deg).reshape(-1, 3)
 
 
 def basis(directions: np.ndarray, *, frequency_hz: float, pitch_m: float) -> np.ndarray:

@@ -25,19 +25,22 @@ WIDTH = 360
 PAS_SHAPE = (HEIGHT, WIDTH)
 
 
-def angle_grid(*, resolution_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def angle_grid(*, resolution_deg: float = 1.0, elevation_start_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Elevation and azimuth of every pixel, radians: two float64 [H, W] arrays (H = 90/res,
-    W = 360/res), at the centres of the pixels' blocks of the 1-degree grid (module docstring)."""
+    W = 360/res), at the centres of the pixels' blocks of the 1-degree grid (module docstring).
+
+    ``elevation_start_deg``: the elevation of the 1-degree grid's row 0 [degrees]; 1 is this
+    project's grid, 0 the published NeRF2 folders' (:data:`rfmitsuba.rf.coarray.NERF2_ELEVATION_START_DEG`)."""
     res = float(resolution_deg)
     if not (res >= 1.0) or abs(90.0 / res - round(90.0 / res)) > 1e-9:
         raise ConfigError(f"resolution_deg must be >= 1 and divide 90, got {resolution_deg!r}")
     h, w = int(round(90.0 / res)), int(round(360.0 / res))
-    el = np.deg2rad(np.arange(h) * res + (res + 1.0) / 2.0)
+    el = np.deg2rad((elevation_start_deg - 1.0) + np.arange(h) * res + (res + 1.0) / 2.0)
     az = np.deg2rad(np.arange(w) * res + (res - 1.0) / 2.0)
     return np.meshgrid(el, az, indexing="ij")
 
 
-def directions(*, resolution_deg: float = 1.0) -> np.ndarray:
-    """Unit look directions of every pixel: float64 [H, W, 3], array frame."""
-    el, az = angle_grid(resolution_deg=resolution_deg)
+def directions(*, resolution_deg: float = 1.0, elevation_start_deg: float = 1.0) -> np.ndarray:
+    """Unit look directions of every pixel: float64 [H, W, 3], array frame (options as :func:`angle_grid`)."""
+    el, az = angle_grid(resolution_deg=resolution_deg, elevation_start_deg=elevation_start_deg)
     return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)

@@ -33,3 +33,16 @@ def test_a_coarse_pas_matches_the_block_means_of_the_fine_one():
     coarse = normalize(bartlett(h, frequency_hz=2.4e9, resolution_deg=2))
     diff = np.abs(coarse - normalize(downsample(full, 2)))
     assert diff.mean() < 0.005 and diff.max() < 0.03
+
+
+def test_the_elevation_of_row_0_can_be_moved():
+    """Row 0 at 0 degrees (the published NeRF2 folders' grid): every row one degree lower than this
+    project's, at 1 degree and on a coarser grid's block centres alike; azimuth unchanged."""
+    from rfmitsuba.rf.grid import angle_grid
+
+    for res in (1.0, 2.0):
+        el1, az1 = angle_grid(resolution_deg=res)
+        el0, az0 = angle_grid(resolution_deg=res, elevation_start_deg=0.0)
+        np.testing.assert_allclose(np.degrees(el1 - el0), 1.0, atol=1e-12)
+        np.testing.assert_array_equal(az0, az1)
+    assert np.degrees(angle_grid(elevation_start_deg=0.0)[0][0, 0]) == 0.0
