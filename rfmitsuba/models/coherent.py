@@ -49,7 +49,7 @@ from ..rf.bartlett import bartlett
 from ..rf.images import ImageMaps, scene_image_maps
 from .base import Field, Views, flat_parameters, register
 from .nn import MLP
-from .splat import columns, write_ply_arrays
+from ._points import columns32, write_points_ply
 
 
 @dataclass
@@ -88,14 +88,6 @@ class CoherentConfig:
 FORMAT = "rfmitsuba-coherent-field/1"
 
 
-def _columns(a: np.ndarray) -> list:
-    """float [K, C] -> list of C ``Float`` [K], gathered from one device buffer
-    (:func:`rfmitsuba.models.splat.columns`: kernels stay independent of the host arrays' values and
-    alignment, so they compile once)."""
-
-    return columns(np.asarray(a, np.float32).reshape(len(a), -1))
-
-
 def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) -> list:
     """Network inputs of every (view b, item i[, family c]) lane, view-major
     ``(b*n + i)*repeat + c``: the view's inputs (host data float [nb, D], no gradient) followed by
@@ -111,7 +103,7 @@ def _pair_inputs(view: np.ndarray, embed, n: int, e: int, *, repeat: int = 1) ->
     lane = dr.arange(B.UInt32, len(view) * per_pair)
     b = lane // per_pair                  # literal divisors: multiplications, not vector divisions
     i = (lane // repeat) % n
-    cols = [dr.gather(B.Float, c, b) for c in _columns(view)] if view.shape[1] else []
+    cols = [dr.gather(B.Float, c, b) for c in columns32(view)] if view.shape[1] else []
     return cols + [dr.gather(B.Float, embed, i * e + c) for c in range(e)]
 
 
@@ -125,16 +117,6 @@ def _extra_array(extra, nb: int, n: int) -> np.ndarray:
     if e.shape[1] < n or not np.isfinite(e[:, :n]).all():
         raise ConfigError(f"extra inputs must be finite [B, >= {n}], got shape {e.shape}")
     return e[:, :n]
-
-
-def _write_points_ply(path: str | Path, points: np.ndarray, magnitude: np.ndarray) -> Path:
-    """Points (float [N, 3] metres) as small isotropic Gaussians (5 cm) in the 3DGS PLY layout, with
-    opacity and signal the magnitude relative to the largest, so a splat viewer shows them."""
-
-    rel = np.clip(magnitude / max(float(np.max(magnitude)), 1e-30), 1e-6, 1 - 1e-6)
-    n = len(points)
-    return write_ply_arrays(path, points, np.full((n, 3), np.log(0.05)), np.tile([1.0, 0, 0, 0], (n, 1)),
-                            np.log(rel / (1 - rel)), signal=rel)
 
 
 def _cmul(ar, ai, br, bi) -> tuple:
@@ -164,7 +146,7 @@ def sum_terms(wr, wi, ur: list, nb: int, t: int, *, frequency_hz: float) -> tupl
     m = bm % M
     b = bm // M
     src = b * t + ti
-    ex, ey, ez = (dr.gather(B.Float, c, m) for c in _columns(e))
+    ex, ey, ez = (dr.gather(B.Float, c, m) for c in columns32(e))
     ph = k * (ex * dr.gather(B.Float, ur[0], src) + ey * dr.gather(B.Float, ur[1], src)
               + ez * dr.gather(B.Float, ur[2], src))
     c, s = dr.cos(ph), dr.sin(ph)
@@ -304,7 +286,7 @@ class CoherentField(CoherentFamily):
         self.load_state_dict(params)
         self.frozen = False
         #: the image maps as 12 device columns (row r of A_i, then b_i[r], for r = 0, 1, 2), uploaded once
-        self._maps_cols = _columns(np.concatenate([maps.A, maps.b[:, :, None]], axis=2).reshape(-1, 12))
+        self._maps_cols = columns32(np.concatenate([maps.A, maps.b[:, :, None]], axis=2).reshape(-1, 12))
 
     @classmethod
     def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator | None = None,
@@ -398,8 +380,8 @@ class CoherentField(CoherentFamily):
         lane = dr.arange(B.UInt32, nb * S)
         i = lane % S                                        # S a literal: no vector division
         b = lane // S
-        xb = [dr.gather(B.Float, c, b) for c in _columns(x)]
-        yb = [dr.gather(B.Float, c, b) for c in _columns(y)]
+        xb = [dr.gather(B.Float, c, b) for c in columns32(x)]
+        yb = [dr.gather(B.Float, c, b) for c in columns32(y)]
         A = [dr.gather(B.Float, c, i) for c in self._maps_cols]
         d = [A[4 * r] * yb[0] + A[4 * r + 1] * yb[1] + A[4 * r + 2] * yb[2] + A[4 * r + 3] - xb[r] for r in range(3)]
         L = dr.maximum(dr.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-3)
@@ -442,7 +424,7 @@ class CoherentField(CoherentFamily):
         """The sources as small isotropic Gaussians in the 3DGS PLY layout (opacity = |amp| relative
         to the largest, signal = the same), so a splat viewer shows the virtual sources."""
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(-1, 2)
-        return _write_points_ply(path, self.source_points(x=x, y=y, task=task), np.hypot(a[:, 0], a[:, 1]))
+        return write_points_ply(path, self.source_points(x=x, y=y, task=task), np.hypot(a[:, 0], a[:, 1]))
 
     kind = "coherent"
     format = FORMAT

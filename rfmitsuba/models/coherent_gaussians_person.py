@@ -55,8 +55,9 @@ from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
 from ..data.samples import num_human_features
 from .base import FlatParameterField, Views, register
-from .coherent import _columns, _write_points_ply
-from .coherent_gaussians import CoherentGaussianField, _jit_arrays
+from ._points import columns32, write_points_ply
+from .coherent_gaussians import CoherentGaussianField
+from .coherent_gaussians.field import _jit_arrays
 
 FORMAT = "rfmitsuba-coherent-gaussians-person/1"
 
@@ -310,7 +311,7 @@ class CoherentGaussianPersonField(FlatParameterField):
         """The host part of :meth:`channels`: the background's (``"bg"``), the person's position
         columns (``"h"``) and, with ``with_background``, the presence (``"pres"``, ``Float`` [B])."""
         prep = {"bg": self.bg.prepare(views)}
-        prep["h"] = _columns(self.person_position(views))
+        prep["h"] = columns32(self.person_position(views))
         if with_background is not None:
             prep["pres"] = B.Float(np.asarray(with_background, np.float32).reshape(prep["bg"]["nb"]))
         return prep
@@ -380,4 +381,4 @@ class CoherentGaussianPersonField(FlatParameterField):
         if not self.cfg.num_points:
             return []
         a = np.asarray(self.params["sc_amp"].numpy(), np.float64).reshape(-1, 2)
-        return [_write_points_ply(Path(folder) / "sources.ply", self.offsets(), np.hypot(a[:, 0], a[:, 1]))]
+        return [write_points_ply(Path(folder) / "sources.ply", self.offsets(), np.hypot(a[:, 0], a[:, 1]))]

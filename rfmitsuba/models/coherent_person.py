@@ -34,11 +34,10 @@ from .coherent import (
     CoherentFamily,
     CoherentField,
     _cmul,
-    _columns,
     _pair_inputs,
-    _write_points_ply,
     sum_terms,
 )
+from ._points import columns32, write_points_ply
 from .nn import MLP
 
 HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
@@ -212,7 +211,7 @@ class CoherentPersonField(CoherentFamily):
         off = [self.cfg.max_offset * dr.tanh(v) for v in self.deform(_pair_inputs(feats, self.params["embed"], K, E))]
         lane = dr.arange(B.UInt32, nb * K)
         ki, bi = lane % dr.opaque(B.UInt32, K), lane // dr.opaque(B.UInt32, K)
-        hp = _columns(hpos)
+        hp = columns32(hpos)
         s = [dr.gather(B.Float, hp[c], bi) + dr.gather(B.Float, self.params["offsets"], 3 * ki + c) + off[c]
              for c in range(3)]
         # per (view, point, path family) lanes: t = (b*K + k)*C + c
@@ -223,10 +222,10 @@ class CoherentPersonField(CoherentFamily):
         bi = bk // dr.opaque(B.UInt32, K)
         ki = bk % dr.opaque(B.UInt32, K)
         P = np.einsum("cij,bj->bci", self.paths["pre_A"], y) + self.paths["pre_b"]  # [B, C, 3]
-        Pc = _columns(P.reshape(-1, 3))
-        Ac = _columns(self.paths["post_A"].reshape(C, 9))
-        bc = _columns(self.paths["post_b"])
-        xc = _columns(x)
+        Pc = columns32(P.reshape(-1, 3))
+        Ac = columns32(self.paths["post_A"].reshape(C, 9))
+        bc = columns32(self.paths["post_b"])
+        xc = columns32(x)
         bcx = bi * dr.opaque(B.UInt32, C) + ci
         st = [dr.gather(B.Float, s[c], bk) for c in range(3)]
         d1 = [st[c] - dr.gather(B.Float, Pc[c], bcx) for c in range(3)]
@@ -254,7 +253,7 @@ class CoherentPersonField(CoherentFamily):
         from the mean |amplitude| of each point relative to the largest."""
         off = np.asarray(self.params["offsets"].numpy(), np.float64).reshape(-1, 3)
         a = np.asarray(self.params["amp"].numpy(), np.float64).reshape(len(off), -1, 2)
-        return _write_points_ply(path, off, np.hypot(a[..., 0], a[..., 1]).mean(axis=1))
+        return write_points_ply(path, off, np.hypot(a[..., 0], a[..., 1]).mean(axis=1))
 
     kind = "coherent_person"
     format = HUMAN_FORMAT
@@ -414,7 +413,7 @@ class CoherentPerturbField(CoherentFamily):
         gr, gi = dr.detach(gr), dr.detach(gi)
         view = np.concatenate([self.bg._enc(q), e[:, :F]], axis=1)
         legs = leg_features(self.bg.maps, x, y, e[:, F:]) * np.array([1.0, 0.5, 1.0, 0.5], np.float32)
-        o = self.net(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + u + _columns(legs))
+        o = self.net(_pair_inputs(view, self.params["embed"], S, self.cfg.embed) + u + columns32(legs))
         sc = self.cfg.modulation
         wr, wi = _cmul(gr, gi, sc * o[0], sc * o[1])
         return sum_terms(*_cmul(wr, wi, pr, pi), u, nb, S, frequency_hz=self.frequency_hz)

@@ -341,7 +341,7 @@ def test_known_room_visibility_and_through_gain_gradients():
 def test_path_visibility_cache_is_bounded(monkeypatch):
     """Ray-cast visibility is remembered for at most VIS_CACHE_VIEWS views; past that, new views
     (jittered training views are each seen once) are cast every time, with the same result."""
-    from rfmitsuba.models import coherent_gaussians as cg
+    from rfmitsuba.models.coherent_gaussians import field as cg
 
     f, views = _room_field()
     want = f.path_trace(views.view_pos, views.transmitter)
@@ -580,12 +580,14 @@ def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
     config is kept. Only the fine grid advises DENSE_EPOCHS passes over the data."""
     from rfmitsuba.core import config as C
     from rfmitsuba.models import coherent_gaussians as cg
+    from rfmitsuba.models.coherent_gaussians import field, geometry
     from rfmitsuba.train.config import TrainConfig
 
-    assert cg.default_vis_grid(init="data", num_positions=cg.DENSE_POSITIONS) == cg.DENSE_VIS_GRID == (8, 8, 4)
-    assert cg.default_vis_grid(init="data", num_positions=cg.DENSE_POSITIONS - 1) == cg.DEFAULT_VIS_GRID
-    assert cg.default_vis_grid(init="room", num_positions=10 * cg.DENSE_POSITIONS) == cg.DEFAULT_VIS_GRID
-    monkeypatch.setattr(cg, "DENSE_POSITIONS", 10)     # the stub's 10 positions count as dense
+    assert cg.default_vis_grid(init="data", num_positions=geometry.DENSE_POSITIONS) == geometry.DENSE_VIS_GRID \
+        == (8, 8, 4)
+    assert cg.default_vis_grid(init="data", num_positions=geometry.DENSE_POSITIONS - 1) == cg.DEFAULT_VIS_GRID
+    assert cg.default_vis_grid(init="room", num_positions=10 * geometry.DENSE_POSITIONS) == cg.DEFAULT_VIS_GRID
+    monkeypatch.setattr(geometry, "DENSE_POSITIONS", 10)     # the stub's 10 positions count as dense
     data, _, _ = _stub_training_data(10, seed=1)
     small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
     f = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
@@ -594,7 +596,7 @@ def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
                                               data, scene_xml=None)
     assert g.grid_cells == 8
     # the fine grid learns cell by cell: it asks for passes over the data (TrainConfig.epochs = -1)
-    assert f.epochs_advised == cg.DENSE_EPOCHS == 40.0 and g.epochs_advised == 0.0
+    assert f.epochs_advised == field.DENSE_EPOCHS == 40.0 and g.epochs_advised == 0.0
 
 
 def test_frame_search_starts_the_pose_at_the_corrected_frame():
@@ -719,7 +721,7 @@ def test_positions_within_the_beam_get_the_scan_and_wider_ones_the_pursuit():
     tags in a patch 5 m from the gateway a few degrees (scan, 12 planes); explicit settings win."""
     from types import SimpleNamespace
 
-    from rfmitsuba.models.coherent_gaussians import (SCAN_PLANES, CoherentGaussianConfig, position_spread_deg,
+    from rfmitsuba.models.coherent_gaussians.geometry import (SCAN_PLANES, CoherentGaussianConfig, position_spread_deg,
                                                      scan_planes, spreads_wide, uses_pursuit)
 
     rng = np.random.default_rng(0)
@@ -1003,7 +1005,7 @@ def test_pas_lookup_reads_the_pixel_of_its_own_direction(h):
 def test_greedy_picks_as_scoring_every_direction_at_every_pick():
     """The scan's greedy pursuit turns candidate directions into pixels once; its picks match
     scoring every candidate's directions anew at every pick (the definition)."""
-    from rfmitsuba.models.coherent_gaussians import _greedy, _Residual, _unit
+    from rfmitsuba.models.coherent_gaussians.scan import _greedy, _Residual, _unit
 
     rng = np.random.default_rng(7)
     pas = rng.random((12, 45, 180))

@@ -1,0 +1,68 @@
+"""The array model of the coherent Gaussian field: the mutual coupling's pattern, the array's pose
+rotation, and the read-out of calibrated channels (amplitude or phase-only Bartlett)."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from ...core.errors import ConfigError
+from ...rf import array as antenna
+from ...rf.bartlett import bartlett
+from ..base import Views
+
+
+def coupling_index(model: str = "neighbours") -> np.ndarray:
+    """Which learned coupling coefficient each entry ``K[m, n]`` of the mutual coupling ``I + K``
+    of the 4 x 4 array takes: int64 [16, 16], -1 where ``K[m, n] = 0``.
+
+    ``"neighbours"``: a reciprocal coupling (``K = K^T``, as for any passive array) between
+    elements that are row, column or diagonal neighbours (42 pairs, 84 parameters); elements
+    farther apart and ``K[m, m]`` (a per-element gain, which the calibration already holds)
+    take none. ``"full"``: every entry its own coefficient (256, 512 parameters).
+    """
+    M = antenna.NUM_ELEMENTS
+    if model == "full":
+        return np.arange(M * M, dtype=np.int64).reshape(M, M)
+    if model != "neighbours":
+        raise ConfigError(f"coupling model must be 'neighbours' or 'full', got {model!r}")
+    r, c = np.divmod(np.arange(M), antenna.COLS)
+    near = (np.abs(r[:, None] - r[None]) <= 1) & (np.abs(c[:, None] - c[None]) <= 1) & ~np.eye(M, dtype=bool)
+    out = np.full((M, M), -1, np.int64)
+    m, n = np.nonzero(np.triu(near, 1))
+    out[m, n] = out[n, m] = np.arange(len(m))
+    return out
+
+def coupling_size(model: str = "neighbours") -> int:
+    """Learned complex coupling coefficients of ``model`` (:func:`coupling_index`)."""
+    return int(coupling_index(model).max()) + 1
+
+def _rodrigues(w0, w1, w2, v0, v1, v2):
+    """Rotate vectors ``v`` by the rotation vector ``w`` (Dr.Jit arrays, broadcast)."""
+    import drjit as dr
+
+    th = dr.sqrt(w0 * w0 + w1 * w1 + w2 * w2 + 1e-24)
+    k0, k1, k2 = w0 / th, w1 / th, w2 / th
+    c, s = dr.cos(th), dr.sin(th)
+    kv = k0 * v0 + k1 * v1 + k2 * v2
+    cx0, cx1, cx2 = k1 * v2 - k2 * v1, k2 * v0 - k0 * v2, k0 * v1 - k1 * v0
+    return (v0 * c + cx0 * s + k0 * kv * (1 - c), v1 * c + cx1 * s + k1 * kv * (1 - c),
+            v2 * c + cx2 * s + k2 * kv * (1 - c))
+
+def summed_channels(fields: list, views: Views) -> tuple:
+    """The calibrated channels of ``fields`` (coherent Gaussian family) added: (re, im) ``Float`` [B*16]."""
+    hr = hi = None
+    for f in fields:
+        fr, fi = f.channels(views)
+        hr, hi = (fr, fi) if hr is None else (hr + fr, hi + fi)
+    return hr, hi
+
+def read_out(h_re, h_im, *, readout: str, frequency_hz: float, height: int, width: int, normalize: bool):
+    """PAS of calibrated channels (re, im) ``Float`` [B*16]: the amplitude Bartlett, or for
+    ``readout = "phase_only"`` the Bartlett of ``h_m / |h_m|`` (NeRF2's measured spectra):
+    ``TensorXf`` [B, height, width], differentiable in the channels."""
+    import drjit as dr
+
+    if readout == "phase_only":
+        mag = dr.sqrt(h_re * h_re + h_im * h_im + 1e-20)
+        h_re, h_im = h_re / mag, h_im / mag
+    return bartlett(h_re, h_im, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize)

@@ -1,0 +1,151 @@
+"""The Stage-1 initial coherent Gaussian field from a dataset (:func:`initial_field`): the room's image
+sources or the data scan, scatterers, and the line-of-sight frame and calibration fits."""
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ...core import backend as B
+from ...core.errors import ConfigError
+from ...rf.calibration_fit import los_calibration_fit
+from ...rf.frame_fit import los_frame_fit
+from ...rf.images import ImageMaps, scene_image_maps
+from .field import CoherentGaussianField
+from .geometry import compose_images, default_vis_grid, room_box_planes, scan_planes
+from .scan import scan
+
+
+#: most training spectra the initial scan reads (evenly spread over the training samples)
+SCAN_SAMPLES = 1024
+
+#: a frame fit gaining at least this much line-of-sight correlation over the stated frame warns
+#: (a right frame gained 0.002 on NeRF2-like data, one 25 / 45 degrees off 0.023 / 0.66)
+FRAME_WARN_GAIN = 0.05
+
+def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, name: str = "bg",
+                  field_class: type | None = None) -> CoherentGaussianField:
+    """The Stage-1 initial field: the room's image sources (known room) or the data scan
+    (unknown room), plus scanned scatterers; read-out and wavefront resolved from the dataset.
+
+    Args:
+        cfg: the :class:`~rfmitsuba.train.config.TrainConfig` (``coherent_gaussians``, ``seed``).
+        data: the :class:`~rfmitsuba.data.views.TrainData`; only its training positions and
+            PAS are read.
+        scene_xml: the room's XML, or None when it is unknown.
+        extra_inputs: must be 0 (this field takes no per-view network inputs).
+        name: the field's name; field_class: a subclass of :class:`CoherentGaussianField` to build.
+    """
+    if extra_inputs:
+        raise ConfigError("model 'coherent_gaussians' takes no extra per-view inputs (its End-to-End model is "
+                          "the joint field, rfmitsuba.models.coherent_gaussians_joint)")
+    c = cfg.coherent_gaussians
+    init = c.init if c.init != "auto" else ("room" if scene_xml is not None else "data")
+    if init == "room" and c.room_box is not None:
+        raise ConfigError(f"coherent_gaussians.room_box describes an unknown room, but dataset {data.path} is "
+                          f"trained from its scene's XML (init 'room'); set coherent_gaussians.init=data to "
+                          f"train it as an unknown room with that box")
+    if init == "room" and scene_xml is None:
+        raise ConfigError(f"coherent_gaussians.init = 'room' but dataset {data.path} names no scene")
+    measured = bool(getattr(data, "measured", False))
+    readout = c.readout if c.readout != "auto" else str(getattr(data, "readout", "amplitude"))
+    wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
+    idx = np.asarray(data.train, np.int64)
+    x, y, q = data.positions(idx)
+    if c.vis_grid is None:
+        c = dataclasses.replace(c, vis_grid=default_vis_grid(init=init, num_positions=len(np.unique(q, axis=0))))
+    depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
+    min_seg = getattr(data, "min_segment", None) if c.segment_limit else None   # and its shortest segment
+    # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many
+    # states, e.g. 720 positions x 30 walk states, would otherwise load 2.8 GB of PAS)
+    scan_idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), SCAN_SAMPLES)).astype(np.int64))]
+    xs, ys, _ = data.positions(scan_idx)
+    pas = data.pas(scan_idx, d=2)
+    if init == "room":
+        from ...sim.geometry import RoomGeometry
+
+        maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
+                                furniture_order=c.furniture_order, min_face_area=c.min_face_area,
+                                distinct_paths=c.ray_visibility, furniture_planes=c.furniture_planes)
+        if c.ray_visibility and c.prune_unseen:
+            # parsimony: an image whose path exists at no training position has no gradient
+            from ...sim.visibility import SpecularVisibility
+
+            xy = np.unique(np.concatenate([x, y], axis=1), axis=0)      # each geometry once
+            tr = SpecularVisibility.from_xml(scene_xml).trace(xy[:, :3], xy[:, 3:], maps.planes, maps.order)
+            seen = tr.within_depth(maps.order, depth).without_short_segments(min_seg).exists.any(0)
+            seen[maps.order == 0] = True
+            maps = ImageMaps(A=maps.A[seen], b=maps.b[seen], order=maps.order[seen],
+                             label=[lb for lb, k in zip(maps.label, seen) if k], planes=maps.planes[seen])
+        A, order = maps.A, maps.order
+        b0 = maps.b
+    stated = np.eye(3) if data.rx_to_world is None else np.asarray(data.rx_to_world, np.float64)
+    frame, report = stated, {}
+    search = c.frame_search if c.frame_search != "auto" else ("report" if measured and init == "data" else "off")
+    if search != "off":
+        fit = los_frame_fit(pas, xs, ys, rx_to_world=stated, frequency_hz=data.frequency_hz)
+        applied = search == "apply" and fit.gain >= c.frame_min_gain
+        if fit.gain >= FRAME_WARN_GAIN:
+            warnings.warn(f"{data.path}: the stated array frame draws the line of sight worse than a frame "
+                          f"{fit.angle_deg:.0f} degrees away (correlation {fit.stated_score:.2f} against "
+                          f"{fit.score:.2f}); check the gateway orientation"
+                          + (" (training starts from the fitted frame)" if applied else
+                             " (coherent_gaussians.frame_search = 'apply' starts from the fitted frame)"),
+                          stacklevel=2)
+        report["frame_fit"] = {"applied": bool(applied), "angle_deg": fit.angle_deg,
+                               "rotvec_rad": fit.rotvec.tolist(), "score": fit.score,
+                               "stated_score": fit.stated_score, "min_gain": c.frame_min_gain}
+        if applied:
+            frame = fit.rx_to_world(stated)
+    cal_search = c.calibration_search if c.calibration_search != "auto" else \
+        ("apply" if readout == "phase_only" and init == "data" and c.calibrate else "off")
+    if cal_search == "apply":
+        cal_fit = los_calibration_fit(pas, xs, ys, rx_to_world=frame, frequency_hz=data.frequency_hz,
+                                      seed=cfg.seed)
+        twin = c.calibration_twin == "other"
+        report["calibration_fit"] = {"applied": bool(cal_fit.gain >= c.calibration_min_gain),
+                                     "phase_deg": np.degrees(cal_fit.twin_phase_rad if twin
+                                                             else cal_fit.phase_rad).tolist(),
+                                     "twin": "other" if twin else "nearer",
+                                     "score": cal_fit.twin_score if twin else cal_fit.score,
+                                     "stated_score": cal_fit.stated_score,
+                                     "min_gain": c.calibration_min_gain}
+    found = scan(pas, xs, ys, images=0 if init == "room" else scan_planes(c, data),
+                 scatterers=c.room_scatterers if init == "room" else c.scatterers,
+                 step=c.scan_step, margin=c.scan_margin, rx_to_world=frame,
+                 radius_deg=c.room_scan_radius_deg if init == "room" else c.scan_radius_deg)
+    if init != "room":
+        planes_A, planes_b = found["A"], found["b"]
+        if c.room_box is not None:
+            box_A, box_b = room_box_planes(c.room_box, np.concatenate([x, y, q]))
+            planes_A, planes_b = np.concatenate([planes_A, box_A]), np.concatenate([planes_b, box_b])
+        A, b0, order = compose_images(planes_A, planes_b, max_order=c.image_order)
+    sc = found["points"]
+    # a scatterer's spreading is |y-p||p-x| against the direct path's |y-x|: start it at
+    # ``scatterer_gain`` of the direct path at the median view
+    if len(sc):
+        l1 = np.linalg.norm(y[:, None] - sc[None], axis=-1)
+        l2 = np.linalg.norm(sc[None] - x[:, None], axis=-1)
+        scale = float(np.median(l1 * l2 / np.maximum(np.linalg.norm(y - x, axis=-1), 1e-3)[:, None]))
+    else:
+        scale = 1.0
+    ray = init == "room" and c.ray_visibility
+    f = (field_class or CoherentGaussianField)(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
+            frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
+            planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
+            max_depth=depth, min_segment=min_seg)
+    f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
+    f.init_report = report
+    if report.get("calibration_fit", {}).get("applied"):
+        ph = np.radians(np.asarray(report["calibration_fit"]["phase_deg"], np.float64))
+        f.params["cal"] = B.Float(np.stack([np.cos(ph), np.sin(ph)], 1).ravel().astype(np.float32))
+    if report.get("frame_fit", {}).get("applied"):
+        # the pose rotates the stated frame's element offsets in the world: rot(w) R = R C^T
+        w = -stated @ np.asarray(report["frame_fit"]["rotvec_rad"])
+        f.params["pose"] = B.Float(np.concatenate([w, np.zeros(3)]).astype(np.float32))
+    if f.grid_cells:   # the training positions' box, padded by 5% (at least 1 mm) each side
+        pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
+        f.params["vis_grid_box"] = B.Float(np.concatenate([q.min(0) - pad, q.max(0) + pad]).astype(np.float32))
+    return f
