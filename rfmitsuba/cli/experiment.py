@@ -19,8 +19,8 @@ def register(sub) -> None:
                    help="splits: comma-separated field kinds (default coherent_gaussians,splat; 'auto' is what "
                         "`rfmitsuba train` picks)")
     p.add_argument("--seeds", default="0,1,2", help="splits: comma-separated training seeds (default 0,1,2)")
-    p.add_argument("--tag", default="", help="splits: a name for this call's settings (e.g. members5 with "
-                                             "--set members=5): its rows and run folders are <field>-<tag>")
+    p.add_argument("--tag", default="", help="splits: a name for this call's settings (e.g. long with "
+                                             "--set iterations=12000): its rows and run folders are <field>-<tag>")
     p.add_argument("--quick", action="store_true", help="quick training config and small counts")
     t = p.add_argument_group("truth", "generate the same positions with the synthetic and the exact array "
                                       "(rfmitsuba.experiments.truth) and compare channels and PAS")

@@ -20,6 +20,9 @@ def register(sub) -> None:
                    help="test positions: the dataset's own split (a NeRF2 folder's published index files), "
                         "'block' (the 20%% of positions with the largest x, a held-out slab) or 'random' "
                         "(seeded 80/20); same as --set split=...")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print every 'auto' the run would decide, with the reason for each (RUN/resolved.toml of a "
+                        "real run), and exit: nothing is trained or written")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -44,12 +47,14 @@ def build_config(args):
 
 
 def run(args) -> int:
-    from ..train.trainer import train
+    from ..train.trainer import dry_run, train
 
     cfg = build_config(args)
+    if args.dry_run:
+        print(dry_run(args.dataset, cfg=cfg), end="")
+        return 0
     s = train(args.dataset, args.out, cfg=cfg, quiet=args.quiet)
-    members = f" ({s['members']} members, their mean PAS)" if s.get("members", 1) > 1 else ""
-    print(f"run {Path(args.out)}{members}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} "
+    print(f"run {Path(args.out)}: {s['steps']} steps in {s['train_time_s']:.1f} s, {s['num_gaussians']} "
           f"Gaussians, {s['num_parameters']} parameters, {validation_text(s, cfg)}")
     print(f"next: rfmitsuba eval {args.out}")
     return 0

@@ -6,6 +6,14 @@ of those, or another dataclass. :func:`from_dict` checks types and rejects
 unknown keys with a :class:`~rfmitsuba.core.errors.ConfigError` naming the key; no
 ``eval`` and no pickle are involved.
 
+Removed options: a config class may list the options it no longer has in a class attribute
+``removed_options`` (option -> the value under which it behaved as the code does now, or None
+where the option only steered training) and the values it no longer takes in
+``removed_values`` (option -> {old value: the value that rebuilds the same thing}). A saved file
+(``saved=True``: a run's ``config.toml``, a field's state) that names them loads without them
+where that is exact, and is refused, naming the option, where it is not; a user's file that names
+a removed option is told so.
+
 Example::
 
     @dataclass
@@ -18,6 +26,7 @@ Example::
 """
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import json
 import math
@@ -33,6 +42,9 @@ from .atomic import write_text
 from .errors import ConfigError
 
 T = TypeVar("T")
+
+#: True while a saved file is read (:func:`from_dict` with ``saved=True``): removed options load
+_READING_SAVED = contextvars.ContextVar("rfmitsuba_reading_saved", default=False)
 
 
 def to_dict(cfg: Any) -> dict:
@@ -121,11 +133,53 @@ def _check(tp: Any, value: Any, where: str) -> Any:
     return value
 
 
-def from_dict(cls: type[T], data: dict, *, where: str | None = None) -> T:
-    """Build config ``cls`` from ``data``, checking every type; unknown keys are an error."""
+def _without_removed(cls: type, data: dict, where: str) -> dict:
+    """``data`` without the options ``cls`` removed, and with its removed values replaced (the
+    module docstring); ConfigError where that would not rebuild the same thing, or where a user's
+    file names a removed option."""
+    removed = getattr(cls, "removed_options", {})
+    values = getattr(cls, "removed_values", {})
+    saved = _READING_SAVED.get()
+    out = {}
+    for k, v in data.items():
+        if k in removed:
+            same = removed[k]
+            if not saved:
+                raise ConfigError(f"{where}.{k}: this option was removed (it did not help; see the changelog); "
+                                  f"delete it from the configuration")
+            if same is not None and v != same:
+                raise ConfigError(f"{where}.{k} = {v!r}: this saved file used an option that was removed; this "
+                                  f"version cannot rebuild what it made (only {same!r} loads)")
+            continue
+        if k in values and _hashable_scalar(v) and v in values[k]:
+            if not saved:
+                raise ConfigError(f"{where}.{k} = {v!r}: this value was removed (it did not help; see the "
+                                  f"changelog)")
+            v = values[k][v]
+        out[k] = v
+    return out
+
+
+def _hashable_scalar(v) -> bool:
+    return v is None or (isinstance(v, (int, float, str)) and not isinstance(v, bool))
+
+
+def from_dict(cls: type[T], data: dict, *, where: str | None = None, saved: bool | None = None) -> T:
+    """Build config ``cls`` from ``data``, checking every type; unknown keys are an error.
+
+    ``saved``: ``data`` comes from a file this package wrote (removed options load, the module
+    docstring); None: as the enclosing call says (False at the top).
+    """
+    if saved is not None:
+        token = _READING_SAVED.set(saved)
+        try:
+            return from_dict(cls, data, where=where)
+        finally:
+            _READING_SAVED.reset(token)
     where = where or cls.__name__
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a table, got {type(data).__name__}")
+    data = _without_removed(cls, data, where)
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - names)
@@ -151,13 +205,13 @@ def to_toml(cfg: Any) -> str:
     return tomli_w.dumps(_drop_none(to_dict(cfg)))
 
 
-def from_toml(cls: type[T], text: str) -> T:
-    """Parse TOML text into config ``cls``."""
+def from_toml(cls: type[T], text: str, *, saved: bool = False) -> T:
+    """Parse TOML text into config ``cls`` (``saved``: as :func:`from_dict`)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{cls.__name__}: malformed TOML: {e}") from None
-    return from_dict(cls, data)
+    return from_dict(cls, data, saved=saved)
 
 
 def to_json(cfg: Any) -> str:
@@ -165,22 +219,23 @@ def to_json(cfg: Any) -> str:
     return json.dumps(to_dict(cfg), indent=2, sort_keys=True, allow_nan=False)
 
 
-def from_json(cls: type[T], text: str) -> T:
-    """Parse JSON text into config ``cls``."""
+def from_json(cls: type[T], text: str, *, saved: bool = False) -> T:
+    """Parse JSON text into config ``cls`` (``saved``: as :func:`from_dict`)."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise ConfigError(f"{cls.__name__}: malformed JSON: {e}") from None
-    return from_dict(cls, data)
+    return from_dict(cls, data, saved=saved)
 
 
-def load(cls: type[T], path: str | Path) -> T:
-    """Read a ``.toml`` or ``.json`` file into config ``cls``."""
+def load(cls: type[T], path: str | Path, *, saved: bool = False) -> T:
+    """Read a ``.toml`` or ``.json`` file into config ``cls`` (``saved``: a file this package
+    wrote, such as a run's ``config.toml``: as :func:`from_dict`)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {path} does not exist")
     text = path.read_text()
-    return from_json(cls, text) if path.suffix == ".json" else from_toml(cls, text)
+    return from_json(cls, text, saved=saved) if path.suffix == ".json" else from_toml(cls, text, saved=saved)
 
 
 def save(cfg: Any, path: str | Path) -> None:
@@ -203,13 +258,16 @@ def override(cfg: T, assignments: list[str]) -> T:
             value = tomllib.loads(f"v = {raw}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw  # bare strings need no quotes on the command line
-        node = data
+        node, owner = data, type(cfg)
         parts = key.strip().split(".")
         for p in parts[:-1]:
             if not isinstance(node.get(p), dict):
                 raise ConfigError(f"override {key!r}: {p!r} is not a section of {type(cfg).__name__}")
-            node = node[p]
+            node, owner = node[p], typing.get_type_hints(owner).get(p)
         if parts[-1] not in node:
+            if parts[-1] in getattr(owner, "removed_options", {}):
+                raise ConfigError(f"override {key!r}: {parts[-1]}: this option was removed (it did not help; see "
+                                  "the changelog)")
             raise ConfigError(f"override {key!r}: unknown option {parts[-1]!r}")
         node[parts[-1]] = value
     return from_dict(type(cfg), data)

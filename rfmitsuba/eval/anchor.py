@@ -15,9 +15,7 @@ their inverse-distance weights (:func:`rfmitsuba.eval.metrics.neighbour_weights`
 trusts the field's differences fully.
 
 ``(k, alpha)`` are chosen by :func:`choose` on the run's **validation positions**, which the
-trainer held out of fitting (with ``TrainConfig.val_positions = "slab"`` on a block split, the
-outer slab of the training block, so the choice sees extrapolation too; by default positions
-drawn at random), with anchors from the fitting positions only: no test spectrum
+trainer held out of fitting (drawn at random among the training positions), with anchors from the fitting positions only: no test spectrum
 chooses them. The field alone is a candidate too; choosing ``alpha = 0`` says the field's
 changes do not help beyond the lookup.
 """

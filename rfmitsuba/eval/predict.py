@@ -31,7 +31,6 @@ from ..core.atomic import write_json
 from ..core.errors import ConfigError, DatasetError, PlacementError, RunError
 from ..core.folder_lock import holds_work
 from ..models.base import FieldSet, Views
-from ..models.members import FieldMean, mean_image
 from ..models.coherent_gaussians import outside_room_box
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
@@ -78,17 +77,14 @@ def views_at(data, positions: np.ndarray) -> Views:
                  frequency_hz=float(data.frequency_hz), task=data.task)
 
 
-def render_at(renderer: FieldSet | FieldMean, data, positions: np.ndarray, *, batch: int = 8) -> np.ndarray:
-    """Raw PAS of the run's fields at ``positions``: float32 [K, 90, 360] (an ensemble's
-    (:class:`~rfmitsuba.models.members.FieldMean`): the mean of its members' normalised PAS)."""
+def render_at(renderer: FieldSet, data, positions: np.ndarray, *, batch: int = 8) -> np.ndarray:
+    """Raw PAS of the run's fields at ``positions`` (float [K, 3] [m]): float32 [K, 90, 360]."""
     import drjit as dr
 
     from ..models.base import render
 
     if any(f.extra_inputs or f.person for f in renderer.fields):
         raise ConfigError("predict renders Stage-1 fields only (this run's field takes per-view inputs)")
-    if isinstance(renderer, FieldMean):
-        return mean_image([render_at(m, data, positions, batch=batch) for m in renderer.members])
     q = np.asarray(positions, np.float64).reshape(-1, 3)
     out = np.zeros((len(q), 90, 360), np.float32)
     for i in range(0, len(q), batch):

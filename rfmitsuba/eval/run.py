@@ -21,7 +21,6 @@ import numpy as np
 
 from ..core.errors import RunError
 from ..core.ssim import ssim_images
-from ..models.members import FieldMean, mean_image
 from ..rf.bartlett_ref import normalize as minmax
 from ..train.trainer import load_run
 from .anchor import anchored, choose
@@ -43,19 +42,13 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
 
     rd = Path(run_dir)
     cfg, data, renderer = load_run(rd)
-    fields = renderer.fields   # one field, or an ensemble's members (TrainConfig.members)
+    fields = renderer.fields
     split = json.loads((rd / "split.json").read_text())
     train_idx = np.asarray(split["train"], np.int64)
     test_idx = np.asarray(split["test"], np.int64)
     gt_test = data.pas(test_idx)
     t0 = time.perf_counter()
-    members = None
-    if isinstance(renderer, FieldMean):   # an ensemble: each member's own score too (its spread)
-        parts = [m.render(data, test_idx, batch=batch) for m in renderer.members]
-        pred = mean_image(parts)
-        members = [stats(ssim_images(minmax(p), gt_test)) for p in parts]
-    else:
-        pred = renderer.render(data, test_idx, batch=batch)
+    pred = renderer.render(data, test_idx, batch=batch)
     render_s = time.perf_counter() - t0
     if not np.isfinite(pred).all():
         raise RunError(f"{rd}: the model renders non-finite values")
@@ -94,8 +87,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
         "split": cfg.split,
         "num_gaussians": sum(f.num_primitives for f in fields),
         "num_parameters": sum(f.num_parameters for f in fields),
-        "network_parameters": sum(f.network_parameters for f in fields), "members": len(fields),
-        "member_models": members,
+        "network_parameters": sum(f.network_parameters for f in fields),
         "train_time_s": summary.get("train_time_s"), "train_steps": summary.get("steps"),
         "render_time_s": render_s, "render_ms_per_image": 1000 * render_s / max(len(test_idx), 1),
         "load_average_1min": os.getloadavg()[0], "cpu_count": os.cpu_count(),
@@ -135,8 +127,7 @@ def summary_markdown(m: dict) -> str:
                if m.get("beats_best_floor") else
                f"The model does NOT beat the best neighbour floor ({best}) in both mean and median SSIM: "
                "it has learned nothing more useful than a lookup of the closest training PAS.")
-    members = m.get("members", 1)
-    rows = [("model" if members == 1 else f"model (mean of {members} members' PAS)", m["model"])]
+    rows = [("model", m["model"])]
     a = m.get("anchored")
     if a:
         how = "the model alone" if a["use"] == "field" else f"k = {a['k']}, alpha = {a['alpha']:g}"
@@ -152,11 +143,6 @@ def summary_markdown(m: dict) -> str:
         "| method | mean SSIM | median SSIM | 10th pct | min |", "|---|---|---|---|---|",
     ]
     lines += [f"| {name} | {s['mean']:.4f} | {s['median']:.4f} | {s['p10']:.4f} | {s['min']:.4f} |" for name, s in rows]
-    if m.get("member_models"):
-        each = [x["mean"] for x in m["member_models"]]
-        lines += ["", f"Each member alone: mean SSIM {', '.join(f'{v:.4f}' for v in each)} (their mean "
-                  f"{np.mean(each):.4f}, std {np.std(each, ddof=1) if len(each) > 1 else 0.0:.4f}); their mean PAS "
-                  f"{m['model']['mean']:.4f}."]
     if m.get("fit"):
         f = m["fit"]
         lines += ["", f"At {f['n']} of its own training positions the model scores {f['mean']:.4f} mean SSIM "

@@ -127,15 +127,7 @@ class MethodConfig:
 
 
 def stage1_config(mcfg: MethodConfig, method: Method, *, seed: int) -> TrainConfig:
-    """The single-field training configuration of ``method`` (budget and seed applied).
-
-    Raises:
-        ConfigError: ``stage1.members > 1``: a method's Stage 2 builds on one trained field.
-    """
-    if mcfg.stage1.members != 1:
-        raise ConfigError(f"stage1.members = {mcfg.stage1.members}: the methods train one field per run "
-                          "(Stage 2 builds on it); an ensemble is for `train`, `eval`, `predict` and "
-                          "`experiment splits`")
+    """The single-field training configuration of ``method`` (budget and seed applied)."""
     it = mcfg.stage1.iterations + (mcfg.stage2_iterations if method.long_budget else 0)
     return dataclasses.replace(mcfg.stage1, iterations=it, seed=seed, state=0, max_train_positions=0)
 

@@ -63,7 +63,7 @@ class TrainSize:
     :mod:`rfmitsuba.models.coherent`; trains at full resolution whatever ``downsample`` says; needs
     a scene, so Sionna data only), "coherent_gaussians" (the coherent Gaussian field,
     :mod:`rfmitsuba.models.coherent_gaussians`, known or unknown room; at the resolution it advises
-    whatever ``downsample`` says, 45 x 180 (``TrainConfig.downsample = 0``); its
+    whatever ``downsample`` says, 45 x 180 (``TrainConfig.downsample = "auto"``); its
     Stage 2 is :mod:`rfmitsuba.models.coherent_gaussians_person`, its End-to-End
     :mod:`rfmitsuba.models.coherent_gaussians_joint`) or "splat"
     (Gaussian splatting, WRF-GS+ style).
@@ -229,7 +229,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     if t.model == "coherent" and not scene_known:
         raise ConfigError("train.model = 'coherent' needs datasets with a scene; use train.model = 'splat'")
     s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,
-                     downsample={"coherent": 1, "coherent_gaussians": 0}.get(t.model, t.downsample),
+                     downsample={"coherent": 1, "coherent_gaussians": "auto"}.get(t.model, t.downsample),
                      val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 10),
                      field=FieldConfig(init="mesh" if scene_known else "random", num_gaussians=t.num_gaussians),
                      coherent=CoherentConfig(room_order=t.room_order, furniture_order=t.furniture_order),

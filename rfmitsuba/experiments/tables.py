@@ -183,7 +183,7 @@ def split_sensitivity(dataset: str | Path, out: str | Path, *, fields=SENSITIVIT
     experiment resumes, finished runs are not trained or evaluated again). The table also shows
     the runs of other fields or tags already in ``OUT``, so a field that needs other settings
     (fewer splat steps) can be added by a second call into the same folder, and one field under
-    other settings (``members = 5``) by a second call with a tag naming them; a finished run of
+    other settings (``iterations = 12000``) by a second call with a tag naming them; a finished run of
     another configuration under the same name is refused, not reused. A field is a
     ``model`` kind (``"auto"`` included: what ``rfmitsuba train`` picks). The table
     (``OUT/table.md``, ``OUT/table.json``) gives per field and split the model's and the

@@ -204,7 +204,7 @@ class Field:
     person: ClassVar[bool] = False
     position_input: ClassVar[bool] = False
     densify: ClassVar[bool] = False
-    #: the block size of the training images this kind advises (``TrainConfig.downsample = 0``):
+    #: the block size of the training images this kind advises (``TrainConfig.downsample = "auto"``):
     #: it trains on (90/d) x (360/d) block means of the PAS; validation and evaluation stay at 90 x 360
     downsample_advised: ClassVar[int] = 1
     name: str = "bg"
@@ -217,14 +217,14 @@ class Field:
 
     @property
     def starts_advised(self) -> int:
-        """Training starts this initial field advises (``TrainConfig.starts = 0``): 1 unless its
+        """Training starts this initial field advises (``TrainConfig.starts = "auto"``): 1 unless its
         start is known to lead training into local minima now and then (a subclass says why)."""
         return 1
 
     @property
     def jitter_advised(self) -> float:
         """Spread of the jittered copies of each training view this initial field advises
-        (``TrainConfig.jitter = -1``), in carrier wavelengths: 0 (none) unless the field is known
+        (``TrainConfig.jitter = "auto"``), in carrier wavelengths: 0 (none) unless the field is known
         to change faster than its data between the training positions (a subclass says why;
         :mod:`rfmitsuba.train.jitter`)."""
         return 0.0
@@ -232,9 +232,16 @@ class Field:
     @property
     def epochs_advised(self) -> float:
         """Least passes over the fitting positions this initial field advises
-        (``TrainConfig.epochs = -1``): 0 (none) unless some of its parameters learn only from
+        (``TrainConfig.epochs = "auto"``): 0 (none) unless some of its parameters learn only from
         the views of a small part of the data (a subclass says why)."""
         return 0.0
+
+    def decisions(self) -> list[tuple[str, object, str]]:
+        """What this field decided for its configuration's "auto" options when it was built for
+        training: ``(dotted TrainConfig option, value, reason)`` each, recorded in a run's
+        ``resolved.toml`` (:mod:`rfmitsuba.train.resolve`); none unless a subclass sets
+        ``self._decisions``."""
+        return list(getattr(self, "_decisions", ()))
 
     def penalty(self):
         """A regularisation term the trainer adds to each step's loss (Dr.Jit ``Float`` [1],

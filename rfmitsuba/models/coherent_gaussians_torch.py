@@ -95,7 +95,7 @@ def channels(params: dict, field, views) -> tuple:
     hr = (w * (ar * c - ai * sn)).sum(-1)                                                  # [B, M]
     hi = (w * (ar * sn + ai * c)).sum(-1)
     if "coupling" in params:   # mutual coupling h + K h, K [M, M] complex: (K h)_m = sum_n K[m, n] h_n
-        index = torch.as_tensor(coupling_index(field.cfg.coupling_model))           # [M, M], -1: none
+        index = torch.as_tensor(coupling_index())           # [M, M], -1: none
         coef = params["coupling"].reshape(-1, 2)
         K = torch.where((index >= 0)[..., None], coef[index.clamp(min=0)], torch.zeros_like(coef[:1]))
         kr, ki = K[..., 0], K[..., 1]

@@ -26,8 +26,8 @@ it). Of the two twins the fit returns the one nearer no offset (larger ``|sum_m 
 no ramp added that is the true one where offsets are tens of degrees, but a ramp can hide it,
 and for offsets anywhere in +-180 degrees either is as likely. The twin is returned too
 (:attr:`CalibrationFit.twin_phase_rad`). For tags in a patch far from the gateway the field
-trains as well from either (NeRF2-like tags, +-180 degrees, seed 0: test SSIM 0.964 and 0.966;
-``coherent_gaussians.calibration_twin``), and each stays on its own twin.
+trains as well from either (NeRF2-like tags, +-180 degrees, seed 0: test SSIM 0.964 and 0.966),
+and each stays on its own twin, so the field starts from the nearer one.
 
 A pattern of one plane wave is the same for the amplitude and the phase-only read-out (unit
 channels), so the search serves both.

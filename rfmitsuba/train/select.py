@@ -53,11 +53,10 @@ SELECT_DIR = "select"
 
 def trial_config(cfg, kind: str):
     """The configuration of one trial: ``kind`` at a quarter of the budget (50 to :data:`TRIAL_MAX`
-    steps, whatever passes ``epochs`` asks for), one field (an ensemble, ``members``, is trained
-    only for the kind chosen)."""
+    steps, whatever passes ``epochs`` asks for)."""
     it = max(50, min(TRIAL_MAX, cfg.iterations // 4))
     every = max(1, min(cfg.val_every, it // 2))
-    return dataclasses.replace(cfg, model=kind, iterations=it, epochs=0.0, val_every=every, checkpoint_every=every, members=1,
+    return dataclasses.replace(cfg, model=kind, iterations=it, epochs=0.0, val_every=every, checkpoint_every=every,
                                log_every=max(1, min(cfg.log_every, every)),
                                time_limit_s=cfg.time_limit_s / 4 if cfg.time_limit_s else 0.0)
 

@@ -16,12 +16,10 @@ Run folder layout::
     run.json         dataset path, task, split sizes, package versions
     split.json       train / validation / test antenna indices
     log.jsonl        one row per logged step: loss, validation SSIM, Gaussians, wall time
+    resolved.toml    every "auto" of the configuration as the run decided it, with the reason
+                     (rfmitsuba.train.resolve)
     starts.json      with several training starts (TrainConfig.starts): each start's validation
                      SSIM and loss after start_steps(iterations) steps, and the one kept
-    members/K/       with an ensemble (TrainConfig.members > 1): member K's own run folder
-                     (seed + K, the same split); the parent then has no checkpoint/ and no
-                     final/field.npz but final/members.json, and its log.jsonl lists the
-                     members' validation rows one after another on one clock
     checkpoint/      latest resumable state (written atomically)
     final/field.npz  the trained field (rfmitsuba.models.base.load_field)
     final/summary.json
@@ -56,11 +54,11 @@ from ..data.split import block_split, make_split
 from ..data.store import resolve_scene
 from ..data.views import TrainData
 from ..models.base import Field, FieldSet, Views, field_class, load_field, render
-from ..models.members import FieldMean
 from ..rf.bartlett_ref import (
     normalize as minmax,  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
 )
 from ..rf.grid import PAS_SHAPE
+from . import resolve
 from .config import TrainConfig, config_diff, training_downsample
 from .density import make_strategy
 from .frozen_step import FrozenLoss
@@ -145,11 +143,7 @@ class Trainer:
         self.h, self.w = PAS_SHAPE[0] // self.d, PAS_SHAPE[1] // self.d
         #: steps this run trains (planned_iterations, set once the field exists)
         self.iterations = cfg.iterations
-        self.split = None   # a split handed down (an ensemble's members share their parent's)
         self._tail_best = None   # {"step", "val_ssim", "state"}: the best validation check of the tail
-        if cfg.members > 1 and (self.frozen or extra is not None or field_factory is not None):
-            raise ConfigError(f"TrainConfig.members = {cfg.members}: an ensemble is a Stage-1 background "
-                              "alone; Stage 2 and the joint fields train one field (members = 1)")
         self._check_run_dir()
 
     # ---- run folder ---------------------------------------------------------------------
@@ -163,7 +157,7 @@ class Trainer:
             if not cfg_file.is_file():
                 raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
             try:
-                have = C.to_dict(C.load(TrainConfig, cfg_file))
+                have = C.to_dict(C.load(TrainConfig, cfg_file, saved=True))
             except ConfigError as e:
                 raise RunError(f"{cfg_file}: unreadable run config ({e}); nothing was changed") from None
             diff = config_diff(have, want)
@@ -209,8 +203,6 @@ class Trainer:
         return every[tr], every[te]
 
     def _make_split(self, rng: np.random.Generator) -> dict:
-        if self.split is not None:
-            return {k: np.asarray(v, np.int64) for k, v in self.split.items()}
         cfg = self.cfg
         train, test = self.base_split()
         if cfg.max_train_positions and cfg.max_train_positions < len(train):
@@ -219,8 +211,6 @@ class Trainer:
         n_val = min(n_val, cfg.val_max, len(train) - 1)
         if n_val <= 0:
             val = np.zeros(0, np.int64)
-        elif cfg.val_positions == "slab":  # validation mirrors the block split: the training block's outer slab
-            val = np.sort(train[np.argsort(self.data.antenna_pos[train, 0], kind="stable")[-n_val:]])
         else:
             val = np.sort(rng.choice(train, n_val, replace=False))
         fit = np.setdiff1d(train, val)
@@ -393,8 +383,6 @@ class Trainer:
         if self.cfg.threads:
             dr.set_thread_count(self.cfg.threads)
         try:
-            if self.cfg.members > 1:
-                return self._run_members(stop_at=stop_at)
             return self._run(stop_at=stop_at)
         except BaseException:
             if created and self.run_dir.is_dir() and not self._has_checkpoint():
@@ -404,63 +392,8 @@ class Trainer:
             dr.set_thread_count(threads)
 
     def _has_checkpoint(self) -> bool:
-        """Whether the run folder holds trained state: its checkpoint, or a member's."""
-        rd = self.run_dir
-        return (rd / "checkpoint").is_dir() or any((m / "checkpoint").is_dir() for m in rd.glob("members/*"))
-
-    def _run_members(self, *, stop_at: int | None = None) -> dict:
-        """Train ``cfg.members`` fields one after another on one split (member ``k``: seed
-        ``seed + k``, folder ``members/k``, resumed like any run), then write the parent's
-        ``final/members.json``, ``final/summary.json`` (sums of time, Gaussians and parameters;
-        the validation SSIM of the members' mean PAS) and ``log.jsonl``."""
-        import dataclasses
-
-        cfg = self.cfg
-        summary_file = self.run_dir / "final" / "summary.json"
-        if summary_file.is_file():
-            return json.loads(summary_file.read_text())
-        split = self._make_split(np.random.default_rng(cfg.seed))
-        self._init_run_dir(split)
-        member_dirs, summaries = [], []
-        for k in range(cfg.members):
-            mdir = self.run_dir / "members" / str(k)
-            sub = Trainer(dataclasses.replace(cfg, members=1, seed=cfg.seed + k), self.data, mdir,
-                          quiet=self.quiet, name=self.name)
-            sub.split = split
-            s = sub.run(stop_at=stop_at)
-            if s.get("stopped") == "stop_at":
-                return {**s, "member": k}
-            member_dirs.append(f"members/{k}")
-            summaries.append(s)
-        mean = FieldMean([_trained_renderer(self.run_dir / d) for d in member_dirs])
-        val = split["val"]
-        val_ssim = None
-        if len(val):
-            pred = mean.render(self.data, val, batch=self.cfg.batch_views * 2)
-            val_ssim = float(np.mean(ssim_images(pred, self.data.pas(val))))
-        rows, t0 = [], 0.0
-        for k, (d, s) in enumerate(zip(member_dirs, summaries)):
-            log = self.run_dir / d / "log.jsonl"
-            for ln in log.read_text().splitlines() if log.is_file() else []:
-                r = json.loads(ln)
-                if "val_ssim" in r:
-                    rows.append({"member": k, "step": r["step"], "val_ssim": r["val_ssim"],
-                                 "n_gaussians": r.get("n_gaussians"), "time_s": round(t0 + r["time_s"], 3)})
-            t0 += s["train_time_s"]
-        (self.run_dir / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-        fd = self.run_dir / "final"
-        fd.mkdir(exist_ok=True)
-        _write_json(fd / "members.json", {"format": "rfmitsuba-members/1", "members": member_dirs,
-                                          "seeds": [cfg.seed + k for k in range(cfg.members)]})
-        summary = {"steps": sum(s["steps"] for s in summaries), "stopped_by": "members",
-                   "train_time_s": t0, "model": cfg.model, "members": cfg.members,
-                   "num_gaussians": sum(s["num_gaussians"] for s in summaries),
-                   "num_parameters": sum(s["num_parameters"] for s in summaries),
-                   "network_parameters": sum(s.get("network_parameters") or 0 for s in summaries),
-                   "val_ssim": val_ssim, "member_val_ssim": [s["val_ssim"] for s in summaries],
-                   "image": [self.h, self.w], **self._run_facts()}
-        _write_json(summary_file, summary)
-        return summary
+        """Whether the run folder holds trained state: its checkpoint."""
+        return (self.run_dir / "checkpoint").is_dir()
 
     def _run(self, *, stop_at: int | None = None) -> dict:
         B.ensure()
@@ -473,9 +406,12 @@ class Trainer:
         self._init_run_dir(split)
         field = self._init_field(rng)
         self.field = field
+        #: every "auto" of the configuration as this run decided it (rfmitsuba.train.resolve)
+        self.decisions = resolve.resolve(cfg, field, num_fit=len(split["fit"]), run_dir=self.run_dir)
+        resolve.write(self.run_dir / resolve.RESOLVED_NAME, self.decisions)
         if getattr(field, "closed_form", False):
             return self._condition(field, split)
-        self.iterations = planned_iterations(cfg, len(split["fit"]), field)
+        self.iterations = resolve.value(self.decisions, "iterations")
         loss_fn = load_loss()
         gt_fit = self.data.pas(split["fit"], d=self.d)
         gt_val = self.data.pas(split["val"])      # validation at the metric's 90 x 360, whatever d
@@ -492,8 +428,8 @@ class Trainer:
 
         probe_views = self.views(probe)
         #: spread of the jittered copies of each batch [wavelengths] (0: none; rfmitsuba.train.jitter)
-        self.jitter = cfg.jitter if cfg.jitter >= 0 else field.jitter_advised
-        n_starts = cfg.starts or field.starts_advised
+        self.jitter = resolve.value(self.decisions, "jitter")
+        n_starts = resolve.value(self.decisions, "starts")
         if meta is None and n_starts > 1:
             field, opt, strategy, rng, start, train_time, val_hist = self._choose_start(
                 field, opt, strategy, rng, n_starts, split=split, gt_fit=gt_fit, gt_val=gt_val, loss_fn=loss_fn,
@@ -501,7 +437,7 @@ class Trainer:
             self.field = field
 
         rd = self.run_dir
-        name = f"{rd.parent.parent.name} member {rd.name}" if rd.parent.name == "members" else rd.name
+        name = rd.name
         pbar = bar(total=self.iterations, desc=f"train {name}", unit="step", quiet=self.quiet,
                    initial=start)
         log_loss, log_n = 0.0, 0
@@ -755,13 +691,43 @@ TAIL = 0.7
 
 
 def planned_iterations(cfg: TrainConfig, num_fit: int, field: Field) -> int:
-    """Steps a run trains: ``cfg.iterations``, or more where ``cfg.epochs`` (-1: the field's
+    """Steps a run trains: ``cfg.iterations``, or more where ``cfg.epochs`` ("auto": the field's
     ``epochs_advised``) passes over ``num_fit`` fitting positions at ``cfg.batch_views`` views a
-    step take more."""
-    epochs = field.epochs_advised if cfg.epochs == -1 else cfg.epochs
-    if epochs <= 0 or num_fit <= 0:
-        return int(cfg.iterations)
-    return int(max(cfg.iterations, math.ceil(epochs * num_fit / cfg.batch_views)))
+    step take more (:func:`rfmitsuba.train.resolve.iterations`)."""
+    return int(resolve.iterations(cfg, num_fit, resolve.epochs(cfg, field).value).value)
+
+
+def dry_run(dataset: str | Path, *, cfg: TrainConfig | None = None) -> str:
+    """What ``train(dataset, cfg=cfg)`` would decide, without training: the resolved
+    configuration (:mod:`rfmitsuba.train.resolve`) as commented TOML text. For ``model = "auto"``
+    it names the trials and gives the decisions of each candidate, should it be chosen.
+
+    The initial field is built (the data scan and the line-of-sight fits run, seconds to a
+    minute) in a temporary folder that is removed: nothing is written where the run would go."""
+    import tempfile
+
+    from .select import TRIAL_MAX, candidate_config, candidates, trial_config
+
+    cfg = cfg or TrainConfig()
+    data = TrainData.open(dataset, state=cfg.state)
+    names = candidates(cfg, data) if cfg.model == "auto" else [cfg.model]
+    lines = [f"# rfmitsuba train {dataset} --dry-run: what the run would decide (nothing was trained or written)"]
+    if cfg.model == "auto":
+        steps = trial_config(candidate_config(cfg, names[0]), names[0]).iterations
+        lines.append(f"# model = \"auto\": trials of {', '.join(names)} at {steps} steps each (at most {TRIAL_MAX});"
+                     " the best by validation SSIM trains with the full budget")
+    with tempfile.TemporaryDirectory(prefix="rfmitsuba-dry-run-") as tmp:
+        for name in names:
+            c = candidate_config(cfg, name) if cfg.model == "auto" else cfg
+            t = Trainer(c, data, Path(tmp) / name, quiet=True)
+            rng = np.random.default_rng(c.seed)
+            split = t._make_split(rng)
+            field = t._init_field(rng)
+            decided = resolve.resolve(c, field, num_fit=len(split["fit"]))
+            lines += ["", f"# {'if the trials choose ' if cfg.model == 'auto' else ''}{name}: {len(split['fit'])} "
+                          f"fitting, {len(split['val'])} validation, {len(split['test'])} test positions"]
+            lines.append(resolve.to_toml(decided).rstrip("\n"))
+    return "\n".join(lines) + "\n"
 
 
 def start_steps(iterations: int) -> int:
@@ -784,7 +750,7 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     from ..core.folder_lock import writer
 
     def trained(folder: Path) -> bool:
-        return any((d / "checkpoint").is_dir() for d in (folder, *folder.glob("members/*"), *folder.glob("select/*")))
+        return any((d / "checkpoint").is_dir() for d in (folder, *folder.glob("select/*")))
 
     with writer(out, what="train", keep=trained):
         cfg = cfg or TrainConfig()
@@ -794,17 +760,14 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
         return Trainer(cfg, data, out, quiet=quiet, freeze=freeze).run()
 
 
-def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet | FieldMean]:
+def load_run(run_dir: str | Path) -> tuple[TrainConfig, TrainData, FieldSet]:
     """Open a finished run: (config, data, a renderer of its trained field).
 
-    The renderer's ``fields[0]`` is the trained field; ``render(data, idx)`` gives raw PAS. A run
-    of several members (``TrainConfig.members``) gives a :class:`~rfmitsuba.models.members.FieldMean`
-    of its members' renderers instead: ``fields`` lists every member's field and ``render`` gives
-    the mean of their min-max normalised PAS."""
+    The renderer's ``fields[0]`` is the trained field; ``render(data, idx)`` gives raw PAS."""
     rd = Path(run_dir)
     if not (rd / "config.toml").is_file() or not (rd / "run.json").is_file():
         raise RunError(f"{rd} is not a run folder (no config.toml / run.json)")
-    cfg = C.load(TrainConfig, rd / "config.toml")
+    cfg = C.load(TrainConfig, rd / "config.toml", saved=True)
     info = json.loads((rd / "run.json").read_text())
     data = TrainData.open(info["dataset"], state=cfg.state)
     trained_on = info.get("dataset_fingerprint")
@@ -826,12 +789,11 @@ def dataset_fingerprint(path: str | Path) -> str | None:
         return None
 
 
-def _trained_renderer(rd: Path) -> FieldSet | FieldMean:
-    """The renderer of a finished run folder's trained field, or of its members' (an ensemble),
-    read from ``final/`` alone (the dataset is not opened again per member)."""
-    mfile = rd / "final" / "members.json"
-    if mfile.is_file():
-        return FieldMean([_trained_renderer(rd / d) for d in json.loads(mfile.read_text())["members"]])
+def _trained_renderer(rd: Path) -> FieldSet:
+    """The renderer of a finished run folder's trained field, read from ``final/`` alone."""
+    if (rd / "final" / "members.json").is_file():   # an ensemble run: a removed option
+        raise RunError(f"{rd} is an ensemble of independently trained fields (the removed option members); each "
+                       f"member is a run of its own: open {rd / 'members' / '0'}")
     fpath = rd / "final" / "field.npz"
     if not fpath.is_file():
         raise RunError(f"{rd}: training has not finished (no final/field.npz); run `rfmitsuba train` again to resume")

@@ -166,39 +166,6 @@ def test_room_box_of_an_unknown_room_refuses_positions_outside_it():
         _check_room_box(boxed, np.array([[1.0, 1.0, 1.0], [5.0, 1.0, 1.0], [1.0, 1.0, -0.1]]))
 
 
-def test_an_ensemble_run_evaluates_and_predicts_the_mean_of_its_members(tmp_path):
-    """members = 2: eval counts both members' Gaussians and parameters, scores each member alone
-    too and names the ensemble in its report; predict at the dataset's positions gives the mean of the members' own
-    predictions there (each normalised per image, the mean normalised again, as every prediction
-    is), not a coherent sum of their fields."""
-    import dataclasses
-
-    from stage1_data import make_dataset
-    from stage1_data import tiny_cfg
-
-    from rfmitsuba.data.views import TrainData
-    from rfmitsuba.eval.predict import predict_run
-    from rfmitsuba.eval.run import evaluate_run
-    from rfmitsuba.rf.bartlett_ref import normalize
-    from rfmitsuba.train.trainer import Trainer
-
-    ds = make_dataset(tmp_path / "ds", num_antennas=30)
-    run = tmp_path / "run"
-    s = Trainer(dataclasses.replace(tiny_cfg(iterations=10), members=2), TrainData.open(ds), run, quiet=True).run()
-    m = evaluate_run(run)
-    one = [json.loads((run / "members" / str(k) / "final" / "summary.json").read_text()) for k in (0, 1)]
-    assert m["members"] == 2 and m["num_gaussians"] == s["num_gaussians"] == sum(o["num_gaussians"] for o in one)
-    assert m["num_parameters"] == sum(o["num_parameters"] for o in one)
-    text = (run / "eval" / "summary.md").read_text()
-    assert "mean of 2 members' PAS" in text and "Each member alone" in text
-    assert [x["n"] for x in m["member_models"]] == [6, 6]      # each member's own test score
-    q = TrainData.open(ds).antenna_pos[[0, 5, 11]]
-    parts = [predict_run(run / "members" / str(k), q)["pas"] for k in (0, 1)]
-    got = predict_run(run, q)["pas"]
-    np.testing.assert_allclose(got, normalize(np.mean(parts, axis=0)), atol=1e-5)
-    assert got.shape == (3, 90, 360) and not np.allclose(parts[0], parts[1])
-
-
 def test_an_unknown_room_without_a_box_refuses_positions_far_from_its_data():
     from types import SimpleNamespace
 

@@ -44,7 +44,7 @@ def test_coherent_gaussians_size_known_and_unknown_room():
     for known in (True, False):
         m = method_config(TrainSize(model="coherent_gaussians", overrides=["coherent_gaussians_human.num_points=4"]),
                           scene_known=known)
-        assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == 0
+        assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == "auto"
         assert training_downsample(m.stage1) == 2
         assert m.coherent_gaussians_human.num_points == 4
     assert CompareConfig(train=TrainSize(model="coherent_gaussians")).methods == ["baseline", "end_to_end", "ours"]

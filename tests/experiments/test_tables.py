@@ -74,17 +74,17 @@ def test_split_sensitivity_scores_every_field_and_floor_under_both_splits(tmp_pa
 
     from rfmitsuba.core.errors import RunError
 
-    ens = dataclasses.replace(cfg, members=2)
+    ens = dataclasses.replace(cfg, revert_drop=0.02)
     table = (out / "table.md").read_text()
     with pytest.raises(RunError, match=r"coherent_gaussians_dataset_s0 belongs to another configuration: "
-                                       r"members \(run has 1, requested 2\)"):
+                                       r"revert_drop \(run has 0.01, requested 0.02\)"):
         split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, quiet=True)
     assert (out / "table.md").read_text() == table                     # nothing was changed
-    with pytest.raises(ConfigError, match="tag 'members 2'"):
-        split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="members 2", quiet=True)
-    rows3 = split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="members2",
+    with pytest.raises(ConfigError, match="tag 'revert 2'"):
+        split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="revert 2", quiet=True)
+    rows3 = split_sensitivity(ds, out, fields=("coherent_gaussians",), seeds=(0,), cfg=ens, tag="revert2",
                               quiet=True)
     by = {(r["field"], r["split"]): r for r in rows3}
-    assert by["coherent_gaussians-members2", "block"]["seeds"] == 1 and len(rows3) == 6
-    assert (out / "coherent_gaussians-members2_block_s0" / "members" / "1" / "final" / "field.npz").is_file()
-    assert "| block (32/8) | coherent_gaussians-members2 | 1 |" in (out / "table.md").read_text()
+    assert by["coherent_gaussians-revert2", "block"]["seeds"] == 1 and len(rows3) == 6
+    assert (out / "coherent_gaussians-revert2_block_s0" / "final" / "field.npz").is_file()
+    assert "| block (32/8) | coherent_gaussians-revert2 | 1 |" in (out / "table.md").read_text()

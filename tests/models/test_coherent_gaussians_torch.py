@@ -13,7 +13,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 F = 2.4e9
 
 
-def _field(readout, wavefront, vis_grid=None):
+def _field(readout, wavefront, vis_grid="auto"):
     from rfmitsuba.core import backend as B
     from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
 
@@ -26,7 +26,7 @@ def _field(readout, wavefront, vis_grid=None):
         a = np.asarray(v.numpy(), np.float64)
         scale = 0.05 if k != "vis_grid" else 1.0   # a visibility grid far from its zero start
         f.params[k] = B.Float((a + scale * rng.normal(size=a.shape)).astype(np.float32))
-    if vis_grid:   # a box the views' positions partly leave (the factor is clamped to its faces)
+    if vis_grid != "auto":   # a box the views' positions partly leave (the factor is clamped to its faces)
         f.params["vis_grid_box"] = B.Float(np.array([1.4, 1.2, 0.9, 2.2, 1.9, 1.3], np.float32))
     f.params["img_offset"] = B.Float(np.array([0, 0, 0, 0.4, 0, 0, 0, 0, 6.0], np.float32))
     return f

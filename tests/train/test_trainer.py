@@ -124,7 +124,7 @@ def test_one_thread_makes_a_run_bit_reproducible(tiny_ds, tmp_path):
 
 
 def test_downsample_zero_takes_the_fields_advice_and_validation_is_at_full_resolution(tiny_ds, tmp_path):
-    """``downsample = 0`` trains at the field kind's advice (the coherent Gaussian field at 45 x
+    """``downsample = "auto"`` trains at the field kind's advice (the coherent Gaussian field at 45 x
     180, the others at 90 x 360); any ``d`` trains on (90/d) x (360/d) images but validates at 90 x
     360, so the logged validation SSIM is the metric's: the final field rendered at 90 x 360 at the
     validation positions scores it again."""
@@ -134,11 +134,11 @@ def test_downsample_zero_takes_the_fields_advice_and_validation_is_at_full_resol
     from rfmitsuba.train.config import training_downsample
     from rfmitsuba.train.trainer import Trainer, load_run
 
-    assert training_downsample(tiny_cfg(downsample=0, model="coherent_gaussians")) == 2
-    assert training_downsample(tiny_cfg(downsample=0, model="splat")) == 1
+    assert training_downsample(tiny_cfg(downsample='"auto"', model="coherent_gaussians")) == 2
+    assert training_downsample(tiny_cfg(downsample='"auto"', model="splat")) == 1
     assert training_downsample(tiny_cfg(downsample=3, model="coherent_gaussians")) == 3
     data = TrainData.open(tiny_ds)
-    tr = Trainer(tiny_cfg(downsample=0, model="coherent_gaussians"), data, tmp_path / "cg", quiet=True)
+    tr = Trainer(tiny_cfg(downsample='"auto"', model="coherent_gaussians"), data, tmp_path / "cg", quiet=True)
     assert (tr.h, tr.w) == (45, 180)
 
     run = tmp_path / "run"   # one check, at the last step, after the last density change
@@ -292,58 +292,34 @@ def test_a_collapse_on_the_last_check_reverts_to_the_tails_best(tiny_ds, tmp_pat
             TrainConfig(revert_drop=bad)
 
 
-def test_members_share_one_split_resume_and_render_their_mean_pas(tiny_ds, tmp_path):
-    """members = 2: member k trains with seed + k in members/k on the parent's split; the parent's
-    summary sums time, steps and Gaussians, its log lists member 0's then member 1's validation
-    rows on one clock, and its renderer (load_run) gives the mean of the members' normalised PAS;
-    a run stopped inside member 0 resumes to bit-identical members (one thread); an ensemble
-    under Stage 2 and member counts outside 1..16 are refused by name."""
-    import dataclasses
-
-    from rfmitsuba.core.errors import ConfigError
+def test_run_folders_written_with_removed_options_still_open(tiny_ds, tmp_path):
+    """A run whose config.toml holds removed options at the values the code now behaves as
+    (``members = 1``, ``val_positions = "random"``) opens, evaluates and resumes as before; one
+    that used them otherwise (an ensemble, ``members = 2``) is refused naming the option, an
+    ensemble's folder names the member run to open instead, and a user's override of a removed
+    option is told it was removed."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError, RunError
     from rfmitsuba.data.views import TrainData
-    from rfmitsuba.models.members import FieldMean, mean_image
-    from rfmitsuba.train.config import TrainConfig
     from rfmitsuba.train.trainer import Trainer, load_run
 
     data = TrainData.open(tiny_ds)
-    cfg = dataclasses.replace(tiny_cfg(iterations=30), members=2, threads=1)
-    a, b = tmp_path / "a", tmp_path / "b"
-    s = Trainer(cfg, data, a, quiet=True).run()
-    parts = [json.loads((a / "members" / str(k) / "final" / "summary.json").read_text()) for k in (0, 1)]
-    assert s["members"] == 2 and s["steps"] == 60
-    assert s["num_gaussians"] == sum(p["num_gaussians"] for p in parts)
-    assert s["train_time_s"] == pytest.approx(sum(p["train_time_s"] for p in parts))
-    split = (a / "split.json").read_text()
-    assert all((a / "members" / str(k) / "split.json").read_text() == split for k in (0, 1))
-    assert ['seed = 0' in (a / "members" / "0" / "config.toml").read_text(),
-            'seed = 1' in (a / "members" / "1" / "config.toml").read_text()] == [True, True]
-    rows = _rows(a)
-    assert [r["member"] for r in rows] == [0, 0, 0, 1, 1, 1]
-    assert np.all(np.diff([r["time_s"] for r in rows]) > 0)
-    assert not (a / "final" / "field.npz").exists() and not (a / "checkpoint").exists()
-
-    _, _, mean = load_run(a)
-    assert isinstance(mean, FieldMean) and len(mean.fields) == 2
-    test = np.array(json.loads(split)["test"])
-    one = [load_run(a / "members" / str(k))[2].render(data, test, h=18, w=72) for k in (0, 1)]
-    got = mean.render(data, test, h=18, w=72)
-    np.testing.assert_allclose(got, mean_image(one), atol=1e-6)
-    assert not np.allclose(one[0], one[1])             # two fits, not one twice
-
-    assert Trainer(cfg, data, b, quiet=True).run(stop_at=25) == {"stopped": "stop_at", "step": 25, "member": 0}
-    assert not (b / "members" / "1").exists()
-    Trainer(cfg, data, b, quiet=True).run()
-    for k in (0, 1):
-        with np.load(a / "members" / str(k) / "final" / "field.npz") as za, \
-                np.load(b / "members" / str(k) / "final" / "field.npz") as zb:
-            for key in za.files:
-                np.testing.assert_array_equal(za[key], zb[key], err_msg=f"member {k}: {key}")
-    with pytest.raises(ConfigError, match="members"):
-        Trainer(cfg, data, tmp_path / "c", quiet=True, frozen=[mean.fields[0]])
-    for bad in (0, 17, True):
-        with pytest.raises(ConfigError, match="members"):
-            TrainConfig(members=bad)
+    cfg = tiny_cfg(iterations=10)
+    run = tmp_path / "run"
+    s = Trainer(cfg, data, run, quiet=True).run()
+    toml = run / "config.toml"
+    toml.write_text('members = 1\nval_positions = "random"\n' + toml.read_text())
+    assert load_run(run)[0] == cfg
+    assert Trainer(cfg, data, run, quiet=True).run() == s            # the resume check sees the same config
+    toml.write_text(toml.read_text().replace("members = 1", "members = 2"))
+    with pytest.raises(ConfigError, match="TrainConfig.members = 2: this saved file used an option that was removed"):
+        load_run(run)
+    toml.write_text(toml.read_text().replace("members = 2", "members = 1"))
+    (run / "final" / "members.json").write_text("{}")
+    with pytest.raises(RunError, match="ensemble .* open .*members/0"):
+        load_run(run)
+    with pytest.raises(ConfigError, match="members: this option was removed"):
+        C.override(cfg, ["members=2"])
 
 
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
@@ -434,7 +410,6 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
     the gateway orientation reaches the renderer as rx_to_world; no scene -> random init with a
     warning, whatever field.init says; --split block holds out the slab of largest x."""
-    from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.data.views import TrainData
@@ -456,23 +431,14 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     x = data.antenna_pos[:, 0]
     assert len(sp["test"]) == 6 and x[sp["test"]].min() > x[sp["train"]].max()
     assert evaluate_run(tmp_path / "block")["split"] == "block"
-    # validation: by default seeded positions among the training ones, so the training block's
-    # outer tags stay in the fit; val_positions = "slab" holds out that outer slab instead
-    cfgs = {k: tiny_cfg(iterations=4, split='"block"', val_fraction=0.2, val_positions=f'"{k}"')
-            for k in ("random", "slab")}
+    # validation: seeded positions among the training ones, so the training block's outer tags
+    # stay in the fit
+    train = np.asarray(sp["train"])
     for seed in range(3):
-        cfgs["random"].seed = cfgs["slab"].seed = seed
-        val = {k: np.asarray(Trainer(c, data, tmp_path / f"{k}{seed}", quiet=True)._make_split(
-            np.random.default_rng(seed))["val"]) for k, c in cfgs.items()}
-        train = np.asarray(sp["train"])
-        outer = np.sort(train[np.argsort(x[train], kind="stable")[-len(val["slab"]):]])
-        assert len(val["slab"]) == len(val["random"]) == 5
-        np.testing.assert_array_equal(val["slab"], outer)
-        assert np.isin(val["random"], train).all() and not np.array_equal(val["random"], outer)
-    with pytest.raises(ConfigError, match="val_positions = 'slab' needs split = 'block'"):
-        tiny_cfg(val_positions='"slab"')
-    with pytest.raises(ConfigError, match="val_positions"):
-        tiny_cfg(split='"block"', val_positions='"edge"')
+        c = tiny_cfg(iterations=4, split='"block"', val_fraction=0.2, seed=seed)
+        val = np.asarray(Trainer(c, data, tmp_path / f"v{seed}", quiet=True)._make_split(
+            np.random.default_rng(seed))["val"])
+        assert len(val) == 5 and np.isin(val, train).all()
 
 
 def test_a_run_that_fails_before_its_first_checkpoint_leaves_no_folder(tiny_ds, tmp_path):

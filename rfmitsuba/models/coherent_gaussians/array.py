@@ -5,26 +5,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.errors import ConfigError
 from ...rf import array as antenna
 from ...rf.bartlett import bartlett
 from ..base import Views
 
 
-def coupling_index(model: str = "neighbours") -> np.ndarray:
+def coupling_index() -> np.ndarray:
     """Which learned coupling coefficient each entry ``K[m, n]`` of the mutual coupling ``I + K``
     of the 4 x 4 array takes: int64 [16, 16], -1 where ``K[m, n] = 0``.
 
-    ``"neighbours"``: a reciprocal coupling (``K = K^T``, as for any passive array) between
-    elements that are row, column or diagonal neighbours (42 pairs, 84 parameters); elements
-    farther apart and ``K[m, m]`` (a per-element gain, which the calibration already holds)
-    take none. ``"full"``: every entry its own coefficient (256, 512 parameters).
+    A reciprocal coupling (``K = K^T``, as for any passive array) between elements that are row,
+    column or diagonal neighbours (42 pairs, 84 parameters); elements farther apart and
+    ``K[m, m]`` (a per-element gain, which the calibration already holds) take none.
     """
     M = antenna.NUM_ELEMENTS
-    if model == "full":
-        return np.arange(M * M, dtype=np.int64).reshape(M, M)
-    if model != "neighbours":
-        raise ConfigError(f"coupling model must be 'neighbours' or 'full', got {model!r}")
     r, c = np.divmod(np.arange(M), antenna.COLS)
     near = (np.abs(r[:, None] - r[None]) <= 1) & (np.abs(c[:, None] - c[None]) <= 1) & ~np.eye(M, dtype=bool)
     out = np.full((M, M), -1, np.int64)
@@ -32,9 +26,9 @@ def coupling_index(model: str = "neighbours") -> np.ndarray:
     out[m, n] = out[n, m] = np.arange(len(m))
     return out
 
-def coupling_size(model: str = "neighbours") -> int:
-    """Learned complex coupling coefficients of ``model`` (:func:`coupling_index`)."""
-    return int(coupling_index(model).max()) + 1
+def coupling_size() -> int:
+    """Learned complex coupling coefficients (:func:`coupling_index`): 42."""
+    return int(coupling_index().max()) + 1
 
 def _rodrigues(w0, w1, w2, v0, v1, v2):
     """Rotate vectors ``v`` by the rotation vector ``w`` (Dr.Jit arrays, broadcast)."""

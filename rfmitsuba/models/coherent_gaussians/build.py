@@ -14,7 +14,16 @@ from ...rf.calibration_fit import los_calibration_fit
 from ...rf.frame_fit import los_frame_fit
 from ...rf.images import ImageMaps, scene_image_maps
 from .field import CoherentGaussianField
-from .geometry import compose_images, default_vis_grid, room_box_planes, scan_planes
+from .geometry import (
+    DENSE_VIS_GRID,
+    compose_images,
+    default_vis_grid,
+    position_spread_deg,
+    room_box_planes,
+    scan_planes,
+    spreads_wide,
+    uses_pursuit,
+)
 from .scan import scan
 
 
@@ -54,8 +63,37 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
     wavefront = c.wavefront if c.wavefront != "auto" else ("spherical" if measured else "plane")
     idx = np.asarray(data.train, np.int64)
     x, y, q = data.positions(idx)
-    if c.vis_grid is None:
-        c = dataclasses.replace(c, vis_grid=default_vis_grid(init=init, num_positions=len(np.unique(q, axis=0))))
+    decided = []   # (option, value, reason) of every "auto" decided here (rfmitsuba.train.resolve)
+    key = "coherent_gaussians."
+    if c.init == "auto":
+        decided.append((key + "init", init, "the dataset names its room: the room's image sources" if init == "room"
+                        else "no room is named: the directional scan of the training spectra"))
+    if c.readout == "auto":
+        decided.append((key + "readout", readout, f"the dataset's read-out ({'measured' if measured else 'simulated'} "
+                        "folder)"))
+    if c.wavefront == "auto":
+        decided.append((key + "wavefront", wavefront, "measured folder: exact path lengths to each element"
+                        if measured else "simulated data, whose truth uses the plane-wave rule"))
+    if c.coupling == "auto":
+        decided.append((key + "coupling", readout == "phase_only", "phase-only spectra: a real array's elements "
+                        "couple" if readout == "phase_only" else "amplitude read-out: synthetic arrays do not couple"))
+    if c.vis_grid == "auto":
+        n_pos = len(np.unique(q, axis=0))
+        grid = default_vis_grid(init=init, num_positions=n_pos)
+        c = dataclasses.replace(c, vis_grid=grid)
+        which = "the finer grid where the data are dense" if grid == DENSE_VIS_GRID else "the default grid"
+        decided.append((key + "vis_grid", grid, f"{'unknown' if init == 'data' else 'known'} room, {n_pos} distinct "
+                        f"training positions: {which}"))
+    if init == "data" and (c.images == "auto" or c.pursuit == "auto"):
+        fixed = y if data.task == "rx" else x
+        spread = position_spread_deg(fixed, q)
+        where = f"the positions spread {spread:.1f} degrees seen from the fixed device"
+        if c.images == "auto":
+            decided.append((key + "images", scan_planes(c, data), where + (" (within the array's beam: the scan "
+                            "finds the planes)" if not spreads_wide(data) else " (wider than half the array's beam: "
+                            "the pursuit finds them)")))
+        if c.pursuit == "auto":
+            decided.append((key + "pursuit", "on" if uses_pursuit(c, data) else "off", where))
     depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
     min_seg = getattr(data, "min_segment", None) if c.segment_limit else None   # and its shortest segment
     # the scan reads at most SCAN_SAMPLES training spectra, evenly spread (a dataset of many
@@ -82,35 +120,31 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
         A, order = maps.A, maps.order
         b0 = maps.b
     stated = np.eye(3) if data.rx_to_world is None else np.asarray(data.rx_to_world, np.float64)
-    frame, report = stated, {}
+    frame, report = stated, {}   # the frame fit only reports: starting from it did not help (lab notes)
     search = c.frame_search if c.frame_search != "auto" else ("report" if measured and init == "data" else "off")
+    if c.frame_search == "auto":
+        decided.append((key + "frame_search", search, "a measured folder in an unknown room: check the stated "
+                        "gateway frame" if search == "report" else "not a measured folder in an unknown room"))
     if search != "off":
         fit = los_frame_fit(pas, xs, ys, rx_to_world=stated, frequency_hz=data.frequency_hz)
-        applied = search == "apply" and fit.gain >= c.frame_min_gain
         if fit.gain >= FRAME_WARN_GAIN:
             warnings.warn(f"{data.path}: the stated array frame draws the line of sight worse than a frame "
                           f"{fit.angle_deg:.0f} degrees away (correlation {fit.stated_score:.2f} against "
-                          f"{fit.score:.2f}); check the gateway orientation"
-                          + (" (training starts from the fitted frame)" if applied else
-                             " (coherent_gaussians.frame_search = 'apply' starts from the fitted frame)"),
-                          stacklevel=2)
-        report["frame_fit"] = {"applied": bool(applied), "angle_deg": fit.angle_deg,
-                               "rotvec_rad": fit.rotvec.tolist(), "score": fit.score,
-                               "stated_score": fit.stated_score, "min_gain": c.frame_min_gain}
-        if applied:
-            frame = fit.rx_to_world(stated)
+                          f"{fit.score:.2f}); check the gateway orientation", stacklevel=2)
+        report["frame_fit"] = {"angle_deg": fit.angle_deg, "rotvec_rad": fit.rotvec.tolist(), "score": fit.score,
+                               "stated_score": fit.stated_score}
     cal_search = c.calibration_search if c.calibration_search != "auto" else \
         ("apply" if readout == "phase_only" and init == "data" and c.calibrate else "off")
+    if c.calibration_search == "auto":
+        decided.append((key + "calibration_search", cal_search, "phase-only spectra in an unknown room: search the "
+                        "elements' phase offsets" if cal_search == "apply" else "not phase-only spectra of an unknown "
+                        "room"))
     if cal_search == "apply":
         cal_fit = los_calibration_fit(pas, xs, ys, rx_to_world=frame, frequency_hz=data.frequency_hz,
                                       seed=cfg.seed)
-        twin = c.calibration_twin == "other"
         report["calibration_fit"] = {"applied": bool(cal_fit.gain >= c.calibration_min_gain),
-                                     "phase_deg": np.degrees(cal_fit.twin_phase_rad if twin
-                                                             else cal_fit.phase_rad).tolist(),
-                                     "twin": "other" if twin else "nearer",
-                                     "score": cal_fit.twin_score if twin else cal_fit.score,
-                                     "stated_score": cal_fit.stated_score,
+                                     "phase_deg": np.degrees(cal_fit.phase_rad).tolist(),
+                                     "score": cal_fit.score, "stated_score": cal_fit.stated_score,
                                      "min_gain": c.calibration_min_gain}
     found = scan(pas, xs, ys, images=0 if init == "room" else scan_planes(c, data),
                  scatterers=c.room_scatterers if init == "room" else c.scatterers,
@@ -132,19 +166,26 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
     else:
         scale = 1.0
     ray = init == "room" and c.ray_visibility
-    f = (field_class or CoherentGaussianField)(A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
-            frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
-            planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
-            max_depth=depth, min_segment=min_seg)
+    f = (field_class or CoherentGaussianField)(
+        A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
+        frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
+        planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,
+        max_depth=depth, min_segment=min_seg)
     f.params["img_offset"] = B.Float(np.asarray(b0, np.float32).ravel())
     f.init_report = report
+    if "calibration_fit" in report:
+        r = report["calibration_fit"]
+        decided.append(("coherent_gaussians.calibration_fit", "applied" if r["applied"] else "not applied",
+                        f"line-of-sight correlation {r['score']:.3f} with the fitted offsets against "
+                        f"{r['stated_score']:.3f} without (applied from a gain of {r['min_gain']:g})"))
+    if "frame_fit" in report:
+        r = report["frame_fit"]
+        decided.append(("coherent_gaussians.frame_fit", "reported", f"a frame {r['angle_deg']:.0f} degrees away draws "
+                        f"the line of sight at {r['score']:.3f} against the stated frame's {r['stated_score']:.3f}"))
+    f._decisions = decided
     if report.get("calibration_fit", {}).get("applied"):
         ph = np.radians(np.asarray(report["calibration_fit"]["phase_deg"], np.float64))
         f.params["cal"] = B.Float(np.stack([np.cos(ph), np.sin(ph)], 1).ravel().astype(np.float32))
-    if report.get("frame_fit", {}).get("applied"):
-        # the pose rotates the stated frame's element offsets in the world: rot(w) R = R C^T
-        w = -stated @ np.asarray(report["frame_fit"]["rotvec_rad"])
-        f.params["pose"] = B.Float(np.concatenate([w, np.zeros(3)]).astype(np.float32))
     if f.grid_cells:   # the training positions' box, padded by 5% (at least 1 mm) each side
         pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
         f.params["vis_grid_box"] = B.Float(np.concatenate([q.min(0) - pad, q.max(0) + pad]).astype(np.float32))

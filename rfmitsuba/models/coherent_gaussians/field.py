@@ -29,8 +29,8 @@ measured array). For phase-only (NeRF2) spectra by default (``coupling``) the el
 ``K`` a learned complex 16 x 16 matrix (zero at the start): a real array's mutual coupling, under
 which an element's response depends on the arrival direction and no per-element gain undoes it.
 By default ``K`` is reciprocal (``K = K^T``) and couples neighbouring elements only (row, column
-and diagonal neighbours: 42 complex coefficients, ``coupling_model``), as a passive array's
-coupling does; a free ``K`` fits the training positions as well and extrapolates much worse. Phase comes from the exact path length to each element (``wavefront =
+and diagonal neighbours: 42 complex coefficients), as a passive array's coupling does; a free
+``K`` fits the training positions as well and extrapolates much worse. Phase comes from the exact path length to each element (``wavefront =
 "spherical"``) or from the plane-wave rule about the array centre (``"plane"``, what Sionna's
 synthetic array simulates). The array's pose is learned too: a small rotation (rotation vector
 ``omega`` [rad]) and a translation ``t`` [m] of the array relative to its stated pose.
@@ -47,14 +47,9 @@ Initialisation (:func:`rfmitsuba.models.coherent_gaussians.build.initial_field`)
   in the room's meshes (:class:`rfmitsuba.sim.visibility.SpecularVisibility`, the same JIT):
   a path that does not exist contributes nothing, a clear one with ``g = img_amp + img_slope *
   (c - 1/2)``, where ``c`` is the mean ``|cos|`` of the path's angles of incidence (a reflection
-  coefficient changes with the angle: Fresnel), and a blocked one with ``g * T + img_through``:
-  what passes through the obstacle. ``T = exp(sum_g n_g (rho_g + j phi_g))`` over the radio
-  materials ``g`` of the room, ``n_g`` the surfaces of material ``g`` the path crosses (ray
-  cast) and ``rho_g + j phi_g`` = ``mat_through`` the learned log-transmission of one crossing,
-  as Sionna RT refracts through each surface as a thin slab without bending the ray; so a path
-  blocked by the wardrobe at one position and by the bed at another is attenuated by each
-  (``material_through``; off by default, ``T = 0``: it did not help in the bedroom).
-  ``img_through`` is the blocked path's own gain. A ray tracer counts each crossing as an interaction,
+  coefficient changes with the angle: Fresnel), and a blocked one with ``img_through``:
+  what passes through the obstacle, the blocked path's own gain. A ray tracer counts each
+  crossing (Sionna RT refracts through each surface as a thin slab) as an interaction,
   so where the data were simulated with at most ``D`` interactions per path (the dataset's
   ``solver.max_depth``), a path with more reflections plus crossings than ``D`` does not
   exist (Sionna's default D = 3: the direct path through a wardrobe, two crossings, exists; a
@@ -62,15 +57,14 @@ Initialisation (:func:`rfmitsuba.models.coherent_gaussians.build.initial_field`)
   than its threshold (Sionna RT: 1 cm, ``segment_limit``): a direct path that cuts 6 mm
   through a wardrobe's corner does not exist in such data. Images whose path exists at no
   training position are left out;
-* **unknown room**: from the training PAS alone (:func:`~rfmitsuba.models.coherent_gaussians.scan.scan`): matching pursuit on arrival
-  directions. The direct path is explained first; then candidate images across axis-aligned
+* **unknown room**: from the training PAS alone (:func:`.scan.scan`): matching pursuit on arrival directions. The direct path is explained first; then candidate images across axis-aligned
   planes (offsets every ``scan_step`` metres) and candidate scatterers on a grid are scored by
   the mean remaining PAS in the direction each would arrive from at the training views, and
   the best is kept and a beam around its directions masked, ``images`` times, then
   ``scatterers`` times. The planes' images are composed up to ``image_order`` reflections
-  (:func:`~rfmitsuba.models.coherent_gaussians.geometry.compose_images`). A known room gets scanned scatterers beside its image sources too.
-  Where the moving device walks round the fixed one (a room, either task: :func:`~rfmitsuba.models.coherent_gaussians.geometry.spreads_wide`)
-  the scan keeps no plane, and during training the field grows one plane at a time where the
+  (:func:`.geometry.compose_images`). A known room gets scanned scatterers beside its image
+  sources too. Where the moving device walks round the fixed one (a room, either task:
+  :func:`.geometry.spreads_wide`) the scan keeps no plane, and during training the field grows one plane at a time where the
   loss asks for one (:mod:`rfmitsuba.train.pursuit`, ``pursuit``): the walls next to the fixed
   device too, whose images arrive within the array's beam of the direct path, which the scan
   cannot see.
@@ -82,8 +76,6 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``img_amp``        S*2 (re, im)  1           amp
 ``img_through``    S*2           1           amp  (known room with ray-cast visibility only)
 ``img_slope``      S*2           1           amp  (known room with ray-cast visibility only)
-``mat_through``    G*2           1, rad      amp  (log-magnitude, phase per crossing of each of
-                                                  the room's G radio materials; ray casts only)
 ``sc_pos``         P*3           m           means
 ``sc_amp``         P*2           1           amp
 ``vis_center``     (S+P)*3       m           means
@@ -91,12 +83,11 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``vis_grid``       (S+P)*G       1 (logit)   amp  (G = the grid's cells, ``vis_grid`` on only)
 ``vis_grid_box``   6             m           not trained: the grid's box (low corner, high corner)
 ``cal``            16*2          1           amp
-``coupling``       C*2           1           amp  (``coupling`` on only: ``K``'s C = 42 neighbour pairs, or
-                                                  256 entries with ``coupling_model = "full"``)
+``coupling``       C*2           1           amp  (``coupling`` on only: ``K``'s C = 42 neighbour pairs)
 ``pose``           6             rad, m      means in a known room (decays), else rotations (constant)
 =================  ============  ==========  ==========
 
-All are differentiable (tests/models/test_coherent_gaussians.py checks each against finite
+All are differentiable (tests/models/coherent_gaussians/test_field.py checks each against finite
 differences). State is plain NumPy (npz, no pickle).
 """
 from __future__ import annotations
@@ -123,7 +114,7 @@ FORMAT = "rfmitsuba-coherent-gaussians/1"
 
 #: optimizer group of every parameter (rfmitsuba.train.trainer's learning rates)
 LR_GROUPS = {"img_offset": "means", "img_amp": "amp", "img_through": "amp", "img_slope": "amp",
-             "mat_through": "amp", "sc_pos": "means",
+             "sc_pos": "means",
              "sc_amp": "amp", "vis_center": "means", "vis_log_extent": "log_scales", "vis_grid": "amp",
              "cal": "amp", "coupling": "amp", "pose": "means"}   # vis_grid_box is never trained: no group
 
@@ -190,7 +181,7 @@ class CoherentGaussianField(FlatParameterField):
     kind = "coherent_gaussians"
     family = "coherent_gaussians"
     format = FORMAT
-    #: trains on 45 x 180 block means (``TrainConfig.downsample = 0``): its sources are points and
+    #: trains on 45 x 180 block means (``TrainConfig.downsample = "auto"``): its sources are points and
     #: its read-out the array's beam (about 26 degrees wide), so 2-degree pixels pin them as well as
     #: 1-degree ones at a quarter of the read-out's cost (docs/lab-notes/measurements.md)
     downsample_advised = 2
@@ -212,7 +203,7 @@ class CoherentGaussianField(FlatParameterField):
             cfg = dataclasses.replace(cfg, coupling=readout == "phase_only")
         self.cfg, self.readout, self.wavefront = cfg, readout, wavefront
         #: K[m, n]'s coefficient per entry (UInt32 [256]) and 1 where it has one, else 0 (Float [256])
-        index = coupling_index(cfg.coupling_model).ravel()
+        index = coupling_index().ravel()
         self._coupling_lanes = (B.UInt32(np.maximum(index, 0).astype(np.uint32)),
                                 B.Float((index >= 0).astype(np.float32)))
         self.frequency_hz = float(frequency_hz)
@@ -229,7 +220,7 @@ class CoherentGaussianField(FlatParameterField):
         S, P = len(self.A), len(sc)
         self.num_images, self.num_scatterers = S, P
         #: cells of each source's visibility grid (0: none)
-        self.grid_cells = int(np.prod(cfg.vis_grid)) if cfg.vis_grid else 0
+        self.grid_cells = 0 if cfg.vis_grid == "auto" else int(np.prod(cfg.vis_grid))
         self.planes = self.scene_xml = self._vis = None
         #: most reflections plus crossings of a path (None: no limit); see CoherentGaussianConfig.depth_limit
         self.max_depth = None if max_depth is None or not cfg.depth_limit else int(max_depth)
@@ -258,13 +249,10 @@ class CoherentGaussianField(FlatParameterField):
                       "vis_log_extent": np.full(S + P, np.log(cfg.init_extent)),
                       "cal": np.tile([1.0, 0.0], antenna.NUM_ELEMENTS), "pose": np.zeros(6)}
             if cfg.coupling:
-                params["coupling"] = np.zeros(2 * coupling_size(cfg.coupling_model))
+                params["coupling"] = np.zeros(2 * coupling_size())
             if self._vis is not None:
                 params["img_through"] = cfg.init_through * params["img_amp"]
                 params["img_slope"] = np.zeros(S * 2)
-                if cfg.material_through:
-                    G = len(self._vis.group_names)
-                    params["mat_through"] = np.tile([np.log(cfg.init_transmission), 0.0], G)
             if self.grid_cells:   # zero logits: a factor of 1; the box until initial_field sets it
                 params["vis_grid"] = np.zeros((S + P) * self.grid_cells)
                 c0 = np.asarray(vis_center, np.float64).reshape(3)
@@ -331,36 +319,16 @@ class CoherentGaussianField(FlatParameterField):
         and change nothing."""
         return DENSE_EPOCHS if self.grid_cells >= int(np.prod(DENSE_VIS_GRID)) else 0.0
 
-    def penalty(self):
-        """``amp_l1`` times the mean magnitude of every source's complex gain (``img_amp`` and
-        ``sc_amp``), or None where ``amp_l1`` is 0."""
-        import drjit as dr
-
-        if not self.cfg.amp_l1:
-            return None
-        total, n = 0.0, 0
-        for key in ("img_amp", "sc_amp"):
-            a = self.params.get(key)
-            if a is None or dr.width(a) == 0:
-                continue
-            idx = dr.arange(B.UInt32, dr.width(a) // 2)
-            re, im = dr.gather(B.Float, a, 2 * idx), dr.gather(B.Float, a, 2 * idx + 1)
-            total = total + dr.sum(dr.sqrt(re * re + im * im + 1e-12))
-            n += dr.width(a) // 2
-        return None if n == 0 else total * (self.cfg.amp_l1 / n)
-
     def _sizes(self) -> dict:
         S, P = self.num_images, self.num_scatterers
         out = {"img_offset": S * 3, "img_amp": S * 2, "sc_pos": P * 3, "sc_amp": P * 2, "vis_center": (S + P) * 3,
                "vis_log_extent": S + P, "cal": 2 * antenna.NUM_ELEMENTS, "pose": 6}
         if self.cfg.coupling:
-            out["coupling"] = 2 * coupling_size(self.cfg.coupling_model)
+            out["coupling"] = 2 * coupling_size()
         if self.grid_cells:
             out["vis_grid"], out["vis_grid_box"] = (S + P) * self.grid_cells, 6
         if self._vis is not None:
             out["img_through"] = out["img_slope"] = S * 2
-            if self.cfg.material_through:
-                out["mat_through"] = 2 * len(self._vis.group_names)
         return out
 
     @property
@@ -396,13 +364,13 @@ class CoherentGaussianField(FlatParameterField):
             if meta.get("format") != FORMAT:
                 raise RunError(f"not a CoherentGaussianField state (format {meta.get('format')!r})")
             P = len(np.asarray(state["sc_pos"]).ravel()) // 3
-            cfg = from_dict(CoherentGaussianConfig, meta["config"])
-            if "mat_through" not in state and cfg.material_through:   # saved before material transmission
-                cfg = dataclasses.replace(cfg, material_through=False)
+            cfg = from_dict(CoherentGaussianConfig, meta["config"], saved=True)
             if "coupling" not in state and cfg.coupling is not False:  # saved before (or without) coupling
                 cfg = dataclasses.replace(cfg, coupling=False)
-            if "coupling" in state and np.asarray(state["coupling"]).size == 2 * coupling_size("full"):
-                cfg = dataclasses.replace(cfg, coupling_model="full")  # saved before the neighbours' model
+            if "coupling" in state and np.asarray(state["coupling"]).size != 2 * coupling_size():
+                raise RunError(f"CoherentGaussianField state: a mutual coupling of "
+                               f"{np.asarray(state['coupling']).size // 2} coefficients (the removed free coupling); "
+                               f"this version learns the {coupling_size()} neighbour pairs: train the field again")
             f = cls(state["geometry.A"], state["geometry.order"], np.zeros((P, 3)),
                     cfg=cfg, readout=meta["readout"],
                     wavefront=meta["wavefront"], vis_center=np.zeros(3), frequency_hz=meta["frequency_hz"],
@@ -605,8 +573,6 @@ class CoherentGaussianField(FlatParameterField):
             tr = self.path_trace(x, y)
             out["vis"] = tuple(B.Float(np.asarray(v, np.float32).ravel())
                                for v in (tr.exists, tr.clear, tr.cos_incidence - 0.5))
-            if self.cfg.material_through:
-                out["cross"] = B.Float(np.ascontiguousarray(tr.crossings, np.float32).ravel())
         return out
 
     def visibility(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -699,17 +665,6 @@ class CoherentGaussianField(FlatParameterField):
                 tr, ti = dr.gather(B.Float, th, 2 * k), dr.gather(B.Float, th, 2 * k + 1)
                 ar = ar + c * dr.gather(B.Float, sl, 2 * k)
                 ai = ai + c * dr.gather(B.Float, sl, 2 * k + 1)
-                if "cross" in prep:  # the clear gain through every crossed surface: g * exp(sum n (rho + j phi))
-                    G = len(self._vis.group_names)
-                    mt = self.params["mat_through"]
-                    lr = li = 0.0
-                    for g in range(G):
-                        n = dr.gather(B.Float, prep["cross"], lane * G + g)
-                        lr = lr + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g, dr.width(lane)))
-                        li = li + n * dr.gather(B.Float, mt, dr.full(B.UInt32, 2 * g + 1, dr.width(lane)))
-                    mag = dr.exp(lr)
-                    Tr, Ti = mag * dr.cos(li), mag * dr.sin(li)
-                    tr, ti = tr + ar * Tr - ai * Ti, ti + ar * Ti + ai * Tr
                 ar, ai = cl * ar + (ex - cl) * tr, cl * ai + (ex - cl) * ti
         else:
             pos = self.params["sc_pos"]
