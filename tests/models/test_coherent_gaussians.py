@@ -531,7 +531,7 @@ def test_visibility_grid():
         init_extent=1.5, vis_grid=grid), readout="amplitude", wavefront="plane", vis_center=np.array([2.0, 1.5, 1.0]),
         frequency_hz=F)
     views = _views()
-    f, plain = make((3, 2, 2)), make(None)
+    f, plain = make((3, 2, 2)), make((0, 0, 0))
     assert f.grid_cells == 12 and len(f.params["vis_grid"].numpy()) == 12 * 4 and plain.grid_cells == 0
     for a, b in zip(f.channels(views), plain.channels(views)):
         np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-5, atol=1e-7)
@@ -546,7 +546,7 @@ def test_visibility_grid():
     assert g.cfg.vis_grid == (3, 2, 2)
     for a, b in zip(g.channels(views), f.channels(views)):
         np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-6, atol=1e-8)
-    for bad in ((0, 2, 2), (2, 2), (-1, 1, 1)):
+    for bad in ((0, 2, 2), (2, 2), (-1, 1, 1), None):
         with pytest.raises(ConfigError, match="vis_grid"):
             CoherentGaussianConfig(vis_grid=bad)
 

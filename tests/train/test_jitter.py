@@ -75,7 +75,7 @@ def test_bad_spread_copies_and_mixed_views_are_refused():
         Views.concat([v, framed])
     assert Views.concat([framed, framed]).count == 12
     for bad in (-0.5, float("inf")):
-        with pytest.raises(ConfigError, match="TrainConfig.jitter must be -1"):
+        with pytest.raises(ConfigError, match="TrainConfig.jitter must be 'auto'"):
             TrainConfig(jitter=bad)
     for bad in (0, 9, True):
         with pytest.raises(ConfigError, match="TrainConfig.jitter_views"):

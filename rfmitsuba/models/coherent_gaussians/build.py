@@ -13,7 +13,6 @@ from ...core.errors import ConfigError
 from ...rf.calibration_fit import los_calibration_fit
 from ...rf.frame_fit import los_frame_fit
 from ...rf.images import ImageMaps, scene_image_maps
-from .field import CoherentGaussianField
 from .geometry import (
     DENSE_VIS_GRID,
     compose_images,
@@ -34,8 +33,8 @@ SCAN_SAMPLES = 1024
 #: (a right frame gained 0.002 on NeRF2-like data, one 25 / 45 degrees off 0.023 / 0.66)
 FRAME_WARN_GAIN = 0.05
 
-def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, name: str = "bg",
-                  field_class: type | None = None) -> CoherentGaussianField:
+def initial_field(cfg, data, *, scene_xml: Path | None, field_class: type, extra_inputs: int = 0,
+                  name: str = "bg"):
     """The Stage-1 initial field: the room's image sources (known room) or the data scan
     (unknown room), plus scanned scatterers; read-out and wavefront resolved from the dataset.
 
@@ -45,7 +44,10 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
             PAS are read.
         scene_xml: the room's XML, or None when it is unknown.
         extra_inputs: must be 0 (this field takes no per-view network inputs).
-        name: the field's name; field_class: a subclass of :class:`CoherentGaussianField` to build.
+        field_class: :class:`~rfmitsuba.models.coherent_gaussians.field.CoherentGaussianField` or a
+            subclass, the field to build; name: the field's name.
+    Returns:
+        the initial field (``field_class``).
     """
     if extra_inputs:
         raise ConfigError("model 'coherent_gaussians' takes no extra per-view inputs (its End-to-End model is "
@@ -84,7 +86,7 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
         which = "the finer grid where the data are dense" if grid == DENSE_VIS_GRID else "the default grid"
         decided.append((key + "vis_grid", grid, f"{'unknown' if init == 'data' else 'known'} room, {n_pos} distinct "
                         f"training positions: {which}"))
-    if init == "data" and (c.images == "auto" or c.pursuit == "auto"):
+    if init == "data" and (c.images == "auto" or c.pursuit == "auto") and hasattr(data, "task"):
         fixed = y if data.task == "rx" else x
         spread = position_spread_deg(fixed, q)
         where = f"the positions spread {spread:.1f} degrees seen from the fixed device"
@@ -92,7 +94,7 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
             decided.append((key + "images", scan_planes(c, data), where + (" (within the array's beam: the scan "
                             "finds the planes)" if not spreads_wide(data) else " (wider than half the array's beam: "
                             "the pursuit finds them)")))
-        if c.pursuit == "auto":
+        if c.pursuit == "auto":   # decided again where the pursuit runs (rfmitsuba.train.pursuit), by the same rule
             decided.append((key + "pursuit", "on" if uses_pursuit(c, data) else "off", where))
     depth = getattr(data, "max_depth", None) if c.depth_limit else None   # the data's tracer depth
     min_seg = getattr(data, "min_segment", None) if c.segment_limit else None   # and its shortest segment
@@ -166,7 +168,7 @@ def initial_field(cfg, data, *, scene_xml: Path | None, extra_inputs: int = 0, n
     else:
         scale = 1.0
     ray = init == "room" and c.ray_visibility
-    f = (field_class or CoherentGaussianField)(
+    f = field_class(
         A, order, sc, cfg=c, readout=readout, wavefront=wavefront, vis_center=q.mean(0),
         frequency_hz=data.frequency_hz, seed=cfg.seed, name=name, scatterer_scale=scale, init=init,
         planes=maps.planes if ray else None, scene_xml=scene_xml if ray else None,

@@ -135,7 +135,7 @@ class CoherentGaussianConfig:
             raise ConfigError("CoherentGaussianConfig: scan_step > 0, scan_margin >= 0, init_extent > 0 and scan radii "
                               "> 0 required")
         if self.vis_grid != "auto":
-            g = tuple(self.vis_grid)
+            g = tuple(self.vis_grid) if isinstance(self.vis_grid, (tuple, list)) else ()
             if len(g) != 3 or not all(isinstance(n, int) and n >= 0 for n in g) or (0 in g and any(g)):
                 raise ConfigError(f"CoherentGaussianConfig.vis_grid must be 'auto' or 3 cells (x, y, z), all >= 1 "
                                   f"or all 0, got {self.vis_grid!r}")
