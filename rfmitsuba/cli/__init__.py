@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from ..core.errors import RfmError
+from ..core.interrupt import Terminated, sigterm_interrupts
 
 #: Sub-command modules, in help order.
 COMMANDS = ["info", "generate", "nerf2like", "show", "invert", "train", "eval", "predict", "experiment", "compare", "reproduce", "demo", "bench"]
@@ -41,21 +43,32 @@ def main(argv: list[str] | None = None) -> int:
     from ..core.memory import keep_freed_memory
 
     keep_freed_memory()
+    warnings.formatwarning = _one_line_warning(args.command)
     try:
         if args.variant:
             from ..core import backend
 
             backend.set_variant(args.variant)
-        return int(args.func(args) or 0)
+        with sigterm_interrupts():   # kill (SIGTERM) stops a command as Ctrl-C does
+            return int(args.func(args) or 0)
     except RfmError as e:
         print(f"rfmitsuba {args.command}: error: {e}", file=sys.stderr)
         return 2
     except BaseException as e:                     # noqa: BLE001 - named below, or raised again
-        code, message = _named_fault(e)
+        code, message = _named_fault(e, out=getattr(args, "out", None))
         if code is None:
             raise
         print(f"rfmitsuba {args.command}: {message}", file=sys.stderr)
         return code
+
+
+def _one_line_warning(command: str):
+    """``warnings.formatwarning`` for the CLI: "rfmitsuba COMMAND: warning: MESSAGE", without the
+    source file and line a Python user sees."""
+    def fmt(message, category, filename, lineno, line=None):
+        return f"rfmitsuba {command}: warning: {message}\n"
+
+    return fmt
 
 
 def _cause_chain(e: BaseException):
@@ -68,28 +81,37 @@ def _cause_chain(e: BaseException):
         e = e.__cause__ or e.__context__
 
 
-def _named_fault(e: BaseException) -> tuple[int | None, str]:
+def _named_fault(e: BaseException, *, out: str | None = None) -> tuple[int | None, str]:
     """(exit code, one-line message) for a fault a user can cause, or (None, "") for a bug.
+    ``out``: the command's output folder (``--out``), named where the error names no path, and
+    offered as the way out only where the command has one.
 
-    Ctrl-C: 130, "interrupted; finished work is kept"; a file-system error (disk full, read-only,
+    Ctrl-C: 130, "interrupted; finished work is kept"; SIGTERM: 143, the same; a file-system error (disk full, read-only,
     a file where a folder belongs, permission): 1, naming the path and the cause; out of memory:
     1, with the size asked for."""
     import errno
 
     chain = list(_cause_chain(e))
+    if any(isinstance(x, Terminated) for x in chain):
+        return 143, "terminated (SIGTERM); finished work is kept, run the same command to resume"
     if any(isinstance(x, KeyboardInterrupt) for x in chain):
         return 130, "interrupted; finished work is kept, run the same command to resume"
     mem = next((x for x in chain if isinstance(x, MemoryError)), None)
     if mem is not None:
         what = str(mem) or "an allocation failed"
+        if "(--" in what:   # the check that raised it names the option (rfmitsuba.core.allocation)
+            return 1, f"error: out of memory: {what}"
         return 1, (f"error: out of memory ({what}); ask for fewer positions, states or views per call "
                    "(--positions, --human-positions, --batch)")
     ose = next((x for x in chain if isinstance(x, OSError) and (x.filename or x.errno)), None)
     if ose is not None:
-        path = ose.filename if ose.filename is not None else "(no path)"
+        path = ose.filename if ose.filename is not None else (f"writing under {out}" if out else "(no path)")
         cause = ose.strerror or errno.errorcode.get(ose.errno or 0, str(ose))
-        hint = {errno.ENOSPC: "; free space or write elsewhere (--out), finished work is kept",
-                errno.EROFS: "; write elsewhere (--out)", errno.EACCES: "; check the permissions or write elsewhere",
+        elsewhere = " or write elsewhere (--out)" if out else ""
+        hint = {errno.ENOSPC: f"; free space{elsewhere}, finished work is kept",
+                errno.EROFS: "; write elsewhere (--out)" if out else "; the folder is read-only: copy it somewhere "
+                             "writable and run the command there",
+                errno.EACCES: f"; check the permissions{elsewhere}",
                 errno.ENOTDIR: "; a file stands where a folder belongs",
                 errno.EEXIST: "; a file stands where a folder belongs"}.get(ose.errno, "")
         return 1, f"error: {path}: {cause}{hint}"

@@ -39,11 +39,6 @@ def run(args) -> int:
 
 def parse_seeds(text: str) -> list[int]:
     """``--seeds 0,1,2`` -> [0, 1, 2]; ConfigError naming the entry that is not a whole number >= 0."""
-    from ..core.errors import ConfigError
+    from ._values import whole_numbers
 
-    out = []
-    for tok in (t.strip() for t in text.split(",")):
-        if not (tok.isascii() and tok.isdigit()):
-            raise ConfigError(f"--seeds: {tok!r} is not a seed (whole numbers >= 0, comma-separated, e.g. 0,1,2)")
-        out.append(int(tok))
-    return out
+    return whole_numbers(text, option="--seeds")

@@ -1,11 +1,13 @@
 """``rfmitsuba eval RUN``: metric-protocol evaluation of a trained run, with floors and plots."""
 from __future__ import annotations
 
+from ._values import positive_int
+
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="evaluate a trained run on its test split (writes RUN/eval/)")
     p.add_argument("run", help="run folder written by `rfmitsuba train`")
-    p.add_argument("--batch", type=int, default=8, help="views per render call")
+    p.add_argument("--batch", type=positive_int, default=8, help="views per render call")
     p.set_defaults(func=run)
 
 

@@ -68,16 +68,14 @@ def _run(args) -> int:
     if args.dataset is None:
         raise ConfigError(f"experiment {args.kind} needs a dataset folder")
     from ..experiments import tables as E
+    from ._values import whole_numbers
     from .train import build_config
 
     cfg = build_config(args)
-    counts = tuple(int(c) for c in args.counts.split(",")) if args.counts else None
+    counts = tuple(whole_numbers(args.counts, option="--counts", least=1, example="20,45,90")) if args.counts else None
     if args.kind == "splits":
         fields = tuple(f.strip() for f in args.fields.split(",") if f.strip()) if args.fields else E.SENSITIVITY_FIELDS
-        try:
-            seeds = tuple(int(s) for s in args.seeds.split(",") if s.strip())
-        except ValueError:
-            raise ConfigError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+        seeds = tuple(whole_numbers(args.seeds, option="--seeds"))
         E.split_sensitivity(args.dataset, args.out, fields=fields, seeds=seeds, cfg=cfg, tag=args.tag,
                             quiet=args.quiet)
     elif args.kind == "motivation":

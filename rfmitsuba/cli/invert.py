@@ -3,7 +3,6 @@ channels, their re-render SSIM, and the carrier, pitch and grid the spectra impl
 (:mod:`rfmitsuba.eval.invert`)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 

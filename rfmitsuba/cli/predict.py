@@ -1,6 +1,8 @@
 """``rfmitsuba predict RUN --positions FILE --out DIR``: a trained run's PAS at positions of your choice."""
 from __future__ import annotations
 
+from ._values import positive_int
+
 
 def register(sub) -> None:
     p = sub.add_parser("predict", help="render a trained run at the positions in a file (writes DIR/pas.npy, "
@@ -14,7 +16,7 @@ def register(sub) -> None:
                    help="the neighbour-anchored prediction with the (k, alpha) `rfmitsuba eval` chose on validation")
     p.add_argument("--no-room-check", dest="check_room", action="store_false",
                    help="render positions outside the known room (or inside its furniture) too")
-    p.add_argument("--batch", type=int, default=8, help="views per render call")
+    p.add_argument("--batch", type=positive_int, default=8, help="views per render call")
     p.set_defaults(func=run)
 
 

@@ -26,6 +26,26 @@ def write_json(path: str | Path, obj: Any, *, indent: int = 1, end: str = "", **
     return write_text(path, json.dumps(obj, indent=indent, **dumps_kw) + end)
 
 
+def write_json_with_numpy(path: str | Path, obj: Any) -> Path:
+    """Write results that hold NumPy values (as numbers and lists) and may hold NaN (a score that
+    could not be computed) as JSON atomically."""
+    return write_json(path, obj, allow_nan=True, default=numpy_default)
+
+
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` (dicts, lists and tuples of values) with every non-finite number (NaN, infinity)
+    replaced by None, so its JSON is standard JSON (``null``) that any reader accepts."""
+    import math
+
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    if isinstance(obj, float) or type(obj).__name__ in ("float32", "float64", "float16"):
+        return float(obj) if math.isfinite(float(obj)) else None
+    return obj
+
+
 def numpy_default(o: Any):
     """``json.dumps(default=...)`` for NumPy values: scalars to numbers, arrays to lists."""
     import numpy as np

@@ -261,7 +261,7 @@ class NerfDataset:
             missing = [n for n in range(1, max(numbers) + 1) if n not in have]
             raise DatasetError(f"{spec}: image {missing[0]:05d}.png is missing"
                                + (f" ({len(missing)} numbers missing in all)" if len(missing) > 1 else "")
-                               + f"; images must be numbered 1..{A} without gaps")
+                               + f"; images must be numbered 1..{max(numbers)} without gaps")
         extra = {}
         if (self.path / EXTRA).is_file():
             try:
@@ -289,6 +289,14 @@ class NerfDataset:
         if len(pos) < A:
             raise DatasetError(f"{csv}: {len(pos)} positions for {A} images in spectrum/ (one row per image)")
         if len(pos) > A:
+            named = [_read_index(f, len(pos)) for f in (self.path / "train_index.txt", self.path / "test_index.txt")
+                     if f.is_file()]
+            last = max((int(ix.max()) + 1 for ix in named if ix.size), default=0)
+            if last > A:   # the index files name images past the last one: those are missing, not extra rows
+                raise DatasetError(f"{spec}: image {A + 1:05d}.png is missing"
+                                   + (f" (and the {last - A - 1} after it)" if last > A + 1 else "")
+                                   + f": tx_pos.csv has {len(pos)} rows and the index files name images up to "
+                                     f"{last}; images must be numbered 1..{last} without gaps")
             msg = (f"{csv}: {len(pos)} positions but only {A} images in spectrum/; images 1..{A} take the first "
                    f"{A} rows (is spectrum/ complete?)")
             warnings.warn(msg, stacklevel=2)

@@ -69,7 +69,7 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _write_json(path: Path, obj: Any) -> None:
+def _write_meta_json(path: Path, obj: Any) -> None:
     write_json(path, obj, sort_keys=True, allow_nan=False, end="\n")
 
 
@@ -138,7 +138,7 @@ def write_chunk(root: str | Path, state: int, *, pas: np.ndarray | None = None, 
         if type(e) is ValueError:           # the blocks' shapes (save_npy_blocks)
             raise DatasetError(f"state {state}: {e}") from None
         raise
-    _write_json(tmp / "chunk.json", {"state": int(state), "num_antennas": num, "sha256": digests})
+    _write_meta_json(tmp / "chunk.json", {"state": int(state), "num_antennas": num, "sha256": digests})
     with open(tmp / "chunk.json", "rb") as fh:  # every file on disk before the rename makes the chunk visible
         os.fsync(fh.fileno())
     if final.exists():
@@ -347,28 +347,29 @@ _DIFF_FIRST = ("format", "task", "scene", "frequency_hz", "generate", "solver", 
                "num_states", "versions")
 
 
-def config_diff(a: Any, b: Any, prefix: str = "") -> str | None:
-    """Dotted name of the first key where two meta dicts differ, or None when equal."""
+def first_difference(a: Any, b: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
+    """The first place where two meta dicts differ: (dotted key, the value in ``a``, the value in
+    ``b``; "<missing>" where one lacks the key), or None when they are equal."""
     if isinstance(a, dict) and isinstance(b, dict):
         keys = sorted(set(a) | set(b))
         keys = [k for k in _DIFF_FIRST if k in keys] + [k for k in keys if k not in _DIFF_FIRST]
         for k in keys:
             if k not in a or k not in b:
-                return f"{prefix}{k}"
-            d = config_diff(a[k], b[k], f"{prefix}{k}.")
+                return f"{prefix}{k}", a.get(k, "<missing>"), b.get(k, "<missing>")
+            d = first_difference(a[k], b[k], f"{prefix}{k}.")
             if d is not None:
                 return d
         return None
     if isinstance(a, list) and isinstance(b, list):
         if len(a) != len(b):
-            return prefix.rstrip(".") or "<root>"
+            return prefix.rstrip(".") or "<root>", a, b
         for i, (x, y) in enumerate(zip(a, b)):
-            d = config_diff(x, y, f"{prefix.rstrip('.')}[{i}].")
+            d = first_difference(x, y, f"{prefix.rstrip('.')}[{i}].")
             if d is not None:
-                return d.rstrip(".") if d.endswith(".") else d
+                return (d[0].rstrip("."), *d[1:])
         return None
     if a != b:
-        return prefix.rstrip(".") or "<root>"
+        return prefix.rstrip(".") or "<root>", a, b
     return None
 
 
@@ -396,10 +397,12 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
             old = json.loads(meta_file.read_text())
         except ValueError as e:
             raise DatasetError(f"{meta_file}: not valid JSON ({e}); refusing to overwrite") from None
-        key = config_diff(_without_location(old), _without_location(meta))
-        if key is not None:
-            raise DatasetError(f"{root} holds a dataset of another configuration: key {key!r} differs; "
-                               "nothing was overwritten (choose another --out)")
+        diff = first_difference(_without_location(old), _without_location(meta))
+        if diff is not None:
+            key, have, want = diff
+            raise DatasetError(f"{root} holds a dataset of another configuration: {key} is {have!r} there and "
+                               f"{want!r} in this call; nothing was overwritten (run the command that made it, "
+                               "or choose another --out)")
         ap_old = np.load(root / "antenna_pos.npy", allow_pickle=False)
         if not np.array_equal(ap_old, np.asarray(antenna_pos, np.float32)):
             raise DatasetError(f"{root}/antenna_pos.npy differs from this configuration's positions")
@@ -408,8 +411,8 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
         raise DatasetError(f"{root} is not empty and holds no dataset; refusing to write into it")
     root.mkdir(parents=True, exist_ok=True)
     np.save(root / "antenna_pos.npy", np.asarray(antenna_pos, np.float32), allow_pickle=False)
-    _write_json(root / "split.json", split.to_json())
-    _write_json(meta_file, meta)  # last: its presence marks a prepared folder
+    _write_meta_json(root / "split.json", split.to_json())
+    _write_meta_json(meta_file, meta)  # last: its presence marks a prepared folder
     return root
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +42,12 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     """
 
     rd = Path(run_dir)
-    cfg, data, renderer = load_run(rd)
+    with warnings.catch_warnings(record=True) as caught:   # e.g. the dataset changed since training
+        warnings.simplefilter("always")
+        cfg, data, renderer = load_run(rd)
+    opened = [str(w.message) for w in caught]
+    for w in caught:   # still shown where they arise; also kept in the report below
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     fields = renderer.fields
     split = json.loads((rd / "split.json").read_text())
     train_idx = np.asarray(split["train"], np.int64)
@@ -80,6 +86,7 @@ def evaluate_run(run_dir: str | Path, *, batch: int = 8, quiet: bool = False) ->
     summary = json.loads((rd / "final" / "summary.json").read_text())
     metrics = {
         "run": str(rd), "dataset": str(data.path), "task": data.task, "test_positions": int(len(test_idx)),
+        "warnings": opened,
         "train_positions": int(len(train_idx)),
         "model": stats(model_ssim), "fit": stats(fit_ssim), "nearest_neighbour": stats(fl["nearest_neighbour"]),
         "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
@@ -155,6 +162,7 @@ def summary_markdown(m: dict) -> str:
                   f"{a['field_val_ssim']:.4f}); it "
                   + ("beats" if a["beats_best_floor"] else "does NOT beat") + f" the best floor ({best}) in mean "
                   "and median."]
+    lines += [f"- **Warning:** {w}" for w in m.get("warnings", [])]
     lines += ["", verdict, "",
               f"- Gaussians: {m['num_gaussians']}; parameters: {m['num_parameters']} "
               f"(network {m['network_parameters']})",

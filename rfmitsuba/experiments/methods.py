@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import config as C
-from ..core.atomic import numpy_default, write_json
+from ..core.atomic import write_json_with_numpy
 from ..core.errors import ConfigError, RunError
 from ..data.samples import SampleData, num_human_features
 from ..data.store import open_dataset
@@ -231,7 +231,7 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
                      seed=seed)
     tr = Trainer(stage3_config(mcfg, seed=seed), data, out / "stage3", quiet=quiet, extra=lambda idx: feats(data, idx),
                  extra_inputs=width, field_factory=lambda t, rng: CoherentGaussianJointField.from_person(person))
-    _write_json(out / "ours.json", {"ours_dir": str(ours_dir.resolve())})
+    write_json_with_numpy(out / "ours.json", {"ours_dir": str(ours_dir.resolve())})
     s3 = tr.run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"] + s3["train_time_s"],
             "steps": s1["steps"] + s2["steps"] + s3["steps"], "stage1_train_time_s": s1["train_time_s"],
@@ -262,7 +262,7 @@ def _train_continued(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise
     start = load_field(stage1_dir / "final" / "field.npz")
     data = open_data(dataset, get_method("continued"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
                      seed=seed)
-    _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
     s = Trainer(stage3_config(mcfg, seed=seed), data, out / "train", quiet=quiet,
                 field_factory=lambda tr, rng: start).run()
     return {"train_time_s": s1["train_time_s"] + s["train_time_s"], "steps": s1["steps"] + s["steps"],
@@ -334,7 +334,7 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
                  extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
                  extra_inputs=num_human_features(oct_) + 3, field_factory=factory)
-    _write_json(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
     s2 = tr.run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
@@ -397,7 +397,7 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
         if reevaluate:
             metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
                                        noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
-            _write_json(jd / "metrics.json", metrics)
+            write_json_with_numpy(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
@@ -405,13 +405,11 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
                   noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
-    _write_json(jd / "metrics.json", metrics)
+    write_json_with_numpy(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")
     return metrics
 
 
-def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, allow_nan=True, default=numpy_default)
 
 
 def config_dict(mcfg: MethodConfig) -> dict:

@@ -30,20 +30,19 @@ no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 core
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
-import signal
 import threading
 import time
 from pathlib import Path
 
 from ..core import config as C
-from ..core.atomic import numpy_default, write_json, write_text
+from ..core.atomic import write_json_with_numpy, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import PlacementError, RfmError, RunError
 from ..core.folder_lock import folder_lock
+from ..core.interrupt import sigterm_interrupts
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
@@ -191,7 +190,7 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
                 raise RunError(f"job folder {jd} belongs to another configuration: {'; '.join(diff)} "
                                "(nothing was changed)")
         jd.mkdir(parents=True, exist_ok=True)
-        _write_json(jt, want)
+        write_json_with_numpy(jt, want)
     prior = job.prior_job()
     if prior is not None:
         reproduce_job(prior, out, cfg, data_dir, quiet=quiet)
@@ -313,28 +312,9 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
     cluster = cluster or ClusterConfig()
     check_experiment(out, cfg)
     check_disk(dataset_specs(cfg), cfg, Path(data_dir) if data_dir else out / "data")   # before anything is written
-    with folder_lock(out, what="reproduce"), _sigterm_as_exit():   # a second reproduce into out stops at the lock
+    with folder_lock(out, what="reproduce"), sigterm_interrupts():   # a second reproduce into out stops at the lock
         return _reproduce(out, cfg, data_dir=data_dir, stop_after=stop_after, reevaluate=reevaluate, quiet=quiet,
                           cluster=cluster)
-
-
-@contextlib.contextmanager
-def _sigterm_as_exit():
-    """SIGTERM (``kill``) raises SystemExit here, so that a killed run unwinds and records its wall
-    time (:func:`record_run`) like one stopped by Ctrl-C; only in the main thread, where Python
-    delivers signals."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def stop(signum, _frame):
-        raise SystemExit(128 + signum)
-
-    old = signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reevaluate: bool, quiet: bool,
@@ -378,7 +358,7 @@ def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reeval
             raise
         results = {n: done[n] for n in names}
         wall = record.end(jobs_run=len(new))
-    _write_json(out / "results.json", results)
+    write_json_with_numpy(out / "results.json", results)
 
     return write_report(out, cfg, results, wall_s=wall)
 
@@ -395,7 +375,7 @@ def record_run(out: Path, *, wall_s: float, jobs_run: int, tables: list[str], st
                run_id: str | None = None) -> None:
     """Write a run's row in ``out/runs.jsonl`` (rewritten atomically): when it ended, its wall time
     [s], the jobs it finished (those not done before it), the tables it was asked for and, for a
-    run that stopped early, why (the exception's name: ``KeyboardInterrupt``, ``SystemExit`` for
+    run that stopped early, why (the exception's name: ``KeyboardInterrupt``, ``Terminated`` for
     SIGTERM, ``Stopped``, ``JobsFailed``, ...; :data:`NO_END` while it runs), so a reproduction
     resumed over several sessions reports the time of all its runs. A row with the same
     ``run_id`` is replaced; without one, or with a new one, the row is appended."""
@@ -460,7 +440,3 @@ class _RunRecord:
             record_run(self.out, wall_s=wall, jobs_run=self.jobs_run, tables=self.tables, stopped=stopped,
                        run_id=self.run_id)
             return wall
-
-
-def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, allow_nan=True, default=numpy_default)

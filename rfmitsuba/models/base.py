@@ -86,18 +86,25 @@ def field_class(kind: str) -> type:
     return FIELD_CLASSES[kind]
 
 
-def load_field(path: str | Path) -> "Field":
-    """Read any saved field by the ``format`` in its metadata (RunError naming what is wrong)."""
+def read_field_state(path: str | Path) -> dict:
+    """The arrays of a saved field file (name -> array), every one read (RunError naming the file
+    and the way out where it is missing or damaged, e.g. truncated)."""
     path = Path(path)
     if not path.is_file():
         raise RunError(f"field file {path} does not exist")
     try:
         with np.load(path, allow_pickle=False) as z:
-            state = {k: z[k] for k in z.files}
+            return {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
         raise RunError(f"{path}: not a readable field file ({type(e).__name__}: {e}); if it is a run's "
                        f"final field, delete {path.parent} and run the same `rfmitsuba train` again to write it "
                        "from the run's checkpoint") from None
+
+
+def load_field(path: str | Path) -> "Field":
+    """Read any saved field by the ``format`` in its metadata (RunError naming what is wrong)."""
+    path = Path(path)
+    state = read_field_state(path)
     if "meta" not in state:
         raise RunError(f"{path}: field file has no 'meta' entry")
     try:

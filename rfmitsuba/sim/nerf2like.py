@@ -60,12 +60,14 @@ import numpy as np
 from ..core import backend, progress
 from ..core import config as _config
 from ..core.errors import ConfigError, DatasetError, SceneError
+from ..core.allocation import check_fits
 from ..core.folder_lock import folder_lock
 from ..data import nerf2
 from ..data.split import make_split
-from ..data.store import _scene_record, config_diff, resolve_scene
+from ..data.store import _scene_record, first_difference, resolve_scene
 from ..rf import array as antenna
 from ..rf.bartlett_ref import bartlett
+from ..rf.grid import PAS_SHAPE
 from .generate import default_solver
 from .geometry import RoomGeometry
 from .simulate import Simulator, SolverConfig, versions
@@ -392,10 +394,10 @@ def _existing(out: Path, config: dict) -> bool:
         rec = None
     if not isinstance(rec, dict) or rec.get("generator") != GENERATOR:
         raise DatasetError(f"{out} is not empty and not a NeRF2-like folder; refusing to write into it")
-    diff = config_diff(rec.get("config"), config)
+    diff = first_difference(rec.get("config"), config)
     if diff is not None:
-        raise DatasetError(f"{out} holds a NeRF2-like dataset of another configuration (first difference: "
-                           f"config.{diff}); choose another folder or delete it")
+        raise DatasetError(f"{out} holds a NeRF2-like dataset of another configuration (config.{diff[0]} is "
+                           f"{diff[1]!r} there and {diff[2]!r} in this call); choose another folder or delete it")
     ds = nerf2.read(out)
     if ds.num_antennas != config["num_tags"]:
         raise DatasetError(f"{out}: {ds.num_antennas} spectra, expected {config['num_tags']}; delete the folder")
@@ -457,6 +459,8 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
 
     t_start = time.perf_counter()
     num_tags = _integer(num_tags, "num_tags", lo=10)
+    # the spectra (float32 [num_tags, 90, 360]) and a copy of them while they are written
+    check_fits(2.0 * num_tags * PAS_SHAPE[0] * PAS_SHAPE[1] * 4, what=f"{num_tags} tags' spectra", option="--tags")
     snr = _number(snr_db, "snr_db", allow_inf=True)
     if snr == -math.inf:
         raise ConfigError(f"snr_db must be finite or +inf (no noise), got {snr_db!r}")

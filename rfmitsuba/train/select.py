@@ -128,7 +128,13 @@ def select_model(cfg, data: TrainData, run_dir: str | Path, *, trainer, quiet: b
     if not scores:
         raise ConfigError("model = 'auto': no candidate field can train on this dataset: "
                           + "; ".join(f"{k}: {v}" for k, v in refused.items()))
-    chosen = max(scores, key=lambda k: (scores[k]["best_val_ssim"] or -1.0, -names.index(k)))
-    write_json(choice, {"chosen": chosen, "trials": scores, "refused": refused,
-                        "rule": f"best validation SSIM after a quarter of the budget (at most {TRIAL_MAX} steps)"})
+    scored = [k for k in scores if scores[k]["best_val_ssim"] is not None]
+    if scored:
+        chosen = max(scored, key=lambda k: (scores[k]["best_val_ssim"], -names.index(k)))
+        rule = f"best validation SSIM after a quarter of the budget (at most {TRIAL_MAX} steps)"
+    else:   # too few positions to hold any back for validation: nothing to compare the trials by
+        chosen = next(k for k in names if k in scores)
+        rule = ("no validation positions (too few training positions at this val_fraction): the first candidate "
+                "that trained, in the order of preference")
+    write_json(choice, {"chosen": chosen, "trials": scores, "refused": refused, "rule": rule})
     return candidate_config(cfg, chosen)

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..core import backend as B
 from ..core import config as C
-from ..core.atomic import write_json
+from ..core.atomic import finite_or_null, write_json_with_numpy
 from ..core.errors import ConfigError, DatasetError, RunError
 from ..core.folder_lock import LOCK_NAME
 from ..core.progress import bar
@@ -53,7 +53,7 @@ from ..core.upload import upload
 from ..data.split import block_split, make_split
 from ..data.store import resolve_scene
 from ..data.views import TrainData
-from ..models.base import Field, FieldSet, Views, field_class, load_field, render
+from ..models.base import Field, FieldSet, Views, field_class, load_field, read_field_state, render
 from ..rf.bartlett_ref import (
     normalize as minmax,  # the per-image min-max normalisation, [..., H, W] -> [0, 1]
 )
@@ -84,10 +84,6 @@ def _versions() -> dict:
         except PackageNotFoundError:
             out[p] = None
     return out
-
-
-def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, allow_nan=True)
 
 
 def load_loss():
@@ -151,11 +147,7 @@ class Trainer:
         rd = self.run_dir
         want = C.to_dict(self.cfg)
         cfg_file = rd / "config.toml"
-        if rd.exists() and not rd.is_dir():
-            raise RunError(f"run folder {rd} exists and is not a folder")
-        if rd.is_dir() and any(p.name not in (SELECT_DIR, LOCK_NAME) for p in rd.iterdir()):  # "auto" trials, the lock
-            if not cfg_file.is_file():
-                raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
+        if refuse_foreign_folder(rd):
             try:
                 have = C.to_dict(C.load(TrainConfig, cfg_file, saved=True))
             except ConfigError as e:
@@ -177,14 +169,14 @@ class Trainer:
         if not (rd / "config.toml").exists():
             C.save(self.cfg, rd / "config.toml")
         if not (rd / "run.json").exists():
-            _write_json(rd / "run.json", {
+            write_json_with_numpy(rd / "run.json", {
                 "format": "rfmitsuba-run/1", "dataset": str(self.data.path.resolve()), "task": self.data.task,
                 "state": self.data.state, "scene_xml": str(self.data.scene_xml) if self.data.scene_xml else None,
                 "image": [self.h, self.w], "versions": _versions(),
                 "dataset_fingerprint": dataset_fingerprint(self.data.path),
                 "sizes": {k: len(v) for k, v in split.items()}})
         if not (rd / "split.json").exists():
-            _write_json(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
+            write_json_with_numpy(rd / "split.json", {k: [int(i) for i in v] for k, v in split.items()})
 
     # ---- setup ----------------------------------------------------------------------------
     def base_split(self) -> tuple[np.ndarray, np.ndarray]:
@@ -314,7 +306,7 @@ class Trainer:
         if tb is not None:
             arrays.update({f"tail_best/{k}": v for k, v in tb["state"].items()})
         np.savez(tmp / "state.npz", **arrays)
-        _write_json(tmp / "meta.json", {"step": step, "rng": rng.bit_generator.state, "train_time_s": train_time,
+        write_json_with_numpy(tmp / "meta.json", {"step": step, "rng": rng.bit_generator.state, "train_time_s": train_time,
                                         "val_history": val_hist, "density_history": strategy.history,
                                         "tail_best": None if tb is None else
                                         {"step": tb["step"], "val_ssim": tb["val_ssim"]}})
@@ -399,7 +391,8 @@ class Trainer:
         B.ensure()
         cfg = self.cfg
         summary_file = self.run_dir / "final" / "summary.json"
-        if summary_file.is_file():
+        if summary_file.is_file():   # finished: its field must still be readable, or the run is not
+            read_field_state(self.run_dir / "final" / "field.npz")
             return json.loads(summary_file.read_text())
         rng = np.random.default_rng(cfg.seed)
         split = self._make_split(rng)
@@ -512,7 +505,8 @@ class Trainer:
                    "num_parameters": field.num_parameters, "network_parameters": field.network_parameters,
                    "val_ssim": val_ssim, "best_val_ssim": val_ssim, "revert": None, "init": {"hyperparameters": hyper},
                    "image": [PAS_SHAPE[0], PAS_SHAPE[1]], **self._run_facts()}
-        _write_json(fd / "summary.json", summary)
+        summary = finite_or_null(summary)   # standard JSON: a score that could not be computed is null
+        write_json_with_numpy(fd / "summary.json", summary)
         return summary
 
     def _optimizer(self, field: Field, fit: np.ndarray, loss_fn) -> tuple:
@@ -606,7 +600,7 @@ class Trainer:
         pbar.close()
         score = [(r["val_ssim"] if math.isfinite(r["val_ssim"]) else -r["loss"]) for r in runs]
         best = runs[int(np.argmax(score))]
-        _write_json(self.run_dir / "starts.json", {
+        write_json_with_numpy(self.run_dir / "starts.json", {
             "steps": n, "chosen": best["start"], "train_time_s": train_time,
             "starts": [{k: v for k, v in r.items() if k != "state"} for r in runs],
             "rule": "best validation SSIM after the steps (lowest training loss without validation positions)"})
@@ -677,12 +671,14 @@ class Trainer:
                    "num_gaussians": field.num_primitives, "num_parameters": field.num_parameters,
                    "network_parameters": field.network_parameters,
                    "val_ssim": val_ssim, "revert": revert,
-                   "best_val_ssim": max((v["val_ssim"] for v in val_hist), default=None),
+                   "best_val_ssim": max((v["val_ssim"] for v in val_hist if math.isfinite(v["val_ssim"])),
+                                        default=None),
                    "growth_stopped": strategy.growth_stopped, "density_events": strategy.history[-50:],
                    "image": [self.h, self.w], **self._run_facts()}
         if getattr(field, "init_report", None):   # what the field decided at its start (e.g. a frame fit)
             summary["init"] = field.init_report
-        _write_json(fd / "summary.json", summary)
+        summary = finite_or_null(summary)   # standard JSON: a score that could not be computed is null
+        write_json_with_numpy(fd / "summary.json", summary)
         return summary
 
 
@@ -736,6 +732,19 @@ def start_steps(iterations: int) -> int:
     return int(max(1, min(iterations - 1, max(50, min(1000, round(0.1 * iterations))))))
 
 
+def refuse_foreign_folder(rd: Path) -> bool:
+    """RunError where ``rd`` is a file, or a folder that holds files but no ``config.toml`` (a
+    dataset, someone's notes: not a run folder); whether it holds anything besides the "auto"
+    trials and the lock (a run to check against the configuration)."""
+    if rd.exists() and not rd.is_dir():
+        raise RunError(f"run folder {rd} exists and is not a folder")
+    if not (rd.is_dir() and any(p.name not in (SELECT_DIR, LOCK_NAME) for p in rd.iterdir())):
+        return False
+    if not (rd / "config.toml").is_file():
+        raise RunError(f"{rd} is not empty and holds no config.toml: not a run folder; nothing was changed")
+    return True
+
+
 def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = None, quiet: bool = False,
           freeze: bool = True) -> dict:
     """Train a Stage-1 background field: open ``dataset``, run :class:`Trainer` into ``out``
@@ -752,6 +761,7 @@ def train(dataset: str | Path, out: str | Path, *, cfg: TrainConfig | None = Non
     def trained(folder: Path) -> bool:
         return any((d / "checkpoint").is_dir() for d in (folder, *folder.glob("select/*")))
 
+    refuse_foreign_folder(Path(out))   # before the lock or any "auto" trial writes into it
     with writer(out, what="train", keep=trained):
         cfg = cfg or TrainConfig()
         data = TrainData.open(dataset, state=cfg.state)

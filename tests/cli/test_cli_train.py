@@ -26,3 +26,17 @@ def test_train_cli_defaults_to_auto_and_takes_a_model(tmp_path, capsys):
     assert metrics["anchored"]["use"] in ("field", "anchored") and 0 < metrics["anchored"]["test"]["mean"] <= 1
     assert main(["train", str(ds), "--out", str(tmp_path / "bad"), "--model", "nerf"] + TINY) == 2
     assert "unknown field kind 'nerf'" in capsys.readouterr().err
+
+
+def test_auto_refuses_a_folder_that_is_not_a_run_before_any_trial(tmp_path, capsys):
+    """``train`` (model "auto") into a folder holding other files is refused before the trials
+    write anything into it."""
+    from rfmitsuba.cli import main
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=24, task="tx")
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "notes.txt").write_text("mine")
+    assert main(["train", str(ds), "--out", str(notes)] + TINY) == 2
+    assert "is not empty and holds no config.toml" in capsys.readouterr().err
+    assert sorted(p.name for p in notes.iterdir()) == ["notes.txt"]

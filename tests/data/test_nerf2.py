@@ -134,6 +134,18 @@ def test_bad_folders(small, tmp_path):
         nerf2.read(out)
 
 
+def test_a_missing_last_image_is_named(small, tmp_path):
+    """The last image gone: tx_pos.csv has a row more than spectrum/ has images, and the index files
+    name it: the error names the missing image, not the index range."""
+    out = nerf2.write(small, tmp_path / "n")
+    files = sorted((out / "spectrum").glob("*.png"))
+    last = int(files[-1].stem)
+    files[-1].unlink()
+    with pytest.raises(DatasetError, match=f"image {last:05d}.png is missing: tx_pos.csv has {last} rows and the "
+                                           f"index files name images up to {last}"):
+        nerf2.read(out)
+
+
 def test_wrong_image_size(small, tmp_path):
     from PIL import Image
 

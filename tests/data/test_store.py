@@ -93,7 +93,7 @@ def test_other_configuration_refused_nothing_overwritten(tmp_path):
     tiny(tmp_path / "d", meta={"task": "rx"})
     before = digests(tmp_path / "d")
     meta_before = (tmp_path / "d" / "meta.json").read_text()
-    with pytest.raises(DatasetError, match="'task' differs"):
+    with pytest.raises(DatasetError, match="task is 'rx' there and 'tx' in this call"):
         tiny(tmp_path / "d", meta={"task": "tx"})
     assert digests(tmp_path / "d") == before and (tmp_path / "d" / "meta.json").read_text() == meta_before
 
@@ -108,7 +108,7 @@ def test_scene_location_is_not_configuration(tmp_path):
     D.prepare_folder(tmp_path / "d", {"scene": scene}, antenna_pos=ap, split=sp)
     D.prepare_folder(tmp_path / "d", {"scene": {**scene, "file": "/b/other/checkout/bedroom.xml"}}, antenna_pos=ap,
                      split=sp)
-    with pytest.raises(DatasetError, match="'scene.sha256' differs"):
+    with pytest.raises(DatasetError, match="scene.sha256 is 'x1' there and 'x2' in this call"):
         D.prepare_folder(tmp_path / "d", {"scene": {**scene, "sha256": "x2"}}, antenna_pos=ap, split=sp)
 
 
@@ -145,10 +145,10 @@ def test_state_out_of_range(tmp_path):
         ds.pas(3)
 
 
-def test_config_diff_names_nested_key():
-    assert D.config_diff({"a": {"b": 1, "c": [1, 2]}}, {"a": {"b": 1, "c": [1, 3]}}) == "a.c[1]"
-    assert D.config_diff({"a": 1}, {"a": 1}) is None
-    assert D.config_diff({"a": 1}, {"b": 1}) == "a"
+def test_first_difference_names_the_nested_key_and_both_values():
+    assert D.first_difference({"a": {"b": 1, "c": [1, 2]}}, {"a": {"b": 1, "c": [1, 3]}}) == ("a.c[1]", 2, 3)
+    assert D.first_difference({"a": 1}, {"a": 1}) is None
+    assert D.first_difference({"a": 1}, {"b": 1}) == ("a", 1, "<missing>")
 
 
 # ---------------------------------------------------------------- generation (Sionna)
@@ -201,7 +201,7 @@ def test_generate_refuses_other_configuration(quick_dataset, tmp_path):
     before = digests(out)
     with pytest.raises(DatasetError, match="generate.material"):
         gen.generate(out, gen.quick_config("bedroom", task="rx", seed=0, material="metal"), quiet=True)
-    with pytest.raises(DatasetError, match="'task' differs"):
+    with pytest.raises(DatasetError, match="task is 'rx' there and 'tx' in this call"):
         gen.generate(out, gen.quick_config("bedroom", task="tx", seed=0), quiet=True)
     assert digests(out) == before
 

@@ -251,10 +251,12 @@ def test_a_killed_run_records_its_time(monkeypatch, tmp_path):
 
     monkeypatch.setattr(R, "run_tasks", killed)
     before = signal.getsignal(signal.SIGTERM)
-    with pytest.raises(SystemExit):
+    from rfmitsuba.core.interrupt import Terminated
+
+    with pytest.raises(Terminated):
         R.reproduce(tmp_path / "out", size_config("tiny"), quiet=True)
     (row,) = (json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines())
-    assert row["stopped"] == "SystemExit" and row["jobs_run"] == 0 and row["wall_s"] >= 0
+    assert row["stopped"] == "Terminated" and row["jobs_run"] == 0 and row["wall_s"] >= 0
     assert signal.getsignal(signal.SIGTERM) == before                 # the handler is restored
 
 

@@ -37,6 +37,9 @@ def test_eval_and_predict_warn_when_a_spectrum_changed_after_training(synthetic_
     Image.fromarray((255 - img).astype(np.uint8), mode="L").save(test_image)
     with pytest.warns(UserWarning, match="has changed since .* was trained"):
         assert cli.main(["eval", str(run)]) == 0
+    # the warning stays with the evaluation it concerns, not only on the terminal
+    assert any("has changed since" in w for w in json.loads((run / "eval" / "metrics.json").read_text())["warnings"])
+    assert "**Warning:**" in (run / "eval" / "summary.md").read_text()
     pos = tmp_path / "p.csv"
     pos.write_text("0.5 0.5 1.0\n")
     with pytest.warns(UserWarning, match="has changed since"):

@@ -56,6 +56,22 @@ def test_a_full_disk_names_the_path_and_the_cause(tmp_path, capsys, monkeypatch)
     assert "No space left on device" in err and "coefficients.npy" in err and "Traceback" not in err
 
 
+def test_file_system_errors_name_a_path_and_only_a_way_out_the_command_has():
+    """A full disk whose error names no file (a write(2) failing) names the command's --out; a
+    read-only folder offers --out only to a command that has one (eval writes into the run)."""
+    from rfmitsuba.cli import _named_fault
+
+    full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    code, msg = _named_fault(full, out="runs/a")
+    assert code == 1 and "writing under runs/a: No space left on device; free space or write elsewhere" in msg
+    assert "(no path)" in _named_fault(full)[1] and "--out" not in _named_fault(full)[1]
+    ro = OSError(errno.EROFS, os.strerror(errno.EROFS), "runs/a/eval")
+    assert "write elsewhere (--out)" in _named_fault(ro, out="x")[1]
+    msg = _named_fault(ro)[1]
+    assert "runs/a/eval: Read-only file system; the folder is read-only: copy it somewhere writable" in msg
+    assert "--out" not in msg
+
+
 def test_an_interrupt_inside_a_drjit_loop_is_named(monkeypatch, capsys):
     def boom(args):
         try:
@@ -67,6 +83,23 @@ def test_an_interrupt_inside_a_drjit_loop_is_named(monkeypatch, capsys):
     monkeypatch.setattr(cli, "build_parser", lambda: _with_func(parser(), boom))
     assert cli.main(["info"]) == 130
     assert "interrupted; finished work is kept" in capsys.readouterr().err
+
+
+def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, capsys):
+    """kill (SIGTERM) during a command: it unwinds, says finished work is kept, exits 143, and
+    the previous SIGTERM handler is back afterwards."""
+    def killed(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+        raise AssertionError("SIGTERM did not stop the command")
+
+    before = signal.getsignal(signal.SIGTERM)
+    parser = cli.build_parser
+    monkeypatch.setattr(cli, "build_parser", lambda: _with_func(parser(), killed))
+    assert cli.main(["info"]) == 143
+    err = capsys.readouterr().err
+    assert "terminated (SIGTERM); finished work is kept" in err and "Traceback" not in err
+    assert signal.getsignal(signal.SIGTERM) == before
 
 
 def _with_func(parser, func):
@@ -134,3 +167,54 @@ def test_a_run_without_validation_positions_says_why(synthetic_ds, tmp_path, cap
     assert cli.main(args) == 0
     printed = capsys.readouterr().out
     assert "no validation SSIM" in printed and "val_fraction" in printed and "nan" not in printed
+    import json
+
+    def no_nan(token):
+        raise AssertionError(f"summary.json holds {token}, which is not standard JSON")
+
+    s = json.loads((out / "final" / "summary.json").read_text(), parse_constant=no_nan)
+    assert s["val_ssim"] is None and s["best_val_ssim"] is None
+
+
+def test_auto_without_validation_positions_says_how_it_chose(synthetic_ds, tmp_path):
+    """No position held back: the trials cannot be compared, and choice.json says the choice
+    was the order of preference, not a validation score."""
+    import json
+
+    out = tmp_path / "run"
+    args = ["train", str(synthetic_ds), "--out", str(out), "--quiet", "--set", "val_fraction=0"]
+    for s in ["iterations=200", "downsample=5", "field.init=\"random\"", "field.num_gaussians=30", "field.net.width=8",
+              "coherent_gaussians.scatterers=4"]:
+        args += ["--set", s]
+    assert cli.main(args) == 0
+    choice = json.loads((out / "select" / "choice.json").read_text())
+    assert "no validation positions" in choice["rule"]
+    assert choice["chosen"] == next(iter(choice["trials"]))         # trials are recorded in the order of preference
+    assert all(t["best_val_ssim"] is None for t in choice["trials"].values())
+
+
+@pytest.mark.parametrize("batch", ["-1", "0", "x"])
+def test_a_batch_that_is_not_a_count_is_refused(tmp_path, capsys, batch):
+    """``--batch -1`` once rendered nothing and overwrote the evaluation; 0 crashed in range()."""
+    for cmd in (["eval", str(tmp_path / "run")], ["predict", str(tmp_path / "run"), "--positions", "p.txt",
+                                                  "--out", str(tmp_path / "o")]):
+        with pytest.raises(SystemExit) as e:
+            cli.main(cmd + ["--batch", batch])
+        assert e.value.code == 2
+        assert f"--batch: {batch!r} is not a whole number >= 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("counts, bad", [("8,abc", "'abc'"), ("0,20", "'0'"), ("20,-5", "'-5'")])
+def test_experiment_names_the_count_that_is_not_one(tmp_path, capsys, counts, bad):
+    assert cli.main(["experiment", "motivation", str(tmp_path / "ds"), "--out", str(tmp_path / "o"),
+                     "--counts", counts]) == 2
+    err = capsys.readouterr().err
+    assert f"--counts: {bad} is not a whole number >= 1" in err and "Traceback" not in err
+
+
+def test_nerf2like_refuses_more_tags_than_memory_holds_at_once(tmp_path, capsys):
+    """A billion tags: refused before minutes of trajectory work, naming the size and --tags."""
+    assert cli.main(["nerf2like", "--out", str(tmp_path / "n"), "--tags", "1000000000", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "GiB" in err and "(--tags)" in err and "Traceback" not in err
+    assert not (tmp_path / "n").exists()

@@ -37,6 +37,27 @@ def test_a_truncated_final_field_is_named_with_the_way_out(finished_run, tmp_pat
     assert "field.npz" in err and "delete" in err and "Traceback" not in err
 
 
+def test_training_a_finished_run_again_checks_its_field(finished_run, tmp_path, capsys):
+    """The same ``train`` on a finished run whose final field was truncated does not report the
+    old summary as a success: it names the file and the way out, and the way out (delete final/,
+    train again) writes a readable field from the checkpoint."""
+    import shutil
+
+    from rfmitsuba.models.base import load_field
+
+    out, args = finished_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    _truncate(run / "final" / "field.npz")
+    again = ["train", args[1], "--out", str(run)] + args[4:]
+    assert cli.main(again) == 2
+    err = capsys.readouterr().err
+    assert "field.npz: not a readable field file" in err and "delete" in err and "Traceback" not in err
+    shutil.rmtree(run / "final")
+    assert cli.main(again) == 0
+    load_field(run / "final" / "field.npz")
+
+
 def test_a_truncated_checkpoint_is_named_with_the_way_out(finished_run, tmp_path, capsys):
     from rfmitsuba.core import config as C
     from rfmitsuba.data.views import TrainData
