@@ -14,7 +14,7 @@ import sys
 from ..core.errors import RfmError
 
 #: Sub-command modules, in help order.
-COMMANDS = ["info", "generate", "nerf2like", "show", "invert", "train", "eval", "predict", "experiment", "compare", "reproduce", "demo", "bench"]
+COMMANDS = ["info", "generate", "nerf2like", "export", "show", "invert", "train", "eval", "predict", "experiment", "compare", "reproduce", "demo", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:
