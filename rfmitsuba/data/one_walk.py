@@ -214,6 +214,8 @@ def _read_info(path: Path) -> dict[str, np.ndarray]:
                 if not _INT.fullmatch(cell):
                     raise DatasetError(f"{path}:{n}: {c} must be a whole number, got {cell[:40]!r}")
                 v = int(cell)
+                if abs(v) >= 2 ** 62:
+                    raise DatasetError(f"{path}:{n}: {c} {cell[:40]!r} is out of range")
                 if c == "index" and v < 1:
                     raise DatasetError(f"{path}:{n}: index must be an image number >= 1, got {v}")
             else:
@@ -244,14 +246,16 @@ def _read_names(path: Path, known: dict[int, int]) -> np.ndarray:
     bad = next((t for t in tokens if not _INT.fullmatch(t) or t.startswith("-")), None)
     if bad is not None:
         raise DatasetError(f"{path}: entries must be image numbers like 00001, found {bad[:40]!r}")
-    nums = [int(t) for t in tokens]
-    unknown = next((n for n in nums if n not in known), None)
-    if unknown is not None:
-        raise DatasetError(f"{path}: image {unknown:05d} is not in {INFO}")
-    uniq, counts = np.unique(np.asarray(nums, np.int64), return_counts=True)
-    if (counts > 1).any():
-        raise DatasetError(f"{path}: image {int(uniq[counts > 1][0]):05d} appears {int(counts[counts > 1][0])} times")
-    return np.asarray([known[n] for n in nums], np.int64)
+    rows, seen = [], set()
+    for t in tokens:
+        n = int(t) if len(t) < 19 else -1
+        if n not in known:
+            raise DatasetError(f"{path}: image {t[:40]} is not in {INFO}")
+        if n in seen:
+            raise DatasetError(f"{path}: image {n:05d} appears more than once")
+        seen.add(n)
+        rows.append(known[n])
+    return np.asarray(rows, np.int64)
 
 
 def matrix_quaternion(r: np.ndarray) -> np.ndarray:
