@@ -560,27 +560,31 @@ class OneWalkDataset:
         return (f"OneWalkDataset({str(self.path)!r}, task={self.task!r}, antennas={self.num_antennas}, "
                 f"states={self.num_states})")
 
-    def _files(self) -> list[Path]:
+    def _files(self) -> list[tuple[str, Path]]:
+        """(name, file) of every file read: the name relative to its folder, behind ``static/`` or
+        ``dynamic/``."""
         out = []
-        for folder, names in ((self.static_path, [*POSITION_FILES, "gateway_info.yml", "train_index.txt",
-                                                  "test_index.txt", EXTRA]),
-                              (self.dynamic_path, [INFO, "train_index.txt", "val_index.txt", "test_index.txt", EXTRA])):
+        for tag, folder, names in (("static", self.static_path, [*POSITION_FILES, "gateway_info.yml", "train_index.txt",
+                                                                 "test_index.txt", EXTRA]),
+                                   ("dynamic", self.dynamic_path, [INFO, "train_index.txt", "val_index.txt",
+                                                                   "test_index.txt", EXTRA])):
             if folder is not None:
-                out += [folder / n for n in names]
-        out += self._static_files
+                out += [(f"{tag}/{n}", folder / n) for n in names]
+        out += [(f"static/spectrum/{f.name}", f) for f in self._static_files]
         for row in getattr(self, "_dynamic_files", []):
-            out += row
+            out += [(f"dynamic/spectrums/{f.name}", f) for f in row]
         return out
 
     def fingerprint(self) -> str:
-        """A hex digest that changes when the folders' content does: sha256 over the position and
-        info files, index files, gateway, ``rfmitsuba.json`` files and every image read."""
+        """A hex digest that changes when the folders' content does (not where they lie): sha256
+        over the position and info files, index files, gateway, ``rfmitsuba.json`` files and every
+        image read, by name."""
         import hashlib
 
         h = hashlib.sha256()
-        for f in self._files():
+        for name, f in self._files():
             if f.is_file():
-                h.update(f.as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+                h.update(name.encode() + b"\0" + f.read_bytes() + b"\0")
         return h.hexdigest()
 
     def pas(self, state: int = 0) -> _StateImages:

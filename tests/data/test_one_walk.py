@@ -364,3 +364,13 @@ def test_damaged_spectrum_info_reads_or_raises_dataset_error(fuzz_folder, edits,
     for n in drop_static:
         (out / "static" / "spectrum" / f"{n:05d}.png").unlink()
     _check(out)
+
+
+def test_fingerprint_follows_content_not_place(pair, tmp_path):
+    src, out = pair
+    fp = ow.read(out).fingerprint()
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    assert ow.read(moved).fingerprint() == fp
+    (moved / "dynamic" / "val_index.txt").write_text("")
+    assert ow.read(moved).fingerprint() != fp
