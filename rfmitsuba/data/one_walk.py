@@ -119,7 +119,7 @@ def _checked(key: str, value, where: str):
         return v
     if key == "array_orientation":
         v = _numbers(list(value) if isinstance(value, (list, tuple, np.ndarray)) else value, 4)
-        if v is None or not np.linalg.norm(v) > 1e-9:
+        if v is None or not 1e-9 < np.linalg.norm(v) < np.inf:
             raise DatasetError(f"{where}: array_orientation must be a non-zero quaternion [x, y, z, w], got {value!r}")
         return v
     choices = {"task": ("rx", "tx"), "readout": ("amplitude", "phase_only")}.get(key)
