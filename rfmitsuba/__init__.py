@@ -14,8 +14,8 @@ The public API, imported on first use::
 Stage-1 field (the package :mod:`rfmitsuba.train` is callable as
 :func:`rfmitsuba.train.trainer.train`), ``evaluate`` scores a run against the
 floors (:func:`rfmitsuba.eval.run.evaluate_run`), ``predict`` renders a run at positions
-(:func:`rfmitsuba.eval.predict.predict_run`) and ``open_dataset`` opens a dataset or NeRF2
-folder (:func:`rfmitsuba.data.store.open_dataset`).
+(:func:`rfmitsuba.eval.predict.predict_run`) and ``open_dataset`` opens a dataset, NeRF2
+or One Walk folder (:func:`rfmitsuba.data.store.open_dataset`).
 """
 from .core import _llvm
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 def register(sub) -> None:
     p = sub.add_parser("train", help="train a background Gaussian field on a dataset (resumes an interrupted run)")
-    p.add_argument("dataset", help="dataset folder (rfmitsuba generate) or NeRF2 spectrum folder")
+    p.add_argument("dataset", help="dataset folder (rfmitsuba generate), NeRF2 spectrum folder or One Walk folder")
     p.add_argument("--out", required=True, help="run folder (created; an interrupted run of the same config resumes)")
     p.add_argument("--config", default=None, help="TrainConfig TOML file")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

@@ -184,6 +184,23 @@ def _read_index(path: Path, count: int) -> np.ndarray:
     return np.sort(vals - 1)
 
 
+def read_image(path: Path) -> np.ndarray:
+    """One spectrum image as float32 [90, 360] in [0, 1]: an 8-bit greyscale PNG / 255 (16-bit / 65535;
+    colour images are converted to greyscale); DatasetError naming the file when it is not a
+    readable 90 x 360 image."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            arr = np.asarray(im.convert("L") if im.mode not in ("L", "I;16", "I") else im)
+    except (OSError, ValueError, SyntaxError) as e:
+        raise DatasetError(f"{path}: not a readable image ({e})") from None
+    if arr.shape != PAS_SHAPE:
+        raise DatasetError(f"{path}: image is {'x'.join(map(str, arr.shape))}, expected 90x360")
+    scale = 65535.0 if arr.dtype == np.uint16 else 255.0
+    return (arr / scale).astype(np.float32)
+
+
 def write_spectra(folder: Path, pas: np.ndarray) -> None:
     """``folder/spectrum/00001.png`` ...: each PAS of ``pas`` (float [K, 90, 360]) as an 8-bit
     greyscale image (:func:`to_uint8`), numbered from 1 in order."""
@@ -238,8 +255,6 @@ class NerfDataset:
     """
 
     def __init__(self, folder: str | Path, *, frequency_hz: float | None = None):
-        from PIL import Image
-
         self.path = Path(folder)
         spec = self.path / "spectrum"
         if not spec.is_dir():
@@ -306,15 +321,7 @@ class NerfDataset:
         self.rx_to_world = quaternion_matrix(quat)
         imgs = np.empty((A, *PAS_SHAPE), np.float32)
         for f in files:
-            try:
-                im = Image.open(f)
-                arr = np.asarray(im.convert("L") if im.mode not in ("L", "I;16", "I") else im)
-            except (OSError, ValueError, SyntaxError) as e:
-                raise DatasetError(f"{f}: not a readable image ({e})") from None
-            if arr.shape != PAS_SHAPE:
-                raise DatasetError(f"{f}: image is {arr.shape[0]}x{arr.shape[1]}, expected 90x360")
-            scale = 65535.0 if arr.dtype == np.uint16 else 255.0
-            imgs[int(f.stem) - 1] = arr / scale
+            imgs[int(f.stem) - 1] = read_image(f)
         self._pas = imgs
         self.num_antennas = A
         self.num_states = 1

@@ -37,7 +37,7 @@ from ..core.folder_lock import holds_work
 from ..rf import array as antenna
 from ..rf.array import NUM_ELEMENTS
 from ..rf.grid import PAS_SHAPE
-from . import nerf2
+from . import nerf2, one_walk
 from .split import Split, make_split
 
 FORMAT = "rfmitsuba-dataset/1"
@@ -332,13 +332,17 @@ class Dataset:
 def open_dataset(path: str | Path, *, check: bool = True) -> Dataset:
     """Open a dataset folder; DatasetError naming the file/chunk when it is incomplete or damaged.
 
-    A NeRF2 spectrum folder (``spectrum/`` + ``gateway_info.yml``) is read through
-    :func:`rfmitsuba.data.nerf2.read` instead.
+    A folder without ``meta.json`` in the One Walk layout (:func:`rfmitsuba.data.one_walk.layout`:
+    a static folder, a dynamic one, or a folder holding both) is read through
+    :func:`rfmitsuba.data.one_walk.read`; a NeRF2 spectrum folder (``spectrum/`` +
+    ``tx_pos.csv``) through :func:`rfmitsuba.data.nerf2.read`.
     """
     p = Path(path)
-    if not (p / "meta.json").exists() and (p / "spectrum").is_dir():
-
-        return nerf2.read(p)
+    if not (p / "meta.json").exists():
+        if one_walk.layout(p) is not None:
+            return one_walk.read(p)
+        if (p / "spectrum").is_dir():
+            return nerf2.read(p)
     return Dataset(p, check=check)
 
 

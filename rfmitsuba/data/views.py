@@ -1,6 +1,6 @@
 """The training views of one dataset state: :class:`TrainData`.
 
-It opens a dataset folder or a NeRF2 spectrum folder (:func:`rfmitsuba.data.store.open_dataset`)
+It opens a dataset folder, a NeRF2 spectrum folder or One Walk folders (:func:`rfmitsuba.data.store.open_dataset`)
 and gives, per antenna index, the min-max normalised PAS (optionally block-averaged by
 :func:`downsample`), the positions of the array, the transmitter and the moving device
 (moving RX: the array moves; moving TX: the transmitter moves, the array is fixed), the array
@@ -188,7 +188,7 @@ class TrainData:
 
     @classmethod
     def open(cls, path: str | Path, *, state: int = 0) -> "TrainData":
-        """Open a dataset folder (or NeRF2 spectrum folder) for training on ``state``.
+        """Open a dataset folder (or NeRF2 spectrum folder, or One Walk folder) for training on ``state``.
 
         Raises:
             DatasetError: missing folder/arrays, mismatched shapes, unknown task.
