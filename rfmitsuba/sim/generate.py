@@ -25,7 +25,7 @@ from ..data.split import make_split
 from ..data.store import (
     Dataset,
     _scene_record,
-    _write_json,
+    _write_meta_json,
     base_meta,
     check_chunk,
     chunk_name,
@@ -376,4 +376,4 @@ def _append_timing(root: Path, timing: dict) -> None:
         except ValueError:
             runs = []
     runs.append(timing)
-    _write_json(f, runs)
+    _write_meta_json(f, runs)
