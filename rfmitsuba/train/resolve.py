@@ -48,7 +48,11 @@ def downsample(cfg) -> Decision:
     """The training images' block size ``d`` ((90/d) x (360/d) images) of a run of ``cfg``."""
     if cfg.downsample != "auto":
         return Decision("downsample", int(cfg.downsample), "set in the configuration")
-    d = int(field_class(cfg.model).downsample_advised)
+    kind = field_class(cfg.model)
+    d = int(kind.downsample_advised)
+    if getattr(kind, "closed_form", False):
+        return Decision("downsample", d, f"{cfg.model} is conditioned in closed form on the full 90 x 360 spectra "
+                        "(no training steps)")
     why = (f"{cfg.model} trains on {90 // d} x {360 // d} block means: its read-out is the array's beam, which "
            "2-degree pixels pin as well as 1-degree ones" if d > 1 else
            f"{cfg.model} trains at the full 90 x 360")

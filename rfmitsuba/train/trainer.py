@@ -31,6 +31,7 @@ Tasks: moving RX (view = antenna position, network input = antenna position) and
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -693,6 +694,17 @@ def planned_iterations(cfg: TrainConfig, num_fit: int, field: Field) -> int:
     return int(resolve.iterations(cfg, num_fit, resolve.epochs(cfg, field).value).value)
 
 
+def _changed_options(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """``"key = value"`` for every option where config dict ``b`` differs from ``a``."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        if isinstance(a.get(k), dict) and isinstance(b.get(k), dict):
+            out += _changed_options(a[k], b[k], f"{prefix}{k}.")
+        elif a.get(k) != b.get(k):
+            out.append(f"{prefix}{k} = {json.dumps(b.get(k))}")
+    return out
+
+
 def dry_run(dataset: str | Path, *, cfg: TrainConfig | None = None) -> str:
     """What ``train(dataset, cfg=cfg)`` would decide, without training: the resolved
     configuration (:mod:`rfmitsuba.train.resolve`) as commented TOML text. For ``model = "auto"``
@@ -720,8 +732,11 @@ def dry_run(dataset: str | Path, *, cfg: TrainConfig | None = None) -> str:
             split = t._make_split(rng)
             field = t._init_field(rng)
             decided = resolve.resolve(c, field, num_fit=len(split["fit"]))
-            lines += ["", f"# {'if the trials choose ' if cfg.model == 'auto' else ''}{name}: {len(split['fit'])} "
-                          f"fitting, {len(split['val'])} validation, {len(split['test'])} test positions"]
+            changed = _changed_options(C.to_dict(dataclasses.replace(cfg, model=c.model)), C.to_dict(c))
+            lines += ["", f"# {'if the trials choose ' if cfg.model == 'auto' else ''}{name}"
+                          + (f" ({', '.join(changed)})" if changed else "")
+                          + f": {len(split['fit'])} fitting, {len(split['val'])} validation, {len(split['test'])} "
+                          "test positions"]
             lines.append(resolve.to_toml(decided).rstrip("\n"))
     return "\n".join(lines) + "\n"
 

@@ -10,7 +10,7 @@ def test_splits_names_bad_seeds_and_fields(tmp_path, capsys):
     ds = make_dataset(tmp_path / "ds", num_antennas=20, task="tx")
     out = tmp_path / "sp"
     assert cli.main(["experiment", "splits", str(ds), "--out", str(out), "--seeds", "0,one"]) != 0
-    assert "--seeds must be comma-separated integers" in capsys.readouterr().err
+    assert "--seeds: 'one' is not a whole number >= 0" in capsys.readouterr().err
     assert cli.main(["experiment", "splits", str(ds), "--out", str(out), "--fields", "coherent_gaussians,nope"]) != 0
     assert "unknown field kind 'nope'" in capsys.readouterr().err
     assert cli.main(["experiment", "splits", "--out", str(out)]) != 0
