@@ -15,11 +15,11 @@ BOX = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.5]])
 
 def known_field(seed: int = 7, n: int = 30):
     """A random ground-truth field: n Gaussians of 0.3 m, opacity 0.5, network seed ``seed``."""
-    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat import SplatConfig, SplatField
 
     rng = np.random.default_rng(seed)
     pts = rng.uniform(BOX[0], BOX[1], (n, 3))
-    return SplatField.from_points(pts, cfg=FieldConfig(init_scale=0.3, init_opacity=0.5), box=BOX, seed=seed)
+    return SplatField.from_points(pts, cfg=SplatConfig(init_scale=0.3, init_opacity=0.5), box=BOX, seed=seed)
 
 
 def render_pas(field, antenna_pos: np.ndarray, view_pos: np.ndarray) -> np.ndarray:
@@ -58,9 +58,9 @@ def tiny_cfg(**over):
     from rfmitsuba.train.config import TrainConfig
 
     cfg = TrainConfig()
-    sets = ["iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
-            "val_fraction=0.1", "field.init=\"random\"", "field.num_gaussians=150", "field.net.width=16",
-            "field.net.gaussian_octaves=2", "field.net.antenna_octaves=2", "density.start=10",
+    sets = ['model="splat"', "iterations=40", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
+            "val_fraction=0.1", "splat.init=\"random\"", "splat.num_gaussians=150", "splat.net.width=16",
+            "splat.net.gaussian_octaves=2", "splat.net.antenna_octaves=2", "density.start=10",
             "density.every=20", "density.reset_every=30", "density.max_gaussians=400",
             "density.grad_threshold=1e-5", "optim.lr_net=5e-3"]
     return C.override(cfg, sets + [f"{k}={v}" for k, v in over.items()])

@@ -72,6 +72,10 @@ def _run(args) -> int:
     from .train import build_config
 
     cfg = build_config(args)
+    if args.kind in ("motivation", "parsimony") and cfg.model == "auto" and not _names_model(args):
+        import dataclasses   # these tables compare one kind across their rows: the splat field unless told
+
+        cfg = dataclasses.replace(cfg, model="splat")
     counts = tuple(whole_numbers(args.counts, option="--counts", least=1, example="20,45,90")) if args.counts else None
     if args.kind == "splits":
         fields = tuple(f.strip() for f in args.fields.split(",") if f.strip()) if args.fields else E.SENSITIVITY_FIELDS
@@ -89,3 +93,17 @@ def _run(args) -> int:
 
     print((Path(args.out) / "table.md").read_text())
     return 0
+
+
+def _names_model(args) -> bool:
+    """Whether the command line or its --config file sets ``model``."""
+    import tomllib
+
+    if any(s.split("=", 1)[0].strip() == "model" for s in args.set):
+        return True
+    if args.config:
+        try:
+            return "model" in tomllib.loads(open(args.config, encoding="utf-8").read())
+        except (OSError, tomllib.TOMLDecodeError):
+            return False
+    return False

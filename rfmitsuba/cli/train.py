@@ -10,12 +10,12 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="run folder (created; an interrupted run of the same config resumes)")
     p.add_argument("--config", default=None, help="TrainConfig TOML file")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set iterations=2000 --set field.num_gaussians=4000")
+                   help="override a config value, e.g. --set iterations=2000 --set splat.num_gaussians=4000")
     p.add_argument("--quick", action="store_true", help="small fast run (300 steps, half resolution)")
     p.add_argument("--model", default=None,
-                   help="the field: 'auto' (default without --config: train the coherent Gaussian field and the "
-                        "splat field for a quarter of the budget each, keep the better by validation SSIM), "
-                        "'coherent_gaussians', 'splat' or 'coherent'; same as --set model=...")
+                   help="the field: 'auto' (the default, unless --config names one: train each candidate field for a "
+                        "quarter of the budget, keep the best by validation SSIM), 'coherent_gaussians', 'splat', "
+                        "'coherent' or 'gaussian_process'; same as --set model=...")
     p.add_argument("--split", choices=["dataset", "block", "random"], default=None,
                    help="test positions: the dataset's own split (a NeRF2 folder's published index files), "
                         "'block' (the 20%% of positions with the largest x, a held-out slab) or 'random' "
@@ -30,8 +30,8 @@ def register(sub) -> None:
 def build_config(args):
     """The TrainConfig of the command line: file, then --quick, then --model, --set and --split.
 
-    ``rfmitsuba train`` without ``--config`` and ``--model`` trains ``model = "auto"``; the other
-    commands that share this function (``experiment``, ``reproduce``) keep the config's model."""
+    Without ``--model`` the model is the config's (``"auto"`` unless a ``--config`` file names one:
+    the same default as :class:`~rfmitsuba.train.config.TrainConfig` in Python)."""
     from ..core import config as C
     from ..train.config import TrainConfig, quick_config
 
@@ -39,8 +39,6 @@ def build_config(args):
     if args.quick:
         cfg = quick_config(cfg)
     model = getattr(args, "model", None)
-    if model is None and hasattr(args, "model") and not args.config:
-        model = "auto"
     sets = ([f'model="{model}"'] if model else []) + list(args.set)
     sets += [f'split="{args.split}"'] if getattr(args, "split", None) else []
     return C.override(cfg, sets) if sets else cfg

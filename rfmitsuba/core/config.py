@@ -6,7 +6,8 @@ of those, or another dataclass. :func:`from_dict` checks types and rejects
 unknown keys with a :class:`~rfmitsuba.core.errors.ConfigError` naming the key; no
 ``eval`` and no pickle are involved.
 
-Removed options: a config class may list the options it no longer has in a class attribute
+Renamed and removed options: a config class may name the options it renamed in a class
+attribute ``renamed_options`` (old name -> new name), and list the options it no longer has in
 ``removed_options`` (option -> the value under which it behaved as the code does now, or None
 where the option only steered training) and the values it no longer takes in
 ``removed_values`` (option -> {old value: the value that rebuilds the same thing}). A saved file
@@ -139,9 +140,16 @@ def _without_removed(cls: type, data: dict, where: str) -> dict:
     file names a removed option."""
     removed = getattr(cls, "removed_options", {})
     values = getattr(cls, "removed_values", {})
+    renamed = getattr(cls, "renamed_options", {})
     saved = _READING_SAVED.get()
     out = {}
     for k, v in data.items():
+        if k in renamed:
+            if not saved:
+                raise ConfigError(f"{where}.{k}: this option is called {renamed[k]!r} now (see the changelog)")
+            if renamed[k] in data:
+                raise ConfigError(f"{where}: both {k!r} and its new name {renamed[k]!r}")
+            k = renamed[k]
         if k in removed:
             same = removed[k]
             if not saved:
@@ -262,9 +270,15 @@ def override(cfg: T, assignments: list[str]) -> T:
         parts = key.strip().split(".")
         for p in parts[:-1]:
             if not isinstance(node.get(p), dict):
+                if p in getattr(owner, "renamed_options", {}):
+                    raise ConfigError(f"override {key!r}: the section {p!r} is called "
+                                      f"{getattr(owner, 'renamed_options')[p]!r} now (see the changelog)")
                 raise ConfigError(f"override {key!r}: {p!r} is not a section of {type(cfg).__name__}")
             node, owner = node[p], typing.get_type_hints(owner).get(p)
         if parts[-1] not in node:
+            if parts[-1] in getattr(owner, "renamed_options", {}):
+                raise ConfigError(f"override {key!r}: {parts[-1]!r} is called "
+                                  f"{getattr(owner, 'renamed_options')[parts[-1]]!r} now (see the changelog)")
             if parts[-1] in getattr(owner, "removed_options", {}):
                 raise ConfigError(f"override {key!r}: {parts[-1]}: this option was removed (it did not help; see "
                                   "the changelog)")

@@ -280,12 +280,12 @@ def measure_stage1_step(*, gaussians: int = 10_000, batch: int = 4, steps: int =
         {"gaussians", "batch", "steps", "host": {...}, "coop_vec": {...}, "host_45x180": {...}}
         with each side's ``step_ms`` (:func:`rfmitsuba.experiments.bench_field.measure_stage1`).
     """
-    common = ["field.init='random'", f"field.num_gaussians={int(gaussians)}", f"batch_views={int(batch)}"]
+    common = ["splat.init='random'", f"splat.num_gaussians={int(gaussians)}", f"batch_views={int(batch)}"]
     out = {"gaussians": int(gaussians), "batch": int(batch), "steps": int(steps)}
     for key, host, downsample in (("host", True, 1), ("coop_vec", False, 1), ("host_45x180", True, 2)):
         out[key] = measure_stage1(dataset, model="splat", steps=steps,
                                   overrides=common + [f"downsample={downsample}",
-                                                      f"field.net.host_products={'true' if host else 'false'}"])
+                                                      f"splat.net.host_products={'true' if host else 'false'}"])
     return out
 
 

@@ -40,13 +40,13 @@ from pathlib import Path
 from ..core import config as C
 from ..core.atomic import write_json_with_numpy, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
-from ..core.errors import PlacementError, RfmError, RunError
+from ..core.errors import ConfigError, PlacementError, RfmError, RunError
 from ..core.folder_lock import folder_lock
 from ..core.interrupt import sigterm_interrupts
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
-from .methods import FLOORS_FOLDER, config_dict, prior_kwargs, run_job
+from .methods import FLOORS_FOLDER, MethodConfig, config_dict, prior_kwargs, run_job
 from .paper_tables import all_jobs
 from .report import RUNS_FILE, write_report
 from .sizes import DatasetSpec, DataSize, ExperimentConfig, method_config
@@ -170,6 +170,20 @@ def check_experiment(out: Path, cfg: ExperimentConfig) -> None:
         raise RunError(f"{out} holds jobs but no experiment.toml; not an experiment folder (nothing was changed)")
 
 
+def _saved_job(record: dict) -> dict:
+    """A stored ``job.json`` with its method configuration read as a saved file (options removed
+    or renamed since it was written load as the code now names them, :mod:`rfmitsuba.core.config`),
+    so an unfinished job of an older folder resumes; left as stored where it does not read."""
+    mc = record.get("method_config")
+    if isinstance(mc, dict):
+        try:
+            record = {**record, "method_config": json.loads(json.dumps(config_dict(C.from_dict(MethodConfig, mc,
+                                                                                            saved=True))))}
+        except ConfigError:
+            pass
+    return record
+
+
 def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *, quiet: bool = True,
                   reevaluate: bool = False) -> dict:
     """Train and evaluate one job by :func:`rfmitsuba.experiments.methods.run_job` (skipped when done, or
@@ -185,7 +199,7 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
         want = {"job": job.record(), "method_config": config_dict(mcfg)}
         jt = jd / "job.json"
         if jt.is_file():
-            diff = config_diff(json.loads(jt.read_text()), json.loads(json.dumps(want)))
+            diff = config_diff(_saved_job(json.loads(jt.read_text())), json.loads(json.dumps(want)))
             if diff:
                 raise RunError(f"job folder {jd} belongs to another configuration: {'; '.join(diff)} "
                                "(nothing was changed)")

@@ -17,7 +17,7 @@ from dataclasses import field as dc_field
 from ..core import config as C
 from ..core.errors import ConfigError
 from ..models.coherent import CoherentConfig
-from ..models.splat import FieldConfig
+from ..models.splat import SplatConfig
 from ..models.splat_person import SplatPersonConfig
 from ..train.config import TrainConfig
 from ..train.density import DensityConfig
@@ -231,7 +231,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     s1 = TrainConfig(iterations=t.stage1_iterations, batch_views=t.batch_views, model=t.model,
                      downsample={"coherent": 1, "coherent_gaussians": "auto"}.get(t.model, t.downsample),
                      val_every=t.val_every, checkpoint_every=t.val_every, log_every=max(1, t.val_every // 10),
-                     field=FieldConfig(init="mesh" if scene_known else "random", num_gaussians=t.num_gaussians),
+                     splat=SplatConfig(init="mesh" if scene_known else "random", num_gaussians=t.num_gaussians),
                      coherent=CoherentConfig(room_order=t.room_order, furniture_order=t.furniture_order),
                      density=DensityConfig(enabled=t.density, max_gaussians=t.max_gaussians,
                                            start=max(1, t.stage1_iterations // 4),

@@ -33,6 +33,12 @@ MOTIVATION_COUNTS = (900, 1500, 3600, 6000, 10000)
 QUICK_MOTIVATION_COUNTS = (150, 300, 600, 900)
 
 
+def _one_kind(cfg: TrainConfig, table: str) -> None:
+    if cfg.model == "auto":
+        raise ConfigError(f"the {table} table compares one field kind across its rows: set model (e.g. 'splat' or "
+                          "'coherent_gaussians'), not 'auto'")
+
+
 def _run_and_eval(cfg: TrainConfig, data: TrainData, run_dir: Path, *, quiet: bool) -> dict:
 
     Trainer(cfg, data, run_dir, quiet=quiet).run()
@@ -71,9 +77,11 @@ def motivation_table(dataset: str | Path, out: str | Path, *, counts=MOTIVATION_
         cfg: training configuration of every run (``max_train_positions`` is set per row).
 
     Raises:
-        ConfigError: the dataset has too few training positions for a row.
+        ConfigError: the dataset has too few training positions for a row, or ``cfg.model`` is
+        "auto" (the table compares one field kind across counts).
     """
-    cfg = cfg or TrainConfig()
+    cfg = cfg or TrainConfig(model="splat")
+    _one_kind(cfg, "motivation")
     data = TrainData.open(dataset, state=cfg.state)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -116,11 +124,12 @@ def knee(counts, ssim) -> int:
 def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 2000, 4000, 8000),
                     cfg: TrainConfig | None = None, quiet: bool = False) -> list[dict]:
     """Test SSIM against the number of Gaussians, one run per entry of ``caps``: for the splat
-    field a cap on density control (initial Gaussians = min(cap, cfg.field.num_gaussians)); for
+    field a cap on density control (initial Gaussians = min(cap, cfg.splat.num_gaussians)); for
     the coherent Gaussian field (``cfg.model == "coherent_gaussians"``) the number of scatterers
     (``scatterers`` and ``room_scatterers``, whichever the room uses).
     The table marks the knee (:func:`knee`)."""
-    cfg = cfg or TrainConfig()
+    cfg = cfg or TrainConfig(model="splat")
+    _one_kind(cfg, "parsimony")
     data = TrainData.open(dataset, state=cfg.state)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -131,7 +140,7 @@ def parsimony_curve(dataset: str | Path, out: str | Path, *, caps=(500, 1000, 20
             rc = C.override(cfg, [f"coherent_gaussians.scatterers={cap}", f"coherent_gaussians.room_scatterers={cap}"])
         else:
             rc = C.override(cfg, [f"density.max_gaussians={cap}",
-                                  f"field.num_gaussians={min(cap, cfg.field.num_gaussians)}"])
+                                  f"splat.num_gaussians={min(cap, cfg.splat.num_gaussians)}"])
         m = _run_and_eval(rc, data, out / f"cap_{cap}", quiet=quiet)
         rows.append({"cap": cap, **_row(m)})
         k = knee([r["num_gaussians"] for r in rows], [r["mean"] for r in rows])

@@ -46,7 +46,7 @@ GAUSSIAN_KEYS = {"means": 3, "log_scales": 3, "rotations": 4, "opacity_logits": 
 
 
 @dataclass
-class FieldConfig:
+class SplatConfig:
     """How a Gaussian field is initialised and parameterised.
 
     init: "mesh" (points sampled on the scene's meshes, area-weighted) or "random"
@@ -86,11 +86,11 @@ class FieldConfig:
 
     def __post_init__(self) -> None:
         if self.num_gaussians < 1:
-            raise ConfigError(f"FieldConfig.num_gaussians must be >= 1, got {self.num_gaussians}")
+            raise ConfigError(f"SplatConfig.num_gaussians must be >= 1, got {self.num_gaussians}")
         if not 0.0 < self.init_opacity < 1.0:
-            raise ConfigError(f"FieldConfig.init_opacity must be in (0, 1), got {self.init_opacity}")
+            raise ConfigError(f"SplatConfig.init_opacity must be in (0, 1), got {self.init_opacity}")
         if self.init_scale < 0 or self.min_scale <= 0:
-            raise ConfigError("FieldConfig: init_scale must be >= 0 and min_scale > 0")
+            raise ConfigError("SplatConfig: init_scale must be >= 0 and min_scale > 0")
 
 
 # --------------------------------------------------------------------------- geometry input
@@ -256,7 +256,7 @@ class SplatField(Field):
     #: adaptive density control (clone, split, prune) applies
     densify = True
 
-    def __init__(self, params: dict, *, box: np.ndarray, cfg: FieldConfig, extra_inputs: int = 0,
+    def __init__(self, params: dict, *, box: np.ndarray, cfg: SplatConfig, extra_inputs: int = 0,
                  seed: int = 0, name: str = "bg"):
         self.cfg = cfg
         self.name = name
@@ -272,7 +272,7 @@ class SplatField(Field):
 
     # ---- construction ---------------------------------------------------------------
     @classmethod
-    def from_points(cls, points: np.ndarray, *, cfg: FieldConfig, box: np.ndarray | None = None,
+    def from_points(cls, points: np.ndarray, *, cfg: SplatConfig, box: np.ndarray | None = None,
                     extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "SplatField":
         """Gaussians centred on ``points`` (float [N, 3] metres), isotropic scale (cfg.init_scale
         or the 3-NN rule), identity rotation, opacity cfg.init_opacity. ``box`` defaults to the
@@ -298,7 +298,7 @@ class SplatField(Field):
         return cls(params, box=box, cfg=cfg, extra_inputs=extra_inputs, seed=seed, name=name)
 
     @classmethod
-    def initialize(cls, *, cfg: FieldConfig, rng: np.random.Generator, meshes=None,
+    def initialize(cls, *, cfg: SplatConfig, rng: np.random.Generator, meshes=None,
                    bounds: tuple | None = None, source: np.ndarray | None = None,
                    extra_inputs: int = 0, seed: int = 0, name: str = "bg") -> "SplatField":
         """Initial field from scene meshes (cfg.init == "mesh") or uniform in ``bounds``.
@@ -314,14 +314,14 @@ class SplatField(Field):
         n_main = cfg.num_gaussians - n_src
         if cfg.init == "mesh":
             if not meshes:
-                raise ConfigError("FieldConfig.init = 'mesh' needs scene meshes; use init = 'random' without a scene")
+                raise ConfigError("SplatConfig.init = 'mesh' needs scene meshes; use init = 'random' without a scene")
             pts = sample_surface(meshes, n_main, rng=rng)
             if bounds is None:
                 allv = np.concatenate([v for v, _ in meshes])
                 bounds = (allv.min(0), allv.max(0))
         else:
             if bounds is None:
-                raise ConfigError("FieldConfig.init = 'random' needs scene bounds")
+                raise ConfigError("SplatConfig.init = 'random' needs scene bounds")
             lo, hi = (np.asarray(x, dtype=np.float64) for x in bounds)
             pts = lo + rng.random((n_main, 3)) * (hi - lo)
         if n_src > 0:
@@ -335,7 +335,7 @@ class SplatField(Field):
     def for_training(cls, cfg, data, *, scene_xml: Path | None, rng: np.random.Generator, extra_inputs: int = 0,
                      name: str = "bg") -> "SplatField":
         """The Stage-1 initial field of a training configuration: Gaussians on the scene's mesh
-        surfaces (``cfg.field.init == "mesh"``) or random in the known bounds padded by 0.5 m.
+        surfaces (``cfg.splat.init == "mesh"``) or random in the known bounds padded by 0.5 m.
         A dataset without a scene (a measured NeRF2 folder) gets the random initialisation
         whatever ``init`` says, with a warning.
 
@@ -346,7 +346,7 @@ class SplatField(Field):
             rng: initialisation randomness; extra_inputs: extra per-view network inputs; name:
                 optimizer key prefix.
         """
-        fc = cfg.field
+        fc = cfg.splat
         meshes = data.meshes(scene_xml) if fc.init == "mesh" else None
         if fc.init == "mesh" and meshes is None:
             # a measured folder names no room: the scene-free initialisation is the only one there is
@@ -354,7 +354,7 @@ class SplatField(Field):
             from dataclasses import replace
 
             warnings.warn(f"dataset {data.path} names no scene: Gaussians start uniform in the known bounds "
-                          "(field.init = 'random')", stacklevel=2)
+                          "(splat.init = 'random')", stacklevel=2)
             fc = replace(fc, init="random")
         bounds = data.bounds
         if meshes:
@@ -545,7 +545,7 @@ class SplatField(Field):
         if "meta" not in state:
             raise RunError("field state has no 'meta' entry")
         meta = json.loads(str(state["meta"]))
-        cfg = from_dict(FieldConfig, meta["config"])
+        cfg = from_dict(SplatConfig, meta["config"])
         g = {k: state[k] for k in GAUSSIAN_KEYS if k in state}
         if len(g) != len(GAUSSIAN_KEYS):
             _missing(state)

@@ -31,7 +31,7 @@ from ..core.errors import ConfigError, RunError
 from ..data.samples import num_human_features
 from .base import register
 from .nn import MLP, NetConfig, encode
-from .splat import GAUSSIAN_KEYS, FieldConfig, SplatField, Splats, _logit, columns
+from .splat import GAUSSIAN_KEYS, SplatConfig, SplatField, Splats, _logit, columns
 
 
 @dataclass
@@ -63,7 +63,7 @@ class SplatPersonConfig:
     num_gaussians: size of the sparse set; init_radius: horizontal standard deviation (metres)
     of the initial positions around the training human positions; init_height: (lo, hi)
     metres above the human's feet; init_scale: initial isotropic scale (metres, or radians
-    with ``field.scale_mode = "angular"``); init_opacity: initial attenuation delta;
+    with ``splat.scale_mode = "angular"``); init_opacity: initial attenuation delta;
     human_octaves: octaves of the human-position encoding.
     anchor: "human" - Gaussian positions are stored relative to the human's feet and follow the
     person (world position = human position + stored position + deformation); "world" - stored
@@ -107,7 +107,7 @@ class SplatPersonField(SplatField):
     format = "rfmitsuba-human-field/1"
     person = True
 
-    def __init__(self, params: dict, *, box: np.ndarray, hcfg: SplatPersonConfig, field_cfg: FieldConfig,
+    def __init__(self, params: dict, *, box: np.ndarray, hcfg: SplatPersonConfig, field_cfg: SplatConfig,
                  seed: int = 0, name: str = "human"):
         import dataclasses
 
@@ -133,7 +133,7 @@ class SplatPersonField(SplatField):
         return cls.near_walk(walk, hcfg=cfg, field_cfg=bg.cfg, box=bg.box, rng=rng, seed=seed, name=name)
 
     @classmethod
-    def near_walk(cls, human_positions: np.ndarray, *, hcfg: SplatPersonConfig, field_cfg: FieldConfig,
+    def near_walk(cls, human_positions: np.ndarray, *, hcfg: SplatPersonConfig, field_cfg: SplatConfig,
                   box: np.ndarray, rng: np.random.Generator, seed: int = 0, name: str = "human") -> "SplatPersonField":
         """Random initial human Gaussians around the (training) human positions.
 
@@ -284,7 +284,7 @@ class SplatPersonField(SplatField):
         if meta.get("format") != cls.format:
             raise RunError(f"not a human field state (format {meta.get('format')!r})")
         hcfg = from_dict(SplatPersonConfig, meta["human_config"])
-        fcfg = from_dict(FieldConfig, meta["config"])
+        fcfg = from_dict(SplatConfig, meta["config"])
         g = {k: state[k] for k in GAUSSIAN_KEYS}
         f = cls(g, box=state["box"], hcfg=hcfg, field_cfg=fcfg, seed=meta["seed"], name=meta["name"])
         f.load_state_dict(state)

@@ -3,7 +3,7 @@
 :class:`TrainConfig` holds the step counts, batch, resolution, seed, validation and checkpoint
 cadence, the model kind (``model``: a registered Stage-1 field kind, e.g. "splat" or
 "coherent"), the train/test split (``split``) and the
-sub-configurations of each family (``field``, ``coherent``, ``density``) and of the optimizer
+sub-configurations of each family (``splat``, ``coherent``, ``coherent_gaussians``, ``density``) and of the optimizer
 (:class:`OptimConfig`). :func:`quick_config` is the ``--quick`` size; :func:`config_diff`
 names the keys in which two configurations differ (a run folder of another configuration is
 refused with that list).
@@ -20,7 +20,7 @@ from ..core.errors import ConfigError
 from ..models.base import field_class
 from ..models.coherent import CoherentConfig
 from ..models.coherent_gaussians import CoherentGaussianConfig
-from ..models.splat import FieldConfig
+from ..models.splat import SplatConfig
 from .density import DensityConfig
 
 
@@ -84,16 +84,19 @@ class TrainConfig:
     jitter_views: jittered copies per step (1).
     model: a registered Stage-1 field kind ("splat", "coherent", "coherent_gaussians",
         "gaussian_process") or "auto": train the candidates briefly and keep the best by validation SSIM
-        (:mod:`rfmitsuba.train.select`) ("splat"; the CLI's default is "auto").
+        (:mod:`rfmitsuba.train.select`; :func:`rfmitsuba.train.trainer.train` decides it, a
+        :class:`~rfmitsuba.train.trainer.Trainer` trains one kind) ("auto", in Python and on the CLI).
     split: test positions: "dataset" (its split.json or published index files), "block" (the 20% with the
         largest x) or "random" (seeded 80/20) ("dataset").
     scene: the room (built-in name or XML path) of a dataset that names none; "": the dataset's own ("").
-    field / coherent / coherent_gaussians / density / optim: the splat field, the image-source field, the
+    splat / coherent / coherent_gaussians / density / optim: the splat field, the image-source field, the
         coherent Gaussian field, the splat density control, the learning rates.
     """
 
     #: options that were removed because they did not help (core.config: saved files still load)
     removed_options: ClassVar[dict] = {"members": 1, "val_positions": "random"}
+    #: options that were renamed (core.config: saved files still load)
+    renamed_options: ClassVar[dict] = {"field": "splat"}
     #: the sentinels "auto" replaced (core.config: saved files still load)
     removed_values: ClassVar[dict] = {"epochs": {-1: "auto"}, "downsample": {0: "auto"}, "starts": {0: "auto"},
                                       "jitter": {-1: "auto"}}
@@ -116,10 +119,10 @@ class TrainConfig:
     revert_drop: float = 0.01
     jitter: float | Literal["auto"] = "auto"
     jitter_views: int = 1
-    model: str = "splat"
+    model: str = "auto"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
-    field: FieldConfig = dc_field(default_factory=FieldConfig)
+    splat: SplatConfig = dc_field(default_factory=SplatConfig)
     coherent: CoherentConfig = dc_field(default_factory=CoherentConfig)
     coherent_gaussians: CoherentGaussianConfig = dc_field(default_factory=CoherentGaussianConfig)
     density: DensityConfig = dc_field(default_factory=DensityConfig)
@@ -169,7 +172,7 @@ def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
     """A small, fast variant (for --quick and smoke tests): 300 steps, 600 Gaussians, half resolution."""
     cfg = cfg or TrainConfig()
     return C.override(cfg, ["iterations=300", "downsample=2", "val_every=100", "checkpoint_every=100",
-                            "field.num_gaussians=600", "density.start=100", "density.every=50",
+                            "splat.num_gaussians=600", "density.start=100", "density.every=50",
                             "density.max_gaussians=2000", "density.reset_every=0"])
 
 

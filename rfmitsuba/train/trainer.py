@@ -1,6 +1,6 @@
 """Training of a Gaussian radio field (Stage 1: the empty-room background).
 
-* :class:`TrainConfig` (with :class:`~rfmitsuba.models.splat.FieldConfig`,
+* :class:`TrainConfig` (with :class:`~rfmitsuba.models.splat.SplatConfig`,
   :class:`~rfmitsuba.train.density.DensityConfig`, :class:`OptimConfig`) - typed, TOML round trip.
 * :class:`TrainData` - the PAS, positions and split a run trains on, read from a dataset
   folder or a NeRF2 spectrum folder (:func:`rfmitsuba.data.store.open_dataset`).
@@ -135,6 +135,10 @@ class Trainer:
         self.quiet = quiet
         self.name = name
         self.prefix = name + "."
+        if cfg.model == "auto":
+            raise ConfigError("TrainConfig.model = 'auto' is decided by rfmitsuba.train.trainer.train (the trials of "
+                              "rfmitsuba.train.select); a Trainer trains one field kind: set model, e.g. "
+                              "model='coherent_gaussians'")
         #: the training images' block size (TrainConfig.downsample, or the field's advice)
         self.d = training_downsample(cfg)
         self.h, self.w = PAS_SHAPE[0] // self.d, PAS_SHAPE[1] // self.d

@@ -5,7 +5,7 @@ import json
 import numpy as np
 
 TINY = ["--set", "iterations=40", "--set", "downsample=5", "--set", "val_every=10", "--set", "checkpoint_every=10",
-        "--set", "field.init='random'", "--set", "field.num_gaussians=100", "--model", "splat", "--quiet"]
+        "--set", "splat.init='random'", "--set", "splat.num_gaussians=100", "--model", "splat", "--quiet"]
 TINY_COMPARE = ["--methods", "baseline,ours", "--seeds", "0", "--set", "train.stage1_iterations=8",
                 "--set", "train.val_every=8", "--set", "train.stage2_iterations=6",
                 "--set", "train.overrides=['coherent_human.num_points=4']"]

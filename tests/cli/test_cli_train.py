@@ -4,7 +4,7 @@ import json
 from stage1_data import make_dataset
 
 TINY = ["--set", "iterations=40", "--set", "downsample=5", "--set", "val_every=10", "--set", "checkpoint_every=10",
-        "--set", "field.init='random'", "--set", "field.num_gaussians=100", "--set", "coherent_gaussians.scatterers=4",
+        "--set", "splat.init='random'", "--set", "splat.num_gaussians=100", "--set", "coherent_gaussians.scatterers=4",
         "--quiet"]
 
 

@@ -15,8 +15,8 @@ def _mcfg(stage1, stage2):
     from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.train.config import TrainConfig
 
-    s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
-                                    f"checkpoint_every={stage1}", "field.init='random'", "field.num_gaussians=200",
+    s1 = C.override(TrainConfig(), ['model="splat"', f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
+                                    f"checkpoint_every={stage1}", "splat.init='random'", "splat.num_gaussians=200",
                                     "density.enabled=false"])
     return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=60))
 

@@ -354,3 +354,26 @@ def test_datasets_that_do_not_fit_on_the_disk_are_refused_before_anything_is_wri
                                        r"system has .* GB free; free some space, or give --data"):
         R.reproduce(tmp_path / "out", cfg, quiet=True)
     assert not (tmp_path / "out").exists()
+
+
+def test_an_unfinished_job_of_an_older_folder_still_matches_its_configuration():
+    """A job.json written before options were removed (members = 1) and before "auto" replaced
+    the sentinels (epochs = -1, downsample = 0, starts = 0, jitter = -1) is the same configuration
+    as today's; a job of a really other configuration still differs."""
+    import copy
+
+    from rfmitsuba.experiments import reproduce as R
+    from rfmitsuba.experiments.methods import config_dict
+    from rfmitsuba.experiments.sizes import method_config, size_config
+    from rfmitsuba.train.config import config_diff
+
+    want = {"job": {"method": "baseline"}, "method_config": json.loads(json.dumps(config_dict(
+        method_config(size_config("tiny").train, scene_known=True))))}
+    old = copy.deepcopy(want)
+    s1 = old["method_config"]["stage1"]
+    s1.update(members=1, val_positions="random", epochs=-1.0, starts=0, jitter=-1.0)
+    if s1["downsample"] == "auto":
+        s1["downsample"] = 0
+    assert config_diff(R._saved_job(old), want) == []
+    s1["iterations"] += 1
+    assert config_diff(R._saved_job(old), want) != []

@@ -21,10 +21,10 @@ def test_every_named_size_round_trips_and_yields_a_method_config(tmp_path):
 
 def test_method_config_maps_sizes_and_applies_overrides_last():
     t = TrainSize(model="splat", num_gaussians=123, human_gaussians=7, downsample=5, room_order=1,
-                  overrides=["stage1.field.num_gaussians=99", "coherent_human.num_points=3"])
+                  overrides=["stage1.splat.num_gaussians=99", "coherent_human.num_points=3"])
     m = method_config(t, scene_known=False)
-    assert m.stage1.field.num_gaussians == 99 and m.human.num_gaussians == 7 and m.coherent_human.num_points == 3
-    assert m.stage1.field.init == "random" and m.stage1.downsample == 5
+    assert m.stage1.splat.num_gaussians == 99 and m.human.num_gaussians == 7 and m.coherent_human.num_points == 3
+    assert m.stage1.splat.init == "random" and m.stage1.downsample == 5
     assert TrainSize().model == "coherent_gaussians"
     c = method_config(TrainSize(model="coherent", room_order=1, furniture_order=0))
     assert c.stage1.downsample == 1 and c.stage1.coherent.room_order == 1 and c.stage1.coherent.furniture_order == 0

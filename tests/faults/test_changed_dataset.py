@@ -20,8 +20,8 @@ def test_eval_and_predict_warn_when_a_spectrum_changed_after_training(synthetic_
     folder = nerf2.write(open_dataset(synthetic_ds), tmp_path / "nerf2")
     run = tmp_path / "run"
     args = ["train", str(folder), "--out", str(run), "--model", "splat", "--quiet"]
-    for s in ["iterations=10", "downsample=5", "val_every=5", "field.init=\"random\"", "field.num_gaussians=40",
-              "field.net.width=8"]:
+    for s in ["iterations=10", "downsample=5", "val_every=5", "splat.init=\"random\"", "splat.num_gaussians=40",
+              "splat.net.width=8"]:
         args += ["--set", s]
     assert cli.main(args) == 0
     fp = json.loads((run / "run.json").read_text())["dataset_fingerprint"]

@@ -162,7 +162,7 @@ def test_compare_names_the_seed_that_is_not_one(tmp_path, capsys, seeds, bad):
 def test_a_run_without_validation_positions_says_why(synthetic_ds, tmp_path, capsys):
     out = tmp_path / "run"
     args = ["train", str(synthetic_ds), "--out", str(out), "--model", "splat", "--quiet", "--set", "val_fraction=0"]
-    for s in ["iterations=5", "downsample=5", "field.init=\"random\"", "field.num_gaussians=30", "field.net.width=8"]:
+    for s in ["iterations=5", "downsample=5", "splat.init=\"random\"", "splat.num_gaussians=30", "splat.net.width=8"]:
         args += ["--set", s]
     assert cli.main(args) == 0
     printed = capsys.readouterr().out
@@ -183,7 +183,7 @@ def test_auto_without_validation_positions_says_how_it_chose(synthetic_ds, tmp_p
 
     out = tmp_path / "run"
     args = ["train", str(synthetic_ds), "--out", str(out), "--quiet", "--set", "val_fraction=0"]
-    for s in ["iterations=200", "downsample=5", "field.init=\"random\"", "field.num_gaussians=30", "field.net.width=8",
+    for s in ["iterations=200", "downsample=5", "splat.init=\"random\"", "splat.num_gaussians=30", "splat.net.width=8",
               "coherent_gaussians.scatterers=4"]:
         args += ["--set", s]
     assert cli.main(args) == 0

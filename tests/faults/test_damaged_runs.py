@@ -7,7 +7,7 @@ import pytest
 from rfmitsuba import cli
 
 SETS = ["iterations=20", "downsample=5", "val_every=10", "checkpoint_every=10", "log_every=5",
-        "field.init=\"random\"", "field.num_gaussians=60", "field.net.width=8"]
+        "splat.init=\"random\"", "splat.num_gaussians=60", "splat.net.width=8"]
 
 
 def _truncate(path, keep=0.5):

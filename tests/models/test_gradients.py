@@ -107,13 +107,13 @@ def test_splats_concat_gradients(variant, per_view_geometry):
 
 def _person_field(anchor: str):
     from rfmitsuba.data.samples import human_features
-    from rfmitsuba.models.splat import FieldConfig
+    from rfmitsuba.models.splat import SplatConfig
     from rfmitsuba.models.splat_person import SplatPersonConfig, SplatPersonField
 
     box = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.8]])
     walk = np.array([[1.0, 1.0, 0.0], [2.0, 1.5, 0.0], [3.0, 2.0, 0.0]])
     hf = SplatPersonField.near_walk(walk, hcfg=SplatPersonConfig(num_gaussians=12, anchor=anchor),
-                                    field_cfg=FieldConfig(init="random", num_gaussians=40), box=box,
+                                    field_cfg=SplatConfig(init="random", num_gaussians=40), box=box,
                                     rng=np.random.default_rng(0), seed=3)
     human = np.array([[1.2, 1.1, 0.0], [2.1, 1.6, 0.0], [2.9, 2.2, 0.0]])
     extra = np.concatenate([human_features(human, box, octaves=hf.feature_octaves), human.astype(np.float32)], 1)

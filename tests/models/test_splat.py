@@ -53,9 +53,9 @@ def test_scene_meshes_of_the_bedroom_and_missing_file(tmp_path):
 
 def _field(n=6, **kw):
     from rfmitsuba.models.nn import NetConfig
-    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat import SplatConfig, SplatField
 
-    cfg = FieldConfig(init_scale=0.2, net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1), **kw)
+    cfg = SplatConfig(init_scale=0.2, net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1), **kw)
     pts = np.random.default_rng(0).uniform(0, 3, (n, 3))
     return SplatField.from_points(pts, cfg=cfg, box=np.array([[0, 0, 0], [3, 3, 3.0]]), seed=4)
 
@@ -167,12 +167,12 @@ def test_a_training_step_compiles_once(variant, host):
     from rfmitsuba.core.upload import upload
     from rfmitsuba.models.base import Views, render
     from rfmitsuba.models.nn import NetConfig
-    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat import SplatConfig, SplatField
     from rfmitsuba.train.loss import loss
 
     if host and B.is_cuda():
         pytest.skip("the host products run on the LLVM backend only")
-    cfg = FieldConfig(init_scale=0.4, scale_mode="angular",
+    cfg = SplatConfig(init_scale=0.4, scale_mode="angular",
                       net=NetConfig(width=8, gaussian_octaves=1, antenna_octaves=1, host_products=host))
     pts = np.random.default_rng(0).uniform(0.5, 2.5, (40, 3))
     f = SplatField.from_points(pts, cfg=cfg, box=np.array([[0, 0, 0], [3, 3, 3.0]]), seed=4)

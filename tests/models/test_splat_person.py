@@ -8,12 +8,12 @@ from rfmitsuba.core.errors import ConfigError
 
 
 def _fields(variant, *, anchor="human"):
-    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat import SplatConfig, SplatField
     from rfmitsuba.models.splat_person import SplatPersonConfig, SplatPersonField
 
     rng = np.random.default_rng(0)
     box = np.array([[0.0, 0.0, 0.0], [4.0, 3.5, 2.8]])
-    bg = SplatField.initialize(cfg=FieldConfig(init="random", num_gaussians=40), rng=rng, bounds=(box[0], box[1]))
+    bg = SplatField.initialize(cfg=SplatConfig(init="random", num_gaussians=40), rng=rng, bounds=(box[0], box[1]))
     walk = np.array([[1.0, 1.0, 0.0], [2.0, 1.5, 0.0], [3.0, 2.0, 0.0]])
     hf = SplatPersonField.near_walk(walk, hcfg=SplatPersonConfig(num_gaussians=12, anchor=anchor), field_cfg=bg.cfg, box=box,
                               rng=rng, seed=3)
@@ -109,7 +109,7 @@ def methods_config(*, stage1, stage2):
     from rfmitsuba.models.splat_person import SplatPersonConfig
     from rfmitsuba.train.config import TrainConfig
 
-    s1 = C.override(TrainConfig(), [f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
-                                    f"checkpoint_every={stage1}", "field.init='random'", "field.num_gaussians=150",
+    s1 = C.override(TrainConfig(), ['model="splat"', f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
+                                    f"checkpoint_every={stage1}", "splat.init='random'", "splat.num_gaussians=150",
                                     "density.enabled=false"])
     return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=48))

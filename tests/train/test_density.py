@@ -10,11 +10,11 @@ def _setup(n=6, scale=0.02, **cfg_kw):
 
     from rfmitsuba.core import backend as B
     from rfmitsuba.models.nn import NetConfig
-    from rfmitsuba.models.splat import FieldConfig, SplatField
+    from rfmitsuba.models.splat import SplatConfig, SplatField
     from rfmitsuba.train.density import DensityConfig, DensityStrategy
 
     pts = np.stack([np.arange(n, dtype=float), np.zeros(n), np.ones(n)], 1)
-    f = SplatField.from_points(pts, cfg=FieldConfig(init_scale=scale, net=NetConfig(width=4)),
+    f = SplatField.from_points(pts, cfg=SplatConfig(init_scale=scale, net=NetConfig(width=4)),
                                   box=np.array([[-1, -1, -1], [n + 1, 1, 2.0]]))
     opt = Adam(lr=1e-3)
     for k, v in f.trainable().items():

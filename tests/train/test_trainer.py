@@ -28,7 +28,7 @@ def test_config_round_trip_and_unknown_option():
     assert C.from_toml(TrainConfig, C.to_toml(cfg)) == cfg
     assert C.from_json(TrainConfig, C.to_json(cfg)) == cfg
     with pytest.raises(ConfigError, match="nope"):
-        C.override(cfg, ["field.nope=1"])
+        C.override(cfg, ["splat.nope=1"])
     with pytest.raises(ConfigError, match="downsample"):
         C.override(cfg, ["downsample=7"])
     with pytest.raises(ConfigError, match="unknown option"):
@@ -301,6 +301,7 @@ def test_run_folders_written_with_removed_options_still_open(tiny_ds, tmp_path):
     from rfmitsuba.core import config as C
     from rfmitsuba.core.errors import ConfigError, RunError
     from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.config import TrainConfig
     from rfmitsuba.train.trainer import Trainer, load_run
 
     data = TrainData.open(tiny_ds)
@@ -320,6 +321,16 @@ def test_run_folders_written_with_removed_options_still_open(tiny_ds, tmp_path):
         load_run(run)
     with pytest.raises(ConfigError, match="members: this option was removed"):
         C.override(cfg, ["members=2"])
+    # a renamed section: the splat field's options were [field]
+    (run / "final" / "members.json").unlink()
+    toml.write_text(toml.read_text().replace("[splat]", "[field]").replace("[splat.", "[field."))
+    assert "[field]" in toml.read_text() and load_run(run)[0] == cfg
+    mine = tmp_path / "mine.toml"     # the same file as a user's configuration, without the removed options
+    mine.write_text(toml.read_text().replace('members = 1\nval_positions = "random"\n', ""))
+    with pytest.raises(ConfigError, match="TrainConfig.field: this option is called 'splat' now"):
+        C.load(TrainConfig, mine)
+    with pytest.raises(ConfigError, match="the section 'field' is called 'splat' now"):
+        C.override(cfg, ["field.num_gaussians=10"])
 
 
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
@@ -331,8 +342,8 @@ def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):
     run = tmp_path / "run"
     Trainer(tiny_cfg(iterations=10), data, run, quiet=True).run()
     before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
-    with pytest.raises(RunError, match="field.num_gaussians"):
-        Trainer(tiny_cfg(iterations=10, **{"field.num_gaussians": 99}), data, run, quiet=True)
+    with pytest.raises(RunError, match="splat.num_gaussians"):
+        Trainer(tiny_cfg(iterations=10, **{"splat.num_gaussians": 99}), data, run, quiet=True)
     after = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
     assert before == after
     other = tmp_path / "other"
@@ -389,7 +400,7 @@ def test_cli_train_and_unknown_option(tiny_ds, tmp_path, capsys):
     assert main(["train", str(tiny_ds), "--out", str(run), "--config", str(cfg), "--quiet"]) == 0
     assert "10 steps" in capsys.readouterr().out
     assert main(["train", str(tiny_ds), "--out", str(tmp_path / "r2"), "--config", str(cfg),
-                 "--set", "field.colour=1"]) == 2
+                 "--set", "splat.colour=1"]) == 2
     assert "colour" in capsys.readouterr().err
     assert not (tmp_path / "r2").exists()
 
@@ -409,7 +420,7 @@ def test_moving_tx_task_trains(tmp_path, variant):
 def test_nerf2_folder_trains(tiny_ds, tmp_path):
     """A NeRF2 spectrum folder (written from the tiny moving-TX dataset) trains and evaluates;
     the gateway orientation reaches the renderer as rx_to_world; no scene -> random init with a
-    warning, whatever field.init says; --split block holds out the slab of largest x."""
+    warning, whatever splat.init says; --split block holds out the slab of largest x."""
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.data.views import TrainData
@@ -422,7 +433,7 @@ def test_nerf2_folder_trains(tiny_ds, tmp_path):
     assert data.task == "tx" and data.scene_xml is None
     np.testing.assert_allclose(data.rx_to_world, np.eye(3), atol=1e-12)
     with pytest.warns(UserWarning, match="names no scene"):
-        Trainer(tiny_cfg(iterations=10, **{"field.init": '"mesh"'}), data, tmp_path / "run", quiet=True).run()
+        Trainer(tiny_cfg(iterations=10, **{"splat.init": '"mesh"'}), data, tmp_path / "run", quiet=True).run()
     m = evaluate_run(tmp_path / "run")
     assert m["test_positions"] == len(data.test) and m["split"] == "dataset"
     # the spatial-block split: the test positions are the slab of the largest x
@@ -490,7 +501,7 @@ def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
     before = bg.state_dict()
     human = np.array([1.0, 2.0, 0.0])
     extra = lambda idx: np.tile(human / 4.0, (len(idx), 1))  # noqa: E731
-    tr = Trainer(tiny_cfg(iterations=10, **{"field.num_gaussians": 40}), data, tmp_path / "h", frozen=[bg],
+    tr = Trainer(tiny_cfg(iterations=10, **{"splat.num_gaussians": 40}), data, tmp_path / "h", frozen=[bg],
                  extra=extra, extra_inputs=3, name="human", quiet=True)
     s = tr.run()
     assert s["num_gaussians"] == tr.field.num_gaussians and tr.field.extra_inputs == 3
