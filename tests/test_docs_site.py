@@ -79,3 +79,17 @@ def test_the_process_talk_pattern():
     said = [w + " " + n for w, n in (("measured in session", "47"), ("see Issue", "12."), ("the session", "\n46"))]
     assert all(PROCESS_TALK.search(t) for t in said + ["their session-" + "46 time", "in this " + "session"])
     assert not PROCESS_TALK.search("tissue 0.903 vs metal") and not PROCESS_TALK.search("lab run 48")
+
+
+def test_every_notebook_has_its_page_in_the_site():
+    """docs/notebooks/<name>.md, written by scripts/render_notebooks.py from the notebook, for every
+    notebook, each in the site's navigation; its figures are beside it."""
+    root = Path(__file__).resolve().parents[1]
+    nav = (root / "mkdocs.yml").read_text()
+    for nb in sorted((root / "notebooks").glob("*.ipynb")):
+        md = root / "docs" / "notebooks" / f"{nb.stem}.md"
+        assert md.is_file(), f"{md} is missing: run python scripts/render_notebooks.py {nb.stem}"
+        text = md.read_text()
+        assert f"notebooks/{nb.stem}.ipynb" in text and f"notebooks/{nb.stem}.md" in nav
+        for ref in re.findall(r"!\[[^\]]*\]\(([^)]+\.png)\)", text):
+            assert (md.parent / ref).is_file(), f"{md}: figure {ref} is missing"
