@@ -21,7 +21,16 @@ def whole_numbers(text: str, *, option: str, least: int = 0, example: str = "0,1
 
 def positive_int(text: str) -> int:
     """argparse ``type``: a whole number >= 1 (e.g. ``--batch``)."""
+    return _at_least(text, 1)
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse ``type``: a whole number >= 0 (e.g. ``--threads``, where 0 means all cores)."""
+    return _at_least(text, 0)
+
+
+def _at_least(text: str, least: int) -> int:
     tok = text.strip()
-    if not (tok.isascii() and tok.isdigit()) or int(tok) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 1")
+    if not (tok.isascii() and tok.isdigit()) or int(tok) < least:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= {least}")
     return int(tok)

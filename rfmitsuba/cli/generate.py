@@ -5,6 +5,7 @@ import json
 import time
 
 from ..core import cluster
+from ._values import nonnegative_int
 
 
 def register(sub) -> None:
@@ -29,7 +30,7 @@ def register(sub) -> None:
                    help="ray samples per source (default 1e5; 3e5 for rooms over 50 m^2; 2e4 with --quick)")
     p.add_argument("--max-depth", type=int, default=3, help="maximum interactions per path (default 3)")
     p.add_argument("--solver-seed", type=int, default=42, help="seed of the ray tracer (default 42)")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=nonnegative_int, default=1,
                    help="threads of the ray tracer; 1 (default) is bit-reproducible, 0 = all cores")
     p.add_argument("--frequency", type=float, default=2.4e9, help="carrier in Hz (default 2.4e9)")
     p.add_argument("--array", choices=["synthetic", "exact"], default="synthetic",
