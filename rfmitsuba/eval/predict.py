@@ -165,7 +165,10 @@ def predict_run(run_dir: str | Path, positions: np.ndarray, *, anchor: bool = Fa
     if check_room and data.scene_xml is not None:
         from ..sim.geometry import RoomGeometry
 
-        RoomGeometry.from_xml(data.scene_xml).check_points(q, what="position")
+        try:
+            RoomGeometry.from_xml(data.scene_xml).check_points(q, what="position")
+        except PlacementError as e:   # the way out, as for an unknown room's box
+            raise PlacementError(f"{e} (--no-room-check renders it anyway)") from None
     elif check_room:
         _check_room_box(renderer, q, data)
     how = "field"
