@@ -211,7 +211,9 @@ class Dataset:
         self.path = Path(path)
         meta_file = self.path / "meta.json"
         if not meta_file.is_file():
-            raise DatasetError(f"{self.path}: no meta.json, not a dataset folder")
+            raise DatasetError(f"{self.path}: no meta.json, not a dataset folder (rfmitsuba generate writes one); "
+                               "a NeRF2 folder holds spectrum/ and tx_pos.csv, a One Walk folder spectrum/ or "
+                               "spectrums/ and rx_info.csv or spectrum_info.csv")
         try:
             self.meta = json.loads(meta_file.read_text())
         except ValueError as e:
