@@ -142,3 +142,42 @@ def test_bad_conditioning_data_is_named():
         f.condition(np.eye(3), np.full((3, 2, 2), np.nan))
     with pytest.raises(ConfigError, match="Stage-2"):
         GaussianProcessField.for_training(None, None, extra_inputs=2)
+
+
+def test_slab_folds_hold_out_the_extremes_of_each_axis_that_spreads():
+    from rfmitsuba.models.gaussian_process import slab_folds
+
+    rng = np.random.default_rng(1)
+    x = np.c_[rng.uniform(0, 1, 30), rng.uniform(0, 2, 30), np.full(30, 1.5)]   # z does not spread
+    folds = slab_folds(x)
+    assert len(folds) == 4 and all(len(f) == 6 for f in folds)
+    np.testing.assert_array_equal(folds[0], np.sort(np.argsort(x[:, 0])[-6:]))     # largest x
+    np.testing.assert_array_equal(folds[3], np.sort(np.argsort(x[:, 1])[:6]))      # smallest y
+
+
+def test_the_length_scales_are_scaled_by_the_multiple_that_best_predicts_held_out_slabs():
+    """condition() without hyperparameters: the likelihood's scales times the multiple whose
+    prediction of the held-out slabs scores best, each score the mean SSIM over the slabs (checked
+    here against conditioning on each slab's complement directly)."""
+    from rfmitsuba.core.ssim import ssim_images
+    from rfmitsuba.models.gaussian_process import (LENGTH_SCALE_MULTIPLES, GaussianProcessField,
+                                                   fit_hyperparameters, slab_folds)
+    from rfmitsuba.rf.bartlett_ref import normalize
+
+    n, h, w = 30, 10, 20
+    x, y = _draw(n=n, m=h * w, ls=(0.3, 0.3, 0.3), nugget=1e-3, seed=3)
+    img = ((y - y.min()) / (y.max() - y.min())).reshape(n, h, w)
+    f = GaussianProcessField(height=h, width=w)
+    hy = f.condition(x, img)
+    ml = fit_hyperparameters(x, img.reshape(n, -1) - img.reshape(n, -1).mean(0))
+    m = hy["length_scale_multiple"]
+    assert m in LENGTH_SCALE_MULTIPLES and set(hy["slab_ssim"]) == {f"{v:g}" for v in LENGTH_SCALE_MULTIPLES}
+    np.testing.assert_allclose(hy["length_scales_m"], np.asarray(ml["length_scales_m"]) * m, rtol=1e-9)
+    assert hy["slab_ssim"][f"{m:g}"] == max(hy["slab_ssim"].values())
+    scores = []
+    for held in slab_folds(x):                     # the score of multiple 1, by hand
+        keep = np.setdiff1d(np.arange(n), held)
+        g = GaussianProcessField(height=h, width=w)
+        g.condition(x[keep], img[keep], hyper={"length_scales_m": ml["length_scales_m"], "nugget": ml["nugget"]})
+        scores.append(np.mean(ssim_images(normalize(g.predict(x[held])), img[held])))
+    assert hy["slab_ssim"]["1"] == pytest.approx(np.mean(scores), abs=1e-9)
