@@ -169,7 +169,7 @@ class SampleData(TrainData):
             lo, hi = np.minimum(lo, hpf.min(0)), np.maximum(hi, hpf.max(0) + [0, 0, 1.8])
         box = np.stack([lo - 0.3, hi + 0.3])
         data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
-                   train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, source=base.source,
+                   train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, transmitter=base.transmitter,
                    bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,
                    human_pos=hp,
                    noise_snr_db=noise_snr_db, noise_seed=int(noise_seed))

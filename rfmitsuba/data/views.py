@@ -155,7 +155,9 @@ class TrainData:
     antenna_pos: float64 [A, 3] metres, moving device per position; view_pos: float64 [A, 3]
     metres, where the array is (= antenna_pos for task "rx", the fixed array for "tx");
     rx_to_world: float64 [3, 3] or None (array frame); train / test: int64 antenna indices;
-    scene_xml: path or None; source: float64 [3] or None (fixed transmitter, task "rx");
+    scene_xml: path or None; transmitter: float64 [3] metres or None (the fixed transmitter of task
+    "rx"; in task "tx" the transmitter is the moving device, ``antenna_pos``; as
+    :class:`rfmitsuba.models.base.Views` names the views' positions);
     bounds: (lo [3], hi [3]) metres of everything known (positions, scene); frequency_hz: carrier.
     """
 
@@ -167,7 +169,7 @@ class TrainData:
     train: np.ndarray
     test: np.ndarray
     scene_xml: Path | None
-    source: np.ndarray | None
+    transmitter: np.ndarray | None
     bounds: tuple
     _pas: object = None
     state: int = 0
@@ -226,7 +228,7 @@ class TrainData:
         pts = np.concatenate([ap, fixed[None]])
         bounds = (pts.min(0), pts.max(0))
         data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
-                   scene_xml=xml, source=fixed if task == "rx" else None, bounds=bounds, state=state,
+                   scene_xml=xml, transmitter=fixed if task == "rx" else None, bounds=bounds, state=state,
                    frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
                    readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)),
                    max_depth=_max_depth(meta, path), min_segment=_min_segment(meta, path))
@@ -259,7 +261,7 @@ class TrainData:
         idx = np.asarray(idx, np.int64)
         q = np.asarray(self.antenna_pos[idx], np.float64)
         x = np.asarray(self.view_pos[idx], np.float64)
-        y = q if self.task == "tx" else np.tile(np.asarray(self.source, np.float64), (len(idx), 1))
+        y = q if self.task == "tx" else np.tile(np.asarray(self.transmitter, np.float64), (len(idx), 1))
         return x, y, q
 
     def positions_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +271,7 @@ class TrainData:
         q = np.asarray(q, np.float64).reshape(-1, 3)
         if self.task == "tx":
             return np.tile(np.asarray(self.view_pos[0], np.float64), (len(q), 1)), q
-        return q, np.tile(np.asarray(self.source, np.float64), (len(q), 1))
+        return q, np.tile(np.asarray(self.transmitter, np.float64), (len(q), 1))
 
     def meshes(self, scene_xml: Path | None = None):
         """Scene meshes, list of (vertices float64 [V, 3], faces int64 [F, 3]) in metres, of

@@ -94,8 +94,8 @@ def breakdown(test_pos: np.ndarray, train_pos: np.ndarray, fixed_pos: np.ndarray
 
 def fixed_device(data) -> np.ndarray | None:
     """The fixed device of a dataset [m], float [3]: the transmitter of a moving-RX dataset
-    (``data.source``), the array of a moving-TX one (``data.view_pos``); None when unknown
+    (``data.transmitter``), the array of a moving-TX one (``data.view_pos``); None when unknown
     (a moving-RX dataset that names no transmitter)."""
     if data.task == "tx":
         return np.asarray(data.view_pos, np.float64).reshape(-1, 3)[0]
-    return None if data.source is None else np.asarray(data.source, np.float64).reshape(3)
+    return None if data.transmitter is None else np.asarray(data.transmitter, np.float64).reshape(3)

@@ -363,7 +363,7 @@ class SplatField(Field):
         else:
             pad = 0.5
             bounds = (bounds[0] - pad, bounds[1] + pad)
-        return cls.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=data.source,
+        return cls.initialize(cfg=fc, rng=rng, meshes=meshes, bounds=bounds, source=data.transmitter,
                               extra_inputs=extra_inputs, seed=cfg.seed, name=name)
 
     # ---- parameters -----------------------------------------------------------------

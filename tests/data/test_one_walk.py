@@ -58,7 +58,7 @@ def test_exported_folders_train_and_sample_like_the_source(exported):
 
     src, out = exported
     t = TrainData.open(out)
-    assert t.task == "rx" and np.allclose(t.source, src.fixed_pos)
+    assert t.task == "rx" and np.allclose(t.transmitter, src.fixed_pos)
     assert np.array_equal(t.train, src.split.antenna_train) and np.array_equal(t.test, src.split.antenna_test)
     a, b = SampleData.open_samples(src.path, states="all"), SampleData.open_samples(out / "dynamic", states="all")
     assert np.array_equal(a.train, b.train) and np.array_equal(a.test, b.test)

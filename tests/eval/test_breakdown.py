@@ -60,7 +60,7 @@ def test_breakdown_distances():
 
 class _Data:
     def __init__(self, task, source, view_pos):
-        self.task, self.source, self.view_pos = task, source, view_pos
+        self.task, self.transmitter, self.view_pos = task, source, view_pos
 
 
 def test_fixed_device_by_task():
