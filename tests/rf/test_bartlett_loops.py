@@ -1,0 +1,69 @@
+"""Tests of rfmitsuba.rf.bartlett_loops: each fused loop against its NumPy twin, bit for bit."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rfmitsuba.rf import bartlett_loops as L
+
+
+def _arrays(rng, rows=5, cols=333):
+    yr, yi = (rng.normal(size=(rows, cols)).astype(np.float32) for _ in range(2))
+    yr[0, :2] = yi[0, :2] = 0.0                  # a zero amplitude: the adjoint's floor
+    return yr, yi
+
+
+def _same(a, b):
+    assert np.array_equal(np.asarray(a).view(np.uint32), np.asarray(b).view(np.uint32))
+
+
+@pytest.mark.parametrize("a, b", [(0, None), (64, 200)])
+def test_amplitude_matches_its_twin_bit_for_bit(a, b):
+    yr, yi = _arrays(np.random.default_rng(1))
+    out = np.full_like(yr, -1.0)
+    L.amplitude(yr, yi, out, a, b)
+    stop = yr.shape[1] if b is None else b
+    _same(out[:, a:stop], L.amplitude_numpy(yr[:, a:stop], yi[:, a:stop], np.empty((5, stop - a), np.float32)))
+    assert (out[:, :a] == -1.0).all() and (out[:, stop:] == -1.0).all()    # only its columns
+    np.testing.assert_allclose(out[:, a:stop], np.hypot(yr, yi)[:, a:stop], rtol=1e-6)
+
+
+def test_normalized_matches_its_twin_and_counts_the_extremes():
+    """Two column ranges (two lanes) give the twin's bits, and their counts of the pixels at
+    each image's minimum and maximum add up to the twin's."""
+    rng = np.random.default_rng(2)
+    p = np.abs(rng.normal(size=(4, 300))).astype(np.float32)
+    p[1, [7, 190]] = p[1].min()                  # ties at the minimum, one in each range
+    lo, hi = p.min(1), p.max(1)
+    span = np.maximum(hi - lo, L.TINY)
+    want, want_count = np.empty_like(p), np.zeros((4, 2), np.int64)
+    L.normalized_numpy(p, lo, hi, span, want, want_count)
+    got, count = np.empty_like(p), np.zeros((4, 2), np.int64)
+    for a, b in ((0, 150), (150, 300)):
+        part = np.zeros((4, 2), np.int64)
+        L.normalized(p, lo, hi, span, got, part, a, b)
+        count += part
+    _same(got, want)
+    assert np.array_equal(count, want_count)
+    assert count[1, 0] == np.count_nonzero(p[1] == lo[1]) >= 2 and (count[:, 1] == 1).all()
+
+
+def test_beam_grad_matches_its_twin_bit_for_bit():
+    rng = np.random.default_rng(3)
+    yr, yi = _arrays(rng)
+    p = L.amplitude_numpy(yr, yi, np.empty_like(yr))
+    g = rng.normal(size=p.shape).astype(np.float32)
+    inv = rng.uniform(0.5, 2.0, size=5).astype(np.float32)
+    a, b = 33, 301
+    got = [np.empty((5, b - a), np.float32) for _ in range(2)]
+    want = [np.empty((5, b - a), np.float32) for _ in range(2)]
+    L.beam_grad(g, p, yr, yi, inv, *got, a, b)
+    L.beam_grad_numpy(g[:, a:b], p[:, a:b], yr[:, a:b], yi[:, a:b], inv, *want)
+    for x, y in zip(got, want):
+        _same(x, y)
+        assert np.isfinite(x).all()
+
+
+def test_the_loops_are_compiled_where_numba_is_installed():
+    pytest.importorskip("numba")
+    assert L.compiled()
