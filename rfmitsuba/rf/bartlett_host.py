@@ -58,6 +58,12 @@ LANE_MIN_PIXELS = 65536
 #: meanwhile as :func:`rfmitsuba.core.host_threads.host_threads` does; one other process busy)
 THREADS = 1
 
+#: pixels this close to an image's minimum or maximum, in float32 steps of the image's largest
+#: possible amplitude ``sum_m |h_m| / 16``, are close calls: where an image has more than one,
+#: their amplitudes are settled in float64 (:meth:`Images.settle`). The products' float32 error
+#: is at most about 20 such steps
+SETTLE_STEPS = 64
+
 _HALF = NUM_ELEMENTS // 2
 _WEIGHTS: dict = {}
 _BUFFERS = Buffers()
@@ -148,22 +154,68 @@ class Images:
             ends = run_lanes(product, lanes, threads=self.threads)
             self.lo = np.minimum.reduce([e[0] for e in ends])
             self.hi = np.maximum.reduce([e[1] for e in ends])
-            if self.normalize:
-                self.span = np.maximum(self.hi - self.lo, loops.TINY)
-                self.out = empty_aligned(shape)
-
-                def scale(k):
-                    a, b = self.cuts[k], self.cuts[k + 1]
-                    count = np.empty((self.views, 2), np.int64)
-                    loops.normalized(self.p, self.lo, self.hi, self.span, self.out, count, a, b)
-                    return count
-
-                #: per image, the pixels equal to its minimum and to its maximum: int64 [B, 2]
-                self.ties = sum(run_lanes(scale, lanes, threads=self.threads))
-            else:
-                self.out = self.p
+        if self.normalize:
+            self.out = empty_aligned(shape)
+            self._normalize(h, lanes)
+        else:
+            self.out = self.p
         if not keep:
             self.release()
+
+    def _normalize(self, h: np.ndarray, lanes: int) -> None:
+        """:attr:`out` = each image min-max normalised, its extremes settled where they are close
+        calls (:meth:`settle`)."""
+        # how close to an extreme a pixel's exact amplitude may be while its float32 one is not
+        # the extreme: SETTLE_STEPS float32 steps of the image's largest possible amplitude
+        self.delta = ((SETTLE_STEPS * np.finfo(np.float32).eps / NUM_ELEMENTS)
+                      * np.abs(np.asarray(h, np.complex128)).sum(axis=1))
+        self.span = np.maximum(self.hi - self.lo, loops.TINY)
+        # float32 thresholds: comparing with float64 ones converted every pixel (4x as long)
+        near_lo, near_hi = (self.lo + self.delta).astype(np.float32), (self.hi - self.delta).astype(np.float32)
+
+        def scale(k):
+            a, b = self.cuts[k], self.cuts[k + 1]
+            count = np.empty((self.views, 2), np.int64)
+            loops.normalized(self.p, self.lo, self.span, near_lo, near_hi, self.out, count, a, b)
+            return count
+
+        with one_blas_thread():
+            #: per image, its pixels near its minimum and near its maximum: int64 [B, 2]; where
+            #: both are 1 (the usual case) each extreme is one pixel, the exact one
+            self.near = sum(run_lanes(scale, lanes, threads=self.threads))
+        close = np.flatnonzero((self.near > 1).any(axis=1))
+        if len(close):
+            self.settle(h, close)
+
+    def settle(self, h: np.ndarray, rows: np.ndarray) -> None:
+        """Images ``rows``: recompute the beam outputs and amplitudes of their pixels near their
+        minimum and maximum in float64 from the float32 channels and weights, rounded once,
+        then their extremes and normalised images.
+
+        Which pixel is an image's extreme decides where its normalisation's gradient goes, and
+        the two largest pixels may differ by less than the products' rounding: by 7.6e-8 of the
+        maximum in one of 180 random images (3 views, seed 0), where the folded products made
+        the other pixel the larger. Settled, the extreme is the exact one wherever float32 can
+        tell the two apart, and ties are exact ties (:meth:`_ties`)."""
+        h64 = np.asarray(h, np.complex128)
+        p, d = self.p[rows], self.delta[rows, None]
+        near = (p >= (self.hi[rows, None] - d).astype(np.float32)) | (p <= (self.lo[rows, None] + d).astype(np.float32))
+        k, cols = np.nonzero(near)
+        r = rows[k]
+        a = self.a[:, cols].astype(np.float64)      # [16, n]
+        wr, wi = a[:_HALF], a[_HALF:]
+        hr, hi = h64[r].real.T, h64[r].imag.T      # [16, n]
+        # y = sum_m h_m w_m over the elements m < 8 and their mirrors 15 - m (weight conj(w_m))
+        s_r, s_i = hr[:_HALF] + hr[:_HALF - 1:-1], hi[:_HALF] + hi[:_HALF - 1:-1]
+        d_r, d_i = hr[:_HALF] - hr[:_HALF - 1:-1], hi[:_HALF] - hi[:_HALF - 1:-1]
+        y_r, y_i = (s_r * wr - d_i * wi).sum(axis=0), (s_i * wr + d_r * wi).sum(axis=0)
+        self.yr[r, cols], self.yi[r, cols] = y_r, y_i
+        self.p[r, cols] = np.sqrt(y_r * y_r + y_i * y_i)
+        # no other pixel can be beyond them: the images' extremes are among these
+        p = self.p[rows]
+        self.lo[rows], self.hi[rows] = p.min(axis=1), p.max(axis=1)
+        self.span[rows] = np.maximum(self.hi[rows] - self.lo[rows], loops.TINY)
+        self.out[rows] = (p - self.lo[rows, None]) / self.span[rows, None]
 
     def backward(self, g: np.ndarray) -> np.ndarray:
         """The channels' gradient of a loss whose gradient at :attr:`out` is ``g`` (float32 [B, P]):
@@ -208,7 +260,7 @@ class Images:
         equal to its maximum but not to its minimum."""
         out = []
         for k, (ends, arg, grad) in enumerate(((self.lo, np.argmin, at_lo), (self.hi, np.argmax, at_hi))):
-            if (self.ties[:, k] == 1).all():   # one pixel at each image's extreme: the usual case
+            if (self.near[:, k] == 1).all():   # one pixel near each image's extreme: the usual case
                 rows, cols = np.arange(self.views), arg(self.p, axis=1)
             else:
                 rows, cols = np.nonzero(self.p == ends[:, None])

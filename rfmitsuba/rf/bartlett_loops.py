@@ -30,14 +30,14 @@ def amplitude_numpy(yr: np.ndarray, yi: np.ndarray, out: np.ndarray) -> np.ndarr
     return np.sqrt(out, out=out)
 
 
-def normalized_numpy(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, span: np.ndarray, out: np.ndarray,
-                     count: np.ndarray) -> np.ndarray:
-    """``out = (p - lo) / span`` (``lo``, ``hi``, ``span`` per row), and per row the number of
-    pixels equal to ``lo`` and to ``hi`` into ``count`` (int64 [B, 2]). Returns ``out``."""
+def normalized_numpy(p: np.ndarray, lo: np.ndarray, span: np.ndarray, near_lo: np.ndarray, near_hi: np.ndarray,
+                     out: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``out = (p - lo) / span`` (``lo``, ``span`` per row), and per row the number of pixels
+    with ``p <= near_lo`` and with ``p >= near_hi`` into ``count`` (int64 [B, 2]). Returns ``out``."""
     np.subtract(p, lo[:, None], out=out)
     np.divide(out, span[:, None], out=out)
-    count[:, 0] = np.count_nonzero(p == lo[:, None], axis=1)
-    count[:, 1] = np.count_nonzero(p == hi[:, None], axis=1)
+    count[:, 0] = np.count_nonzero(p <= near_lo[:, None], axis=1)
+    count[:, 1] = np.count_nonzero(p >= near_hi[:, None], axis=1)
     return out
 
 
@@ -82,16 +82,16 @@ def _compile():
                 o[j] = np.sqrt(r[j] * r[j] + q[j] * q[j])
 
     @jit
-    def normalized(p, lo, hi, span, out, count, a, b):
+    def normalized(p, lo, span, near_lo, near_hi, out, count, a, b):
         for i in range(p.shape[0]):
-            lo_i, hi_i, span_i = lo[i], hi[i], span[i]
+            lo_i, span_i, below, above = lo[i], span[i], near_lo[i], near_hi[i]
             r, o = p[i, a:b], out[i, a:b]
             n_lo = n_hi = 0
             for j in range(o.shape[0]):
                 v = r[j]
                 o[j] = (v - lo_i) / span_i
-                n_lo += v == lo_i
-                n_hi += v == hi_i
+                n_lo += v <= below
+                n_hi += v >= above
             count[i, 0], count[i, 1] = n_lo, n_hi
 
     @jit
@@ -138,16 +138,16 @@ def amplitude(yr: np.ndarray, yi: np.ndarray, out: np.ndarray, a: int = 0, b: in
         loops[0](yr, yi, out, a, b)
 
 
-def normalized(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, span: np.ndarray, out: np.ndarray,
-               count: np.ndarray, a: int = 0, b: int | None = None) -> None:
+def normalized(p: np.ndarray, lo: np.ndarray, span: np.ndarray, near_lo: np.ndarray, near_hi: np.ndarray,
+               out: np.ndarray, count: np.ndarray, a: int = 0, b: int | None = None) -> None:
     """:func:`normalized_numpy` on columns ``a:b`` of C-contiguous float32 [B, P] arrays, in one
     pass (``count``: int64 [B, 2])."""
     b = p.shape[1] if b is None else b
     loops = _loops()
     if loops is None:
-        normalized_numpy(p[:, a:b], lo, hi, span, out[:, a:b], count)
+        normalized_numpy(p[:, a:b], lo, span, near_lo, near_hi, out[:, a:b], count)
     else:
-        loops[1](p, lo, hi, span, out, count, a, b)
+        loops[1](p, lo, span, near_lo, near_hi, out, count, a, b)
 
 
 def beam_grad(g: np.ndarray, p: np.ndarray, yr: np.ndarray, yi: np.ndarray, inv: np.ndarray,

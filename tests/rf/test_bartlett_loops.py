@@ -28,24 +28,27 @@ def test_amplitude_matches_its_twin_bit_for_bit(a, b):
     np.testing.assert_allclose(out[:, a:stop], np.hypot(yr, yi)[:, a:stop], rtol=1e-6)
 
 
-def test_normalized_matches_its_twin_and_counts_the_extremes():
-    """Two column ranges (two lanes) give the twin's bits, and their counts of the pixels at
+def test_normalized_matches_its_twin_and_counts_the_pixels_near_the_extremes():
+    """Two column ranges (two lanes) give the twin's bits, and their counts of the pixels near
     each image's minimum and maximum add up to the twin's."""
     rng = np.random.default_rng(2)
     p = np.abs(rng.normal(size=(4, 300))).astype(np.float32)
     p[1, [7, 190]] = p[1].min()                  # ties at the minimum, one in each range
+    p[2, 250] = np.nextafter(p[2].max(), np.float32(0))     # a close call at the maximum
     lo, hi = p.min(1), p.max(1)
     span = np.maximum(hi - lo, L.TINY)
+    near_lo, near_hi = lo + np.float32(1e-6), hi - np.float32(1e-6)
     want, want_count = np.empty_like(p), np.zeros((4, 2), np.int64)
-    L.normalized_numpy(p, lo, hi, span, want, want_count)
+    L.normalized_numpy(p, lo, span, near_lo, near_hi, want, want_count)
     got, count = np.empty_like(p), np.zeros((4, 2), np.int64)
     for a, b in ((0, 150), (150, 300)):
         part = np.zeros((4, 2), np.int64)
-        L.normalized(p, lo, hi, span, got, part, a, b)
+        L.normalized(p, lo, span, near_lo, near_hi, got, part, a, b)
         count += part
     _same(got, want)
     assert np.array_equal(count, want_count)
-    assert count[1, 0] == np.count_nonzero(p[1] == lo[1]) >= 2 and (count[:, 1] == 1).all()
+    assert count[1, 0] == np.count_nonzero(p[1] == lo[1]) >= 2 and count[2, 1] == 2
+    assert count[0, 0] == count[0, 1] == count[3, 0] == count[3, 1] == 1
 
 
 def test_beam_grad_matches_its_twin_bit_for_bit():
