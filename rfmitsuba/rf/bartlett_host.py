@@ -230,8 +230,7 @@ class Images:
             a, b = self.cuts[k], self.cuts[k + 1]
             gy = _BUFFERS.take((2 * self.views, b - a))
             loops.beam_grad(g, self.p, self.yr, self.yi, inv, gy[:self.views], gy[self.views:], a, b)
-            sums = (np.einsum("ij,ij->i", g[:, a:b], self.out[:, a:b]), g[:, a:b].sum(axis=1)) \
-                if self.normalize else None
+            sums = loops.image_sums(g, self.out, a, b) if self.normalize else None
             part = gy @ self.at[a:b]                                 # [2B, P_k] x [P_k, 16]
             _BUFFERS.give([gy])
             return part, sums

@@ -52,6 +52,11 @@ def beam_grad_numpy(g: np.ndarray, p: np.ndarray, yr: np.ndarray, yi: np.ndarray
     np.multiply(t, yi, out=gyi)
 
 
+def image_sums_numpy(g: np.ndarray, pn: np.ndarray) -> tuple:
+    """Per row, ``sum(g * pn)`` and ``sum(g)``: float32 [B] each."""
+    return np.einsum("ij,ij->i", g, pn), g.sum(axis=1)
+
+
 # ------------------------------------------------------------------------- fused loops
 def _compile():
     """The Numba versions of the loops, or None where Numba cannot be imported."""
@@ -60,15 +65,17 @@ def _compile():
     except ImportError:
         return None
 
-    def jit(fn):
+    def jit(fn=None, **options):
         # cached beside the module or in the user's cache folder where either can be written,
         # compiled in each process otherwise. NumPy's error model: a division by zero gives inf
         # as in the twins, and the check Python's model puts before every division keeps the
         # loop from vectorising
+        if fn is None:
+            return lambda f: jit(f, **options)
         try:
-            return numba.njit(nogil=True, cache=True, error_model="numpy")(fn)
+            return numba.njit(nogil=True, cache=True, error_model="numpy", **options)(fn)
         except RuntimeError:
-            return numba.njit(nogil=True, cache=False, error_model="numpy")(fn)
+            return numba.njit(nogil=True, cache=False, error_model="numpy", **options)(fn)
 
     # each loop takes whole C-contiguous arrays and the column range [a, b) to walk, row by row
     # through row slices indexed from 0: a column range passed as its own strided array, or
@@ -105,7 +112,19 @@ def _compile():
                 o_r[j] = t * r[j]
                 o_i[j] = t * q[j]
 
-    return amplitude, normalized, beam_grad
+    # sums in any order (``reassoc``; no other flag that changes a finite value): float32
+    # rounding apart from the twin's, in one pass for both (0.03 ms against 0.08 ms for 8 x 32 400)
+    @jit(fastmath={"reassoc", "nnan", "ninf", "nsz"})
+    def image_sums(g, pn, s_gpn, s_g, a, b):
+        for i in range(g.shape[0]):
+            gg, pp = g[i, a:b], pn[i, a:b]
+            x = y = np.float32(0.0)
+            for j in range(gg.shape[0]):
+                x += gg[j] * pp[j]
+                y += gg[j]
+            s_gpn[i], s_g[i] = x, y
+
+    return amplitude, normalized, beam_grad, image_sums
 
 
 _LOOPS = None
@@ -160,3 +179,15 @@ def beam_grad(g: np.ndarray, p: np.ndarray, yr: np.ndarray, yi: np.ndarray, inv:
         beam_grad_numpy(g[:, a:b], p[:, a:b], yr[:, a:b], yi[:, a:b], inv, gyr, gyi)
     else:
         loops[2](g, p, yr, yi, inv, gyr, gyi, a, b)
+
+
+def image_sums(g: np.ndarray, pn: np.ndarray, a: int = 0, b: int | None = None) -> tuple:
+    """:func:`image_sums_numpy` on columns ``a:b`` of C-contiguous float32 [B, P] arrays, in one
+    pass (equal to the twin's to float32 rounding)."""
+    b = g.shape[1] if b is None else b
+    loops = _loops()
+    if loops is None:
+        return image_sums_numpy(g[:, a:b], pn[:, a:b])
+    s_gpn, s_g = np.empty(g.shape[0], np.float32), np.empty(g.shape[0], np.float32)
+    loops[3](g, pn, s_gpn, s_g, a, b)
+    return s_gpn, s_g

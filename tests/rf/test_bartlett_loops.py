@@ -70,3 +70,15 @@ def test_beam_grad_matches_its_twin_bit_for_bit():
 def test_the_loops_are_compiled_where_numba_is_installed():
     pytest.importorskip("numba")
     assert L.compiled()
+
+
+def test_image_sums_match_their_twin_to_float32_rounding():
+    rng = np.random.default_rng(4)
+    g, pn = (rng.normal(size=(3, 1000)).astype(np.float32) for _ in range(2))
+    got = L.image_sums(g, pn, 100, 900)
+    want = L.image_sums_numpy(g[:, 100:900], pn[:, 100:900])
+    exact = ((g[:, 100:900].astype(np.float64) * pn[:, 100:900]).sum(1), g[:, 100:900].astype(np.float64).sum(1))
+    for x, y, e in zip(got, want, exact):
+        assert x.dtype == np.float32 and x.shape == (3,)
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(x, e, rtol=1e-5, atol=1e-4)
