@@ -11,7 +11,12 @@ shared cores; every timing ends with ``dr.sync_thread()``):
   and gradients;
 - ``render``: Dr.Jit render time per PAS without gradients, batches of 8 and 40;
 - ``bartlett``: the Bartlett op alone (16 channels -> normalised PAS), forward and forward +
-  backward, Dr.Jit against NumPy (BLAS complex matrix products for both passes);
+  backward, Dr.Jit against NumPy (BLAS complex matrix products for both passes, on one BLAS
+  thread: two beside Dr.Jit's pool on 2 cores took 0.7-8 ms for the 8-view forward pass, one
+  a steady 1.0 ms);
+- ``peak``: the arithmetic limit, one core's measured peak of the read-out's complex product
+  (:func:`product_peak`): every timing is also given as the time its read-out products
+  (:func:`readout_flops`) would take at that peak, and as a fraction of it;
 - ``stage1``: steps per second of a real Stage-1 training (:class:`~rfmitsuba.train.trainer.Trainer`,
   the configuration's batch, full resolution) on a dataset: the given one, or a NeRF2-like folder
   (:func:`rfmitsuba.sim.nerf2like.make_nerf2like`) made once in the cache folder; at 90 x 360
@@ -39,6 +44,7 @@ from ..models.base import Views, render
 from ..models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField, compose_images
 from ..rf import bartlett as bartlett_op
 from ..rf.bartlett_ref import beamformer
+from ..rf.array import NUM_ELEMENTS
 from .bench import times_ms
 
 ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 5.0, 3.0]])
@@ -55,6 +61,27 @@ def timed(fn, repeats: int, *, warmup: int = 2) -> dict:
     cpu: list[float] = []
     wall = times_ms(fn, repeats, warmup=warmup, cpu=cpu)
     return {"ms": statistics.median(wall), "cpu_ms": statistics.median(cpu), "min_ms": min(wall)}
+
+
+def readout_flops(views: int, pixels: int) -> int:
+    """Real floating-point operations of one Bartlett product, ``[views, 16] x [16, pixels]``
+    complex (a complex multiply-add is 8): the read-out's forward pass, and its adjoint's."""
+    return 8 * int(views) * NUM_ELEMENTS * int(pixels)
+
+
+def product_peak(*, views: int = 64, repeats: int = 7) -> dict:
+    """One core's peak of the read-out's product: ``np.matmul`` complex64 [views, 16] x
+    [16, 90*360] on one BLAS thread, the fastest of ``repeats`` calls. Returns {"gflops",
+    "views", "pixels"}."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    h = (rng.normal(size=(views, NUM_ELEMENTS)) + 1j * rng.normal(size=(views, NUM_ELEMENTS))).astype(np.complex64)
+    w = np.ascontiguousarray(beamformer(frequency_hz=FREQUENCY_HZ).T)             # [16, P]
+    out = np.empty((views, w.shape[1]), np.complex64)
+    with threadpool_limits(limits=1, user_api="blas"):
+        best = timed(lambda: np.matmul(h, w, out=out), repeats)["min_ms"]
+    return {"gflops": readout_flops(views, w.shape[1]) / (best * 1e6), "views": views, "pixels": w.shape[1]}
 
 
 def make_field(*, scatterers: int = 96, seed: int = 0, readout: str = "amplitude",
@@ -186,8 +213,10 @@ def numpy_bartlett_gradient(h: np.ndarray, W: np.ndarray, c: np.ndarray) -> np.n
 def measure_bartlett(*, views: int = 8, repeats: int = 7) -> dict:
     """The Bartlett op (channels [views, 16] -> normalised 90 x 360 PAS), forward and forward +
     backward of ``sum(c * PAS)``: Dr.Jit against NumPy (:func:`numpy_bartlett`,
-    :func:`numpy_bartlett_gradient`; complex64 BLAS products) (ms), with their parity."""
+    :func:`numpy_bartlett_gradient`; complex64 BLAS products on one BLAS thread) (ms), with
+    their parity."""
     import drjit as dr
+    from threadpoolctl import threadpool_limits
 
     B.ensure()
     rng = np.random.default_rng(0)
@@ -216,10 +245,12 @@ def measure_bartlett(*, views: int = 8, repeats: int = 7) -> dict:
     parity = {"pas_max_abs": float(np.abs(d_forward().numpy().reshape(views, -1) - numpy_bartlett(h, W)[2]).max()),
               "grad_max_rel": float(np.abs(d_forward_backward().reshape(views, 16) - g_ref).max()
                                     / np.abs(g_ref).max())}
-    return {"views": views, "drjit_forward": timed(d_forward, repeats),
-            "drjit_forward_backward": timed(d_forward_backward, repeats),
-            "numpy_forward": timed(lambda: numpy_bartlett(h, W), repeats),
-            "numpy_forward_backward": timed(lambda: numpy_bartlett_gradient(h, W, c), repeats), "parity": parity}
+    out = {"views": views, "pixels": W.shape[0], "drjit_forward": timed(d_forward, repeats),
+           "drjit_forward_backward": timed(d_forward_backward, repeats), "parity": parity}
+    with threadpool_limits(limits=1, user_api="blas"):
+        out["numpy_forward"] = timed(lambda: numpy_bartlett(h, W), repeats)
+        out["numpy_forward_backward"] = timed(lambda: numpy_bartlett_gradient(h, W, c), repeats)
+    return out
 
 
 # ------------------------------------------------------------------------------ Stage 1
@@ -312,6 +343,7 @@ def run(*, quick: bool = False, dataset: str | Path | None = None, stage1_model:
     out = {"load_before": _load(), "threads": None}
     out["field"] = measure_field(repeats=repeats, scatterers=16 if quick else 96)
     out["bartlett"] = measure_bartlett(repeats=repeats)
+    out["peak"] = product_peak(repeats=repeats)
     if stage1:
         steps = 30 if quick else 110
         out["stage1"] = measure_stage1(dataset, model=stage1_model, config=stage1_config, steps=steps)
@@ -335,31 +367,54 @@ def _t(d: dict | None) -> str:
     return "-" if d is None else f"{d['ms']:.2f} ({d['cpu_ms']:.2f} CPU)"
 
 
+def _limit_ms(r: dict, views: int, pixels: int, products: int) -> float | None:
+    """The time [ms] ``products`` read-out products of ``views`` images of ``pixels`` take at the
+    measured peak (:func:`product_peak`), or None without one."""
+    peak = r.get("peak")
+    if not peak:
+        return None
+    return products * readout_flops(views, pixels) / (peak["gflops"] * 1e6)
+
+
+def _of_limit(limit: float | None, ms: float) -> str:
+    return "-" if limit is None else f"{limit:.3f} ms, {100 * limit / max(ms, 1e-9):.0f}%"
+
+
 def format_report(r: dict) -> str:
-    """Markdown table of :func:`run`'s result: times in ms (process CPU ms in brackets) and the
-    reference / Dr.Jit ratios (wall time and CPU time)."""
+    """Markdown table of :func:`run`'s result: times in ms (process CPU ms in brackets), the
+    reference / Dr.Jit ratios (wall time and CPU time), and the arithmetic limit: the read-out's
+    products at one core's measured peak, and what fraction of the measured time that is."""
     f, b = r["field"], r["bartlett"]
+    pixels = b.get("pixels", 90 * 360)
+    peak = r.get("peak")
     lines = [f"Coherent Gaussian field benchmark: {r['cpu_count']} cores, {r['threads']} Dr.Jit threads, "
-             f"1-minute load {r['load_before']:.2f} before, {r['load_after']:.2f} after.", "",
-             "| measurement | Dr.Jit ms | reference ms | reference | ratio (wall) | ratio (CPU) |",
-             "|---|---|---|---|---|---|"]
+             f"1-minute load {r['load_before']:.2f} before, {r['load_after']:.2f} after.", ""]
+    if peak:
+        lines += [f"Arithmetic limit: the read-out's complex products ({readout_flops(1, pixels) / 1e6:.2f} MFLOP "
+                  f"per 90 x 360 image and pass) at one core's measured peak, {peak['gflops']:.1f} GFLOP/s "
+                  f"(np.matmul complex64 [{peak['views']}, 16] x [16, {peak['pixels']}], one BLAS thread); "
+                  "'of limit' is that time over the measured one.", ""]
+    lines += ["| measurement | Dr.Jit ms | reference ms | reference | ratio (wall) | ratio (CPU) | limit, of limit |",
+              "|---|---|---|---|---|---|---|"]
     rows = [(f"field render, {f['views']} views ({f['sources']} sources)", f["drjit_forward"], f["torch_forward"],
-             "PyTorch"),
+             "PyTorch", f["views"], 1),
             (f"field forward + backward, {f['views']} views", f["drjit_forward_backward"],
-             f["torch_forward_backward"], "PyTorch"),
-            (f"Bartlett forward, {b['views']} views", b["drjit_forward"], b["numpy_forward"], "NumPy"),
+             f["torch_forward_backward"], "PyTorch", f["views"], 2),
+            (f"Bartlett forward, {b['views']} views", b["drjit_forward"], b["numpy_forward"], "NumPy (1 thread)",
+             b["views"], 1),
             (f"Bartlett forward + backward, {b['views']} views", b["drjit_forward_backward"],
-             b["numpy_forward_backward"], "NumPy")]
-    for name, ours, ref, ref_name in rows:
+             b["numpy_forward_backward"], "NumPy (1 thread)", b["views"], 2)]
+    for name, ours, ref, ref_name, views, products in rows:
         lines.append(f"| {name} | {_t(ours)} | {_t(ref)} | {ref_name} | {_ratio(ref, ours)} | "
-                     f"{_ratio(ref, ours, 'cpu_ms')} |")
-    lines += ["", "| figure | value |", "|---|---|"]
+                     f"{_ratio(ref, ours, 'cpu_ms')} | {_of_limit(_limit_ms(r, views, pixels, products), ours['ms'])} |")
+    lines += ["", "| figure | value | limit, of limit |", "|---|---|---|"]
     for n, ms in f["render_per_pas_ms"].items():
-        lines.append(f"| render per PAS, batch {n}, no gradients | {ms:.3f} ms |")
+        lines.append(f"| render per PAS, batch {n}, no gradients | {ms:.3f} ms | "
+                     f"{_of_limit(_limit_ms(r, 1, pixels, 1), ms)} |")
     for name, par in (("field, PyTorch twin (float32)", f.get("parity")), ("Bartlett, NumPy", b.get("parity"))):
         if par:
             lines.append(f"| parity: {name} | PAS max abs {par['pas_max_abs']:.1e}, gradient max rel "
-                         f"{par['grad_max_rel']:.1e} |")
+                         f"{par['grad_max_rel']:.1e} | - |")
     for key in ("stage1", "stage1_full_res", "stage1_traced"):
         s = r.get(key)
         if s:
@@ -369,7 +424,8 @@ def format_report(r: dict) -> str:
             ratio = {"stage1_full_res": f"; at {90 // d0}x{360 // d0} {gain:.2f}x as many steps/s",
                      "stage1_traced": f"; every step traced, not recorded: recording gives {gain:.2f}x as many "
                                       "steps/s"}.get(key, "")
+            limit = _limit_ms(r, s.get("batch", 8), (90 // d) * (360 // d), 2)
             lines.append(f"| Stage-1 training, {s['model']} ({s['sources']} sources), batch {s.get('batch', 8)}, "
                          f"{90 // d}x{360 // d} | {s['steps_per_s']:.1f} steps/s ({s['step_ms']:.1f} ms per step) on "
-                         f"`{s['dataset']}`{ratio} |")
+                         f"`{s['dataset']}`{ratio} | {_of_limit(limit, s['step_ms'])} |")
     return "\n".join(lines)

@@ -23,7 +23,6 @@ network is an ordinary MLP on ``[enc(p_i), enc(q_b), extra_b]``.
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -33,6 +32,9 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ConfigError
+from ..core.host_threads import Buffers
+from ..core.host_threads import host_threads as _host_threads
+from ..core.host_threads import lane_pool as _lane_pool
 from ..core.upload import empty_aligned, upload, upload_rows, zeros_aligned
 from . import host_loops
 
@@ -180,8 +182,6 @@ def grad_barrier(values: list) -> list:
     return list(dr.custom(_EvalGrad.op(), list(values)))
 
 
-_BLAS = None
-
 #: rows per block of :class:`_HostPass`: each block runs through every layer before the next, so
 #: its activations stay in the cache (64 features x 2048 rows = 512 KiB per layer). The splat
 #: field's head alone (64 -> 64 -> 3 on 40 000 rows, forward and backward) took 61-67 ms in
@@ -199,18 +199,6 @@ HOST_LANES = 2
 #: fewer rows than this (items x views) run as one lane on the calling thread: below it a second
 #: thread's start-up costs more than it saves
 HOST_THREAD_MIN_ROWS = 8192
-
-
-def _one_blas_thread():
-    """A context in which the host's BLAS runs on one thread. Its own threads would compete with
-    Dr.Jit's pool for the same cores: a splat step under load 5 took 1.4-1.8 s with BLAS's
-    threads against 0.46 s with one (10 000 Gaussians, batch 4)."""
-    global _BLAS
-    if _BLAS is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1, user_api="blas")
 
 
 #: the host arrays behind :class:`_HostMLP`'s latest uploads (its outputs and input gradients):
@@ -260,78 +248,8 @@ def _host_columns(groups: list) -> list:
             for g, f in zip(groups, found)]
 
 
-@contextlib.contextmanager
-def _host_threads(threads: int):
-    """A context for host work on ``threads`` threads: the host's BLAS on one thread each
-    (:func:`_one_blas_thread`) and, when ``threads > 1``, Dr.Jit's pool cut to one thread
-    until the context ends (its count is restored). Dr.Jit's idle workers spin for a while
-    before they sleep and would hold the cores the host threads need: the head's backward of a
-    splat step (10 000 Gaussians, batch 4, 45 x 180) took 19.6 ms on two host threads beside
-    Dr.Jit's two, 11.7 ms with Dr.Jit cut to one, 19.2 ms on one host thread (the whole step
-    51-54 ms against 65-68 ms). Call it only where no kernel is running (after the inputs were
-    read back)."""
-    import drjit as dr
-
-    with _one_blas_thread():
-        if threads <= 1:
-            yield
-            return
-        before = dr.thread_count()
-        dr.set_thread_count(1)
-        try:
-            yield
-        finally:
-            dr.set_thread_count(before)
-
-
-class _Buffers:
-    """Host arrays kept for reuse, by shape and dtype, so a training step does not write into
-    fresh memory: a first write to a fresh page faults, and two host threads faulting at once
-    wait for each other. The EM network's host work in a splat step (10 000 Gaussians, batch 4,
-    two host threads) took 7.4 ms forward and 12.1 ms backward with new arrays, 5.8 and 11.6 ms
-    with kept ones. Thread-safe; at most :attr:`KEEP` arrays of one kind are kept (a backward
-    pass on two lanes takes six scratch arrays of one shape)."""
-
-    KEEP = 8
-
-    def __init__(self):
-        import threading
-
-        self._free: dict = {}
-        self._lock = threading.Lock()
-
-    def take(self, shape: tuple, dtype=np.float32) -> np.ndarray:
-        """An uninitialised C-contiguous array of ``shape`` (a kept one where there is one)."""
-        key = (tuple(int(s) for s in shape), np.dtype(dtype).str)
-        with self._lock:
-            free = self._free.get(key)
-            if free:
-                return free.pop()
-        return np.empty(key[0], dtype)
-
-    def give(self, arrays: list) -> None:
-        """Hand arrays back (nobody may use them afterwards)."""
-        with self._lock:
-            for a in arrays:
-                free = self._free.setdefault((a.shape, a.dtype.str), [])
-                if len(free) < self.KEEP:
-                    free.append(a)
-
-
 #: activations of the :class:`_HostPass` objects alive, and every lane's scratch arrays
-_BUFFERS = _Buffers()
-
-_POOL = None
-
-
-def _lane_pool():
-    """The threads that run lanes 1.. of a :class:`_HostPass` (lane 0 runs on the caller's)."""
-    global _POOL
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=max(1, HOST_LANES - 1), thread_name_prefix="rfmitsuba-host")
-    return _POOL
+_BUFFERS = Buffers()
 
 
 class _HostPass:

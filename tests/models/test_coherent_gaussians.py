@@ -949,3 +949,34 @@ def test_greedy_picks_as_scoring_every_direction_at_every_pick():
         ok[i] = False
         res.explain(dirs[:, i])
     assert _greedy(_Residual(pas, 12.0), dirs, 10, allowed=allowed) == want
+
+
+@pytest.mark.parametrize("readout", ["amplitude", "phase_only"])
+def test_read_out_runs_the_kernels_with_gradients_and_the_host_products_without(readout):
+    """A differentiable read-out (a training step, traced or recorded) is the Bartlett op's
+    kernels bit for bit, so a traced step equals its recording; without gradients (rendering,
+    prediction) it is the host products (on LLVM; the kernels on CUDA)."""
+    import drjit as dr
+
+    from rfmitsuba.core import backend as B
+    from rfmitsuba.models.coherent_gaussians.array import read_out
+    from rfmitsuba.rf.bartlett import bartlett
+
+    rng = np.random.default_rng(3)
+    h = (rng.normal(size=(3, 16)) + 1j * rng.normal(size=(3, 16))).astype(np.complex64)
+    kw = dict(frequency_hz=F, height=9, width=36, normalize=True)
+
+    def channels(grad):
+        hr, hi = B.Float(h.real.ravel()), B.Float(h.imag.ravel())
+        if grad:
+            dr.enable_grad(hr, hi)
+        if readout == "phase_only":
+            mag = dr.sqrt(hr * hr + hi * hi + 1e-20)
+            return (hr, hi), (hr / mag, hi / mag)
+        return (hr, hi), (hr, hi)
+
+    for grad, host in ((True, False), (False, not B.is_cuda())):
+        (hr, hi), unit = channels(grad)
+        got = read_out(hr, hi, readout=readout, **kw).numpy()
+        want = bartlett(*(dr.detach(u) for u in unit), host=host, **kw).numpy()
+        assert np.array_equal(got, want), (grad, host)

@@ -53,10 +53,17 @@ def summed_channels(fields: list, views: Views) -> tuple:
 def read_out(h_re, h_im, *, readout: str, frequency_hz: float, height: int, width: int, normalize: bool):
     """PAS of calibrated channels (re, im) ``Float`` [B*16]: the amplitude Bartlett, or for
     ``readout = "phase_only"`` the Bartlett of ``h_m / |h_m|`` (NeRF2's measured spectra):
-    ``TensorXf`` [B, height, width], differentiable in the channels."""
+    ``TensorXf`` [B, height, width], differentiable in the channels.
+
+    With gradients (a training step) the Bartlett op runs its Dr.Jit kernels, which a recorded
+    step (:mod:`rfmitsuba.train.frozen_step`) runs too, so a traced step equals its recording bit
+    for bit; without (rendering, prediction, validation) its host products
+    (:func:`rfmitsuba.rf.bartlett.bartlett`'s ``host``)."""
     import drjit as dr
 
     if readout == "phase_only":
         mag = dr.sqrt(h_re * h_re + h_im * h_im + 1e-20)
         h_re, h_im = h_re / mag, h_im / mag
-    return bartlett(h_re, h_im, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize)
+    host = False if dr.grad_enabled(h_re, h_im) else None
+    return bartlett(h_re, h_im, frequency_hz=frequency_hz, height=height, width=width, normalize=normalize,
+                    host=host)
