@@ -19,15 +19,7 @@ interpolates the spectra themselves, with weights that know how the spectra deco
 The kernel is the exponential (Matern 1/2): a rough field, as the measured spectra are. The
 length scales ``l`` and the nugget ``nu`` (the part of a spectrum no neighbour predicts,
 relative to the signal variance) are chosen by type-II maximum likelihood on the fitting
-positions (:func:`fit_hyperparameters`). The likelihood rates how well each spectrum is
-predicted from its close neighbours; a prediction beyond the fitting positions needs the
-correlation at longer range, which it under-rates. So the length scales are then scaled by the
-multiple of :data:`LENGTH_SCALE_MULTIPLES` that best predicts held-out slabs of the fitting
-positions (:func:`slab_cross_validation`: the 20% most extreme along each axis and side, from
-the rest), which changes nothing where the data interpolate and lengthens the scales where a
-slab is better predicted from afar. Measured NeRF2 RFID folder, spatial-block split: 0.586
-mean SSIM with the likelihood's scales, 0.606 with the chosen multiple (5; nearest neighbour
-0.599); its published split: 0.941 either way (multiple 1.5). There are no other options. The field has no
+positions (:func:`fit_hyperparameters`); there are no other options. The field has no
 gradient training: the trainer conditions it once (:attr:`GaussianProcessField.closed_form`).
 
 What it stores: the 5 fitted scalars (``l``, ``nu``, the signal variance ``s2``), the training
@@ -55,10 +47,6 @@ from .base import Field, Views, register
 MAX_POSITIONS = 5000
 #: the nugget's bounds, relative to the signal variance
 NUGGET_BOUNDS = (1e-6, 1.0)
-#: multiples of the likelihood's length scales that :func:`slab_cross_validation` chooses among
-LENGTH_SCALE_MULTIPLES = (1.0, 1.5, 2.0, 3.0, 5.0)
-#: the share of the fitting positions in each held-out slab
-SLAB_FRACTION = 0.2
 
 
 def exponential_kernel(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndarray:
@@ -130,53 +118,6 @@ def fit_hyperparameters(positions: np.ndarray, residuals: np.ndarray) -> dict:
     return {"length_scales_m": [float(v) for v in ls], "nugget": nu, "signal_variance": s2, "nll": float(best.fun)}
 
 
-def slab_folds(positions: np.ndarray) -> list[np.ndarray]:
-    """Held-out slabs of ``positions`` (float [N, 3] [m]): for each axis along which they spread and
-    each side, the indices of the :data:`SLAB_FRACTION` most extreme (at least 2), int64 each."""
-    x = np.asarray(positions, np.float64)
-    k = max(2, int(SLAB_FRACTION * len(x)))
-    out = []
-    for axis in range(3):
-        if np.ptp(x[:, axis]) <= 1e-9 or k >= len(x) - 1:
-            continue
-        for sign in (1.0, -1.0):
-            out.append(np.sort(np.argsort(sign * x[:, axis], kind="stable")[-k:]))
-    return out
-
-
-def slab_cross_validation(positions: np.ndarray, images: np.ndarray, hyper: dict) -> dict:
-    """The multiple of the length scales that best predicts held-out slabs.
-
-    Args:
-        positions: float [N, 3] [m]; images: float [N, H, W] their min-max normalised PAS;
-        hyper: {"length_scales_m", "nugget"} of :func:`fit_hyperparameters`.
-
-    Returns:
-        ``hyper`` with the chosen multiple applied to ``length_scales_m``, and
-        ``length_scale_multiple`` and ``slab_ssim`` ({multiple: mean test SSIM over the slabs}).
-        Without a slab to hold out (fewer than 4 positions, or none spread), or for images smaller
-        than the SSIM's 7 x 7 window, the multiple is 1.
-    """
-    from ..core.ssim import ssim_images
-
-    x = np.asarray(positions, np.float64)
-    y = np.asarray(images, np.float64)
-    base = np.asarray(hyper["length_scales_m"], np.float64)
-    folds = slab_folds(x) if len(x) >= 4 and min(y.shape[1:]) >= 7 else []
-    scores = {}
-    for m in LENGTH_SCALE_MULTIPLES if folds else ():
-        s = []
-        for held in folds:
-            keep = np.setdiff1d(np.arange(len(x)), held)
-            g = GaussianProcessField(height=y.shape[1], width=y.shape[2])
-            g.condition(x[keep], y[keep], hyper={"length_scales_m": list(base * m), "nugget": hyper["nugget"]})
-            s.append(float(np.mean(ssim_images(minmax(g.predict(x[held])), y[held]))))
-        scores[m] = float(np.mean(s))
-    best = max(scores, key=lambda m: (scores[m], -m)) if scores else 1.0
-    return {**hyper, "length_scales_m": [float(v) for v in base * best], "length_scale_multiple": best,
-            "slab_ssim": {f"{m:g}": v for m, v in scores.items()}}
-
-
 @register
 class GaussianProcessField(Field):
     """The PAS as a Gaussian process of the moving device's position (module docstring).
@@ -221,7 +162,7 @@ class GaussianProcessField(Field):
             positions: float [N, 3] the moving device's positions [m].
             images: float [N, H, W] their min-max normalised PAS.
             hyper: the hyperparameters to use ({"length_scales_m", "nugget"}), or None to fit
-                them (:func:`fit_hyperparameters`, then :func:`slab_cross_validation`).
+                them (:func:`fit_hyperparameters`).
 
         Returns:
             the hyperparameters used (also :attr:`hyper`).
@@ -242,7 +183,7 @@ class GaussianProcessField(Field):
         mean = flat.mean(0)
         res = flat - mean
         if hyper is None:
-            hyper = slab_cross_validation(x, y, fit_hyperparameters(x, res))
+            hyper = fit_hyperparameters(x, res)
         ls, nu = np.asarray(hyper["length_scales_m"], np.float64), float(hyper["nugget"])
         c = exponential_kernel(x, x, ls) + nu * np.eye(len(x))
         prec = np.linalg.inv(c)
