@@ -55,7 +55,7 @@ def register(sub) -> None:
                    help="scoring: PAS per query, a seeded subset of those antennas (default 0: all)")
     p.add_argument("--grid", type=_positive_float, default=0.25, help="coarse grid spacing [m] (default 0.25)")
     p.add_argument("--starts", type=positive_int, default=4, help="descent starts from the grid's best (default 4)")
-    p.add_argument("--steps", type=positive_int, default=40, help="descent steps per start (default 40)")
+    p.add_argument("--steps", type=positive_int, default=30, help="descent steps per start (default 30)")
     p.add_argument("--loss", choices=list(LOSSES), default="train",
                    help="train: 0.8 L1 + 0.2 (1 - SSIM), the training loss (default); ssim: 1 - SSIM")
     p.add_argument("--downsample", type=positive_int, default=2,

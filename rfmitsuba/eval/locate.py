@@ -88,6 +88,8 @@ REGIONS = ("walk", "room")
 REFERENCES = ("empty", "none")
 #: views per render call
 VIEWS_PER_CALL = 256
+#: an estimate this far [cm] from the truth counts as a miss in the report's account of why
+MISS_CM = 100.0
 
 
 # ------------------------------------------------------------------------ the model
@@ -413,6 +415,16 @@ class Query:
             self.evaluations += len(part)
         return out
 
+    def loss_without_person(self) -> float:
+        """The loss of the background alone (no person anywhere): what an estimate that explains
+        nothing scores."""
+        import drjit as dr
+
+        with dr.suspend_grad():
+            img = render([self.model.background], self._views(np.zeros((1, 3))), height=self.h, width=self.w,
+                         normalize=True)
+            return float(np.asarray(self._candidate_losses(img, 1).numpy()).ravel()[0])
+
     def loss_and_grad(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The loss and its gradient in ``(x, y)`` by Dr.Jit AD at feet positions ``xy`` (float [C,
         2] m): (float64 [C], float64 [C, 2]); needs :attr:`TwoStage.differentiable`."""
@@ -529,8 +541,9 @@ def _descend_nelder_mead(query: Query, region: SearchRegion, starts: np.ndarray,
 
 
 def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: float = 0.25, starts: int = 4,
-           steps: int = 40, lr_m: float = 0.03, loss: str = "train", downsample: int = 2, region: str = "walk",
-           descent: str = "auto", search: SearchRegion | None = None, empty: np.ndarray | None = None) -> dict:
+           steps: int = 30, lr_m: float = 0.03, loss: str = "train", downsample: int = 2, region: str = "walk",
+           descent: str = "auto", search: SearchRegion | None = None, empty: np.ndarray | None = None,
+           score_at: np.ndarray | None = None) -> dict:
     """Where the person stands, from PAS taken at ``positions`` (see the module docstring).
 
     Args:
@@ -542,12 +555,14 @@ def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: f
             the person field allows it, else Nelder-Mead), "ad", "nelder_mead" or "none" (the grid
             alone); search: a region made before (``region`` is then ignored); empty: None, or the
             empty room's PAS at ``positions`` (float [K, 90, 360]): the model's change is then
-            fitted on top of them (:class:`Query`).
+            fitted on top of them (:class:`Query`); score_at: None, or feet positions float [M, 2 or
+            3] [m] whose losses are returned too (e.g. the true one).
 
     Returns:
         {"position": float64 [3] feet [m], "loss": float, "grid_position": float64 [3] the best
         grid point, "grid_loss": float, "descent": the kind used, "reference": "empty" or "none",
-        "losses_evaluated": int, "views": K}.
+        "loss_without_person": the background alone's loss, "losses_at": float64 [M] (with
+        ``score_at``), "losses_evaluated": int, "views": K}.
     """
     if descent not in ("auto", "ad", "nelder_mead", "none"):
         raise ConfigError(f"descent must be 'auto', 'ad', 'nelder_mead' or 'none', got {descent!r}")
@@ -579,9 +594,12 @@ def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: f
         xs, ls = np.where((pl < hl)[:, None], px, hx), np.minimum(pl, hl)
     i = int(np.argmin(ls))
     x, lo = (xs[i], float(ls[i])) if ls[i] <= gl[best] else (grid[best], float(gl[best]))
-    return {"position": reg.feet(x)[0], "loss": lo, "grid_position": reg.feet(grid[best])[0],
-            "grid_loss": float(gl[best]), "descent": kind, "reference": q.reference,
-            "losses_evaluated": int(q.evaluations), "views": q.k}
+    out = {"position": reg.feet(x)[0], "loss": lo, "grid_position": reg.feet(grid[best])[0],
+           "grid_loss": float(gl[best]), "descent": kind, "reference": q.reference,
+           "loss_without_person": q.loss_without_person(), "losses_evaluated": int(q.evaluations), "views": q.k}
+    if score_at is not None:
+        out["losses_at"] = q.losses(np.asarray(score_at, np.float64).reshape(len(score_at), -1)[:, :2])
+    return out
 
 
 # ------------------------------------------------------------------------ floors
@@ -680,7 +698,7 @@ def query_antennas(data: SampleData, *, antennas: str = "all", views: int = 0, s
 
 
 def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, reference: str = "empty",
-                    grid_m: float = 0.25, starts: int = 4, steps: int = 40, lr_m: float = 0.03, loss: str = "train",
+                    grid_m: float = 0.25, starts: int = 4, steps: int = 30, lr_m: float = 0.03, loss: str = "train",
                     downsample: int = 2, region: str = "walk", descent: str = "auto", quiet: bool = False) -> dict:
     """Locate every held-out walk position (the dataset's person test split) with every Ours job
     of ``run`` (:func:`job_folders`), beside the fingerprint and centre floors.
@@ -726,6 +744,7 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
     geometry = next(iter(search.values())).geometry
     truth, fp, proxies = [], [], []
     est = {label: [] for label, _ in models}
+    diag = {label: [] for label, _ in models}
     used, evals = set(), 0
     with progress.bar(len(test_states) * (len(models) + 1), desc="locate", unit="query", quiet=quiet) as pb:
         for s in test_states:
@@ -740,8 +759,11 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
             pb.update(1)
             for label, m in models:
                 r = locate(m, pas, q, grid_m=grid_m, starts=starts, steps=steps, lr_m=lr_m, loss=loss,
-                           downsample=downsample, descent=descent, search=search[label], empty=empty)
+                           downsample=downsample, descent=descent, search=search[label], empty=empty,
+                           score_at=feet[None])
                 est[label].append(r["position"])
+                diag[label].append({"estimate": r["loss"], "truth": float(r["losses_at"][0]),
+                                    "no_person": r["loss_without_person"]})
                 used.add(r["descent"])
                 evals += r["losses_evaluated"]
                 pb.update(1)
@@ -774,7 +796,7 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
                       "room_centre": None if room_centre is None else room_centre.tolist()},
         "errors_cm": {"model": {k: (100 * v).tolist() for k, v in errors["model"].items()},
                       **{k: (100 * v).tolist() for k, v in errors.items() if k != "model"}},
-        "stats": stats, "proxies": proxies,
+        "stats": stats, "proxies": proxies, "losses": diag,
         "walk": models[0][1].walk.tolist(), "region": next(iter(search.values())).kind,
         "array_positions": np.unique(x0, axis=0).tolist(), "transmitters": np.unique(y0, axis=0).tolist(),
         "settings": {"antennas": antennas, "views": int(len(ant)),
@@ -789,7 +811,8 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
 def plot_locate(path: str | Path, result: dict) -> Path:
     """PNG: left, the room's top view with the walk, every true held-out position and its estimates
     (model per job, fingerprint) joined to it; right, the error against the distance from the
-    nearest array position of the query, model and fingerprint, blocked direct paths marked."""
+    fixed device (the transmitter of a moving-RX dataset, the array of a moving-TX one), model
+    and fingerprint, blocked direct paths marked."""
     from ..core import plots
 
     truth = np.asarray(result["truth"], np.float64)
@@ -822,10 +845,11 @@ def plot_locate(path: str | Path, result: dict) -> Path:
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=7)
     ax.set_title(f"true and estimated positions ({len(truth)} held-out, {result['settings']['views']} PAS each)",
                  fontsize=9)
-    dist = np.array([p["distance_to_array_m"] for p in result["proxies"]])
+    fixed = "distance_to_tx_m" if result["task"] == "rx" else "distance_to_array_m"
+    dist = np.array([p[fixed] for p in result["proxies"]])
     blocked = np.array([p["blocked_share"] for p in result["proxies"]]) > 0
     for i, (label, e) in enumerate(result["errors_cm"]["model"].items()):
         e = np.asarray(e)
@@ -836,7 +860,8 @@ def plot_locate(path: str | Path, result: dict) -> Path:
     bx.plot(dist, fe, "^", mfc="none", mec="#d62728", ms=7, label="fingerprint")
     bx.axhline(result["stats"]["walk_centroid"]["median_cm"], color="#ff7f0e", ls="--", lw=1,
                label="walk centroid (median)")
-    plots.label(bx, xlabel="distance from the nearest array position (m)", ylabel="error (cm)")
+    plots.label(bx, xlabel=f"distance from the {'transmitter' if result['task'] == 'rx' else 'array'} (m)",
+                ylabel="error (cm)")
     bx.set_title("error against distance (hollow circles: the person blocks a direct path)", fontsize=9)
     return plots.save(fig, path)
 
@@ -859,6 +884,25 @@ def _split_rows(result: dict, values: np.ndarray, edges: list, names: list[str],
         out.append(f"| {what} {name} | {int(sel.sum())} | {np.median(model[:, sel]):.0f} | "
                    f"{np.percentile(model[:, sel], 90):.0f} | {np.median(fp[sel]):.0f} |")
     return out
+
+
+def _why_lines(result: dict) -> list[str]:
+    """Markdown: of the queries with an error over :data:`MISS_CM`, how many the search missed (the
+    model's loss at the true position is below its estimate's) and how many the model missed (it
+    is not), and how often the model's person at the true position explains the query worse than
+    no person at all."""
+    d = result.get("losses")
+    if not d:
+        return []
+    rows = [(e, r) for label in d for e, r in zip(result["errors_cm"]["model"][label], d[label])]
+    miss = [r for e, r in rows if e > MISS_CM]
+    search = sum(r["truth"] < r["estimate"] for r in miss)
+    worse = sum(r["truth"] > r["no_person"] for _, r in rows)
+    return ["", f"Of the {len(rows)} estimates, {len(miss)} are more than {MISS_CM:g} cm off: for {search} of them "
+            f"the model's loss at the true position is lower than at its estimate (the search missed it), for "
+            f"{len(miss) - search} it is not (the model prefers another place). For {worse} of the {len(rows)} the "
+            "model's person at the true position explains the query worse than the background alone (no person): "
+            "there the model has not learned what the person does to these PAS."]
 
 
 def report_markdown(result: dict, *, command: str | None = None) -> str:
@@ -886,6 +930,7 @@ def report_markdown(result: dict, *, command: str | None = None) -> str:
         lines.append(_row("room centre", st["room_centre"]))
     px = result["proxies"]
     dist = np.array([p["distance_to_array_m"] for p in px])
+    dtx = np.array([p["distance_to_tx_m"] for p in px])
     lines += ["", "## Where it fails", "",
               "Median and 90th-percentile error (cm) of the model (pooled over jobs) and the fingerprint's median, "
               "per group of held-out positions.", "",
@@ -893,7 +938,11 @@ def report_markdown(result: dict, *, command: str | None = None) -> str:
     q = np.quantile(dist, [0, 1 / 3, 2 / 3, 1])
     q[-1] += 1e-9
     lines += _split_rows(result, dist, list(q), [f"{a:.2f}-{b:.2f} m" for a, b in zip(q[:-1], q[1:])],
-                         "distance from the array")
+                         "distance from the nearest array position")
+    q = np.quantile(dtx, [0, 1 / 3, 2 / 3, 1])
+    q[-1] += 1e-9
+    lines += _split_rows(result, dtx, list(q), [f"{a:.2f}-{b:.2f} m" for a, b in zip(q[:-1], q[1:])],
+                         "distance from the transmitter" if result["task"] == "rx" else "distance from the nearest TX")
     blocked = np.array([p["blocked_share"] for p in px])
     lines += _split_rows(result, (blocked > 0).astype(float), [0, 0.5, 1.5],
                          ["no", "yes"], "blocks a direct path:")
@@ -901,8 +950,9 @@ def report_markdown(result: dict, *, command: str | None = None) -> str:
         hid = np.array([float(p["hidden_from_tx"]) for p in px])
         lines += _split_rows(result, hid, [0, 0.5, 1.5], ["no", "yes"], "furniture between TX and chest:")
         hs = np.array([p["hidden_share"] for p in px])
-        lines += _split_rows(result, (hs >= 0.5).astype(float), [0, 0.5, 1.5], ["< half", ">= half"],
+        lines += _split_rows(result, (hs > 0).astype(float), [0, 0.5, 1.5], ["none", "some"],
                              "array positions that see the chest through furniture:")
+    lines += _why_lines(result)
     lines += ["", f"{result['losses_evaluated']} model losses evaluated in {result['time_s']:.0f} s.", ""]
     if command:
         lines += ["Regenerate with:", "", "```", command, "```", ""]
