@@ -33,6 +33,14 @@ images), averaged over the query's PAS. A query is one PAS or several of one per
 seen from several antenna positions (one frame of a dataset: every array position with the
 person at one place).
 
+What is compared with the query (:class:`Query`): the model's PAS with the person at ``p``
+(``empty=None``, reference "none"), or, given the empty room's measured PAS at the same
+positions, that measurement plus the model's change (its PAS with the person at ``p`` less its
+background alone; reference "empty"). The second cancels the background's own error, which is
+often larger than what the person changes and which the search otherwise spends the person
+field on (:func:`evaluate_locate` uses it by default: a deployment that knows the room measures
+it empty once).
+
 Neither person field takes the person's heading (their inputs are the feet position and its
 encoding), so nothing is assumed about it: the model renders the person it learned, over the
 headings of the training walk.
@@ -46,8 +54,9 @@ split) for every Ours job of a comparison (one per seed), beside two floors that
 * **centre** - the training walk's centroid (and, in a known room, the room's centre).
 
 It also says where the model fails (:func:`failure_proxies`): error against the distance from
-the array, against whether the person blocks direct paths and whether furniture hides them from
-the transmitter. :func:`plot_locate` draws true against estimated positions on the room's top
+the array and from the transmitter, against whether the person blocks direct paths and whether
+furniture hides them from the transmitter; and why (the model's loss at the true position against
+its estimate's and against the background alone). :func:`plot_locate` draws true against estimated positions on the room's top
 view; :func:`report_markdown` the tables.
 """
 from __future__ import annotations
@@ -71,7 +80,7 @@ from .predict import views_at
 #: in the search region of a known room (the walk keeps 0.25 m; a little less, so that the
 #: region holds every walk position)
 CLEARANCE_M = 0.2
-#: how far [m] the search region of an unknown room reaches past the training walk's box
+#: how far [m] the walk search region reaches past the training walk's box
 WALK_MARGIN_M = 0.5
 #: height [m] of the body column that must be clear of furniture (rfmitsuba.sim.person.HEIGHT)
 BODY_HEIGHT_M = 1.7
@@ -816,7 +825,7 @@ def plot_locate(path: str | Path, result: dict) -> Path:
     from ..core import plots
 
     truth = np.asarray(result["truth"], np.float64)
-    fig, (ax, bx) = plots.subplots(1, 2, figsize=(13, 5.6))
+    fig, (ax, bx) = plots.subplots(1, 2, figsize=(13, 6.4))
     geom = None
     if result.get("scene_xml") and Path(result["scene_xml"]).is_file():
         from ..sim.geometry import RoomGeometry
@@ -845,7 +854,7 @@ def plot_locate(path: str | Path, result: dict) -> Path:
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=7)
+    handles, labels = ax.get_legend_handles_labels()
     ax.set_title(f"true and estimated positions ({len(truth)} held-out, {result['settings']['views']} PAS each)",
                  fontsize=9)
     fixed = "distance_to_tx_m" if result["task"] == "rx" else "distance_to_array_m"
@@ -863,7 +872,9 @@ def plot_locate(path: str | Path, result: dict) -> Path:
     plots.label(bx, xlabel=f"distance from the {'transmitter' if result['task'] == 'rx' else 'array'} (m)",
                 ylabel="error (cm)")
     bx.set_title("error against distance (hollow circles: the person blocks a direct path)", fontsize=9)
-    return plots.save(fig, path)
+    fig.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.03, 0.0), ncol=4, fontsize=7)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    return plots.save(fig, path, tight=False)
 
 
 def _row(name: str, s: dict | None) -> str:
