@@ -16,7 +16,7 @@ from ..core.errors import RfmError
 from ..core.interrupt import Terminated, sigterm_interrupts
 
 #: Sub-command modules, in help order.
-COMMANDS = ["info", "generate", "nerf2like", "export", "show", "invert", "train", "eval", "predict", "experiment", "compare", "reproduce", "demo", "bench"]
+COMMANDS = ["info", "generate", "nerf2like", "export", "show", "invert", "train", "eval", "predict", "locate", "experiment", "compare", "reproduce", "demo", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:

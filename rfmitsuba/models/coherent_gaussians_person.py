@@ -326,6 +326,14 @@ class CoherentGaussianPersonField(FlatParameterField):
         """As :meth:`CoherentGaussianField.structure`, with this field's own settings."""
         return ("person", self.bg.structure(prep["bg"]), "pres" in prep, tuple(sorted(self.params)), repr(self.cfg))
 
+    def channels_at(self, prep: dict, position) -> tuple:
+        """:meth:`channels_prepared` with the person's feet at ``position`` instead of where the
+        views put them: three Dr.Jit ``Float`` [B] columns x, y, z [m], one value per view. They may
+        carry gradients: the channels are differentiable in the person's position (the blockage
+        and the scatterers both follow it), which is what localisation descends on
+        (:mod:`rfmitsuba.eval.locate`). Returns (re, im) ``Float`` [B*16]."""
+        return self.channels_prepared({**prep, "h": list(position)})
+
     def channels_prepared(self, prep: dict) -> tuple:
         """The device part of :meth:`channels` from :meth:`prepare`'s ``prep``: (re, im) ``Float`` [B*16]."""
         import drjit as dr
