@@ -748,12 +748,19 @@ class DataScarceTable(Table):
                     L.append(f"| | | *floors: NN / IDW-3 / mean image* | {floors('static')} | {floors('dynamic')} | "
                              f"{fmt(ref, AFF_NN).split(' ±')[0]} | |")
             L.append("")
-            below = [f"{LABEL[m]} at {n} positions, walk {w}: {part} {mean(rs, p):.3f} < NN {mean(rs, fp):.3f}"
-                     for n in counts for w in [0] + walks for m in (self.static_methods if w == 0 else walk_ms)
-                     for rs in [self._cell(results, ds, m, n, w)]
-                     for part, p, fp in (("static", STAT, STAT_NN), ("dynamic", DYN, DYN_NN))
-                     if math.isfinite(mean(rs, p)) and math.isfinite(mean(rs, fp)) and mean(rs, p) < mean(rs, fp)]
-            L += ["Below the nearest-neighbour floor: " + ("; ".join(below) if below else "none") + ".", ""]
+            below: dict = {}      # (method, walk, part) -> [(positions, model, floor)]
+            for n in counts:
+                for w in [0] + walks:
+                    for m in (self.static_methods if w == 0 else walk_ms):
+                        rs = self._cell(results, ds, m, n, w)
+                        for part, p, fp in (("static", STAT, STAT_NN), ("dynamic", DYN, DYN_NN)):
+                            a, f = mean(rs, p), mean(rs, fp)
+                            if math.isfinite(a) and math.isfinite(f) and a < f:
+                                below.setdefault((m, w, part), []).append(f"{n} ({a:.3f} < {f:.3f})")
+            L += ["Below the nearest-neighbour floor of the same training samples (static positions, model < floor):"
+                  + ("" if below else " none."), ""]
+            L += [f"- {LABEL[m]}, walk {w}, {part}: " + ", ".join(v) for (m, w, part), v in below.items()]
+            L += [""] if below else []
             rl = self._cell(results, ds, sm, lead, one)
             claim = f"One {one}-position walk improves the static scene at {lead} static positions ({where})"
             claims.paired(claim, "abstract", rl, base[lead], STAT, names=(LABEL[sm], "Baseline"))

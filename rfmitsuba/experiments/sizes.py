@@ -190,13 +190,13 @@ SIZES = {
         snr_db=[10.0], position_counts=[12], rx_counts=[60], scarce_positions=[4, 9, 29], walk_lengths=[0, 6, 12],
         truth_positions=6),
     # between quick and full, for the data-scarce table on 2 cores: the full size's scarce
-    # static positions up to its 240 training positions, walks of up to 70 positions (the full
+    # static positions up to its 240 training positions, walks of 35 and 70 positions (the full
     # size's 35-position walk and its double), a fifth of the full size's steps
     "medium": ExperimentConfig(
         size="medium", data=DataSize(positions=300, human_positions=35, samples_per_src=20000),
         train=TrainSize(stage1_iterations=600, stage2_iterations=300, val_every=300, density=False),
         snr_db=[10.0], position_counts=[90], rx_counts=[600], scarce_positions=[20, 45, 90, 180, 240],
-        walk_lengths=[0, 18, 35, 70], truth_positions=12),
+        walk_lengths=[0, 35, 70], truth_positions=12),
     # a quarter of each room's default ray samples (DataSize.samples_scale): 2.8x faster solves
     "full": ExperimentConfig(data=DataSize(samples_scale=0.25)),
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed

@@ -240,7 +240,7 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
         assert "| 4 | 0 ± 0 (per seed 0, 0, 0) |" in text
         assert verdict_row.endswith("**fails** |")
         assert "**The walk never improves the static scene.**" in text
-    assert "Baseline at 4 positions, walk 0: static 0.601 < NN 0.650" in text
+    assert "- Baseline, walk 0, static: 4 (0.601 < 0.650)" in text
     assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
     assert table.figures(tmp_path, cfg, results) and (tmp_path / "data_scarce.png").is_file()
     assert table.figures(tmp_path / "none", cfg, {}) == []
