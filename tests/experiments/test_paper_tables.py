@@ -234,11 +234,11 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
         # 0.63 on the Baseline's curve: 30% of the way from 4 to 8 in log positions
         worth = 4 * 2 ** 0.3 - 4
         assert f"| 4 | {worth:.0f} ± 0 (per seed" in text
-        assert verdict_row.endswith("| +0.030 ± 0.000 | **holds** |")
+        assert "| +0.030 ± 0.000 | **holds** | +0.030 ± 0.000 | **holds** |" in verdict_row
         assert "never improves" not in text
     else:
         assert "| 4 | 0 ± 0 (per seed 0, 0, 0) |" in text
-        assert verdict_row.endswith("**fails** |")
+        assert verdict_row.endswith("| +0.000 ± 0.000 | **fails** | +0.000 ± 0.000 | **fails** |")
         assert "**The walk never improves the static scene.**" in text
     assert "- Baseline, walk 0, static: 4 (0.601 < 0.650)" in text
     assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
