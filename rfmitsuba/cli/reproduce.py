@@ -8,8 +8,12 @@ def register(sub) -> None:
     p = sub.add_parser("reproduce", help="generate data, train every method, write the paper's tables (resumable)")
     p.add_argument("--out", required=True, help="output folder (report.md, jobs/, data/); a killed run resumes")
     p.add_argument("--quick", action="store_true", help="the quick size (minutes on 2 cores)")
-    p.add_argument("--size", choices=["tiny", "quick", "full"], default=None,  # sizes.PAPER_SIZES
-                   help="experiment size (default full; --quick = quick; tiny = synthetic data, seconds)")
+    p.add_argument("--size", choices=["tiny", "quick", "medium", "full"], default=None,  # sizes.PAPER_SIZES
+                   help="experiment size (default full; --quick = quick; tiny = synthetic data, seconds; medium = "
+                        "300 positions, the data-scarce table on 2 cores)")
+    p.add_argument("--tables", default=None, metavar="KEY[,KEY]",
+                   help="run these tables only (comma-separated, e.g. data_scarce; default: the size's tables, "
+                        "every one but data_scarce)")
     p.add_argument("--config", default=None, help="ExperimentConfig TOML file (instead of a size)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set seeds=[0,1,2,3] --set train.stage2_iterations=500")
@@ -42,7 +46,10 @@ def build_config(args):
         cfg = C.load(ExperimentConfig, args.config)
     else:
         cfg = size_config(args.size or ("quick" if args.quick else "full"))
-    return C.override(cfg, list(args.set)) if args.set else cfg
+    sets = list(args.set)
+    if getattr(args, "tables", None):
+        sets.append("tables=" + repr([t.strip() for t in args.tables.split(",") if t.strip()]))
+    return C.override(cfg, sets) if sets else cfg
 
 
 def run(args) -> int:

@@ -26,11 +26,14 @@ from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
+from .layout import grid_layout
 from .pas_cache import state_images
 from .store import Dataset, open_dataset
 from .views import PasRows, TrainData, normalised_pas
 
 STATE_SETS = ("empty", "human", "all")
+#: how a subset of training antenna positions is drawn (``SampleData.open_samples(layout=...)``)
+LAYOUTS = ("random", "grid")
 
 
 def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
@@ -105,7 +108,8 @@ class SampleData(TrainData):
     @classmethod
     def open_samples(cls, path: str | Path, *, states: str = "all", duplicate: int = 1,
                      noise_snr_db: float | None = None, noise_seed: int = 0,
-                     train_antennas: int = 0, subset_seed: int = 0) -> "SampleData":
+                     train_antennas: int = 0, subset_seed: int = 0, layout: str = "random",
+                     walk_frames: int | None = None) -> "SampleData":
         """Open a dataset folder as samples.
 
         Args:
@@ -114,8 +118,14 @@ class SampleData(TrainData):
             duplicate: how many times the sample list is repeated (>= 1).
             noise_snr_db: SNR of the noise added to training samples (None = no noise).
             noise_seed: seed of that noise.
-            train_antennas: keep only this many training antenna positions (0 = all), a seeded
-                subset (``subset_seed``) shared by every state; the test split is unchanged.
+            train_antennas: keep only this many training antenna positions (0 = all), shared by
+                every state, laid out by ``layout``; the test split is unchanged.
+            subset_seed: the seed of a "random" layout.
+            layout: "random" (a seeded subset) or "grid" (a coarse grid over the free floor,
+                :func:`rfmitsuba.data.layout.grid_layout`; no seed).
+            walk_frames: train on the person only in the first this many walk positions (dataset
+                states 1..walk_frames, in walk order; those in the test split stay test
+                positions); None = the whole walk, 0 = none of it.
 
         Raises:
             ConfigError: bad ``states`` / ``duplicate``; DatasetError: no human states when
@@ -125,6 +135,10 @@ class SampleData(TrainData):
             raise ConfigError(f"states must be one of {STATE_SETS}, got {states!r}")
         if duplicate < 1:
             raise ConfigError(f"duplicate must be >= 1, got {duplicate}")
+        if layout not in LAYOUTS:
+            raise ConfigError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+        if walk_frames is not None and walk_frames < 0:
+            raise ConfigError(f"walk_frames must be >= 0 or None, got {walk_frames}")
         base = TrainData.open(path, state=0)
 
         ds = open_dataset(path)
@@ -133,12 +147,14 @@ class SampleData(TrainData):
             raise DatasetError(f"{path}: has no human-present states (needed for states={states!r})")
         st = {"empty": [0], "human": list(range(1, S)), "all": list(range(S))}[states]
         sp = ds.split
-        h_train = set(int(h) + 1 for h in sp.human_train)
+        h_train = set(int(h) + 1 for h in sp.human_train if walk_frames is None or h < walk_frames)
         h_test = set(int(h) + 1 for h in sp.human_test)
         s_arr = np.repeat(np.asarray(st, np.int64), A)
         a_arr = np.tile(np.arange(A, dtype=np.int64), len(st))
         ant_train = np.asarray(base.train)
-        if train_antennas and train_antennas < len(ant_train):
+        if train_antennas and train_antennas < len(ant_train) and layout == "grid":
+            ant_train = np.sort(ant_train[grid_layout(base.antenna_pos[ant_train], train_antennas)])
+        elif train_antennas and train_antennas < len(ant_train):
             ant_train = np.sort(np.random.default_rng([subset_seed, 7]).choice(ant_train, train_antennas, replace=False))
         a_train = np.isin(a_arr, ant_train)
         a_test = np.isin(a_arr, base.test)

@@ -48,21 +48,28 @@ def fit_rows(count: int) -> np.ndarray:
 def test_sets(data: SampleData) -> dict:
     """Sample indices (into ``data`` opened with states="all") of both evaluations:
     ``dynamic_test``, ``dynamic_train`` (human-present training samples), ``static_test``,
-    ``static_train``."""
+    ``static_train``. The training sets are ``data``'s own (its training positions and walk,
+    :meth:`SampleData.open_samples`); the test sets are the split's."""
     sp = data.split
     a_test = np.isin(data.antennas, sp.antenna_test)
-    a_train = np.isin(data.antennas, sp.antenna_train)
     h_test = np.isin(data.states, np.asarray(sp.human_test) + 1)
-    h_train = np.isin(data.states, np.asarray(sp.human_train) + 1)
     st0 = data.states == 0
-    return {"dynamic_test": np.flatnonzero(a_test & h_test), "dynamic_train": np.flatnonzero(a_train & h_train),
-            "static_test": np.flatnonzero(a_test & st0), "static_train": np.flatnonzero(a_train & st0)}
+    train = np.zeros(len(data.states), bool)
+    train[data.train] = True
+    return {"dynamic_test": np.flatnonzero(a_test & h_test), "dynamic_train": np.flatnonzero(train & ~st0),
+            "static_test": np.flatnonzero(a_test & st0), "static_train": np.flatnonzero(train & st0)}
 
 
 def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
              noise_snr_db: float | None = None, noise_seed: int = 0,
-             floors_cache: str | Path | None = None) -> dict:
+             floors_cache: str | Path | None = None, train_antennas: int = 0, layout: str = "random",
+             walk_frames: int | None = None) -> dict:
     """Both evaluations of ``model`` on ``dataset`` (metric protocol (docs/conventions.md), full 90 x 360).
+
+    The floors look up the training samples the model saw: ``train_antennas``, ``layout`` and
+    ``walk_frames`` as :meth:`rfmitsuba.data.samples.SampleData.open_samples` (default: the
+    whole training split). A part without training samples (the dynamic part of a model trained
+    on none of the walk, ``walk_frames=0``) has the model's figures only, no floors.
 
     Returns:
         {"dynamic": part, "static": part, "affected": dict or None, "render_ms_per_pas": float,
@@ -84,10 +91,14 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         noise), so every model evaluated on the same dataset reuses them; None computes them.
     """
 
-    data = SampleData.open_samples(dataset, states="all")
+    chosen = {"train_antennas": train_antennas, "layout": layout, "walk_frames": walk_frames}
+    data = SampleData.open_samples(dataset, states="all", **chosen)
     fp = open_dataset(dataset, check=False).fingerprint() if floors_cache is not None else ""
+    # the cache keys of the whole training split are those of before the choice existed
+    picked = {} if chosen == {"train_antennas": 0, "layout": "random", "walk_frames": None} else {"train": chosen}
     noisy = (None if noise_snr_db is None else
-             SampleData.open_samples(dataset, states="all", noise_snr_db=noise_snr_db, noise_seed=noise_seed))
+             SampleData.open_samples(dataset, states="all", noise_snr_db=noise_snr_db, noise_seed=noise_seed,
+                                     **chosen))
     sets = test_sets(data)
     fixed = fixed_device(data)
     out = {"num_gaussians": model.num_primitives}
@@ -95,7 +106,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
     for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
                                                  ("static", "static_test", "static_train", False)):
         test, train = sets[test_key], sets[train_key]
-        if len(test) == 0 or len(train) == 0:
+        if len(test) == 0:
             out[part] = None
             continue
         gt = data.pas(test)
@@ -106,10 +117,15 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         if not np.isfinite(pred).all():
             raise RunError(f"the model renders non-finite values ({part} evaluation of {dataset})")
         s_model = ssim_images(pred, gt)
+        if len(train) == 0:   # nothing to look up: the model's figures alone
+            out[part] = {"model": stats(s_model), "test_samples": int(len(test)), "train_samples": 0}
+            if use_human:
+                out["affected"] = _affected(data, test, gt, s_model, None, floors_cache=floors_cache, fingerprint=fp)
+            continue
         human = {"train_human": data.human_pos[train] if use_human else None,
                  "test_human": data.human_pos[test] if use_human else None}
         fl = floor_cache.cached(
-            floors_cache, {"floors": part, "dataset": fp},
+            floors_cache, {"floors": part, "dataset": fp, **picked},
             lambda: floors(data.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
             length=len(test))
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
@@ -125,7 +141,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         if noisy is not None:   # the floors a lookup in the same noisy training data reaches
             fn = floor_cache.cached(
                 floors_cache, {"floors_noisy_training": part, "dataset": fp, "snr_db": float(noise_snr_db),
-                               "noise_seed": int(noise_seed)},
+                               "noise_seed": int(noise_seed), **picked},
                 lambda: floors(noisy.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
                 length=len(test))
             res["floors_noisy_training"] = {k: stats(fn[k]) for k in ("nearest_neighbour", "idw3", "mean_image")}
@@ -152,8 +168,9 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
     Args:
         data: samples opened with states="all"; test: int [K] dynamic test sample indices;
         gt: float [K, H, W] their ground truth; s_model / s_nn: float [K] per-PAS SSIM of the model
-        and of the nearest-neighbour floor; floors_cache, fingerprint: as :func:`evaluate` (the
-        empty room's SSIM is cached with the floors).
+        and of the nearest-neighbour floor (None: no floor, the model saw no sample with the
+        person); floors_cache, fingerprint: as :func:`evaluate` (the empty room's SSIM is cached
+        with the floors).
 
     Returns:
         None when no test PAS is affected (SSIM against the empty room < :data:`AFFECTED_SSIM`
@@ -171,6 +188,8 @@ def _affected(data: SampleData, test: np.ndarray, gt: np.ndarray, s_model: np.nd
     mask = s_empty < AFFECTED_SSIM
     if not mask.any():
         return None
-    return {"model": stats(s_model[mask]), "nearest_neighbour": stats(s_nn[mask]),
-            "empty_room": stats(s_empty[mask]), "threshold": AFFECTED_SSIM,
-            "fraction": float(mask.mean())}
+    out = {"model": stats(s_model[mask]), "empty_room": stats(s_empty[mask]), "threshold": AFFECTED_SSIM,
+           "fraction": float(mask.mean())}
+    if s_nn is not None:
+        out["nearest_neighbour"] = stats(s_nn[mask])
+    return out

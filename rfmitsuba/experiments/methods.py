@@ -141,15 +141,17 @@ def stage2_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
 
 
 def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None = None, train_antennas: int = 0,
-              seed: int = 0) -> SampleData:
+              seed: int = 0, layout: str = "random", walk_frames: int | None = None) -> SampleData:
     """The samples ``method`` trains on (noise seed = ``seed``; antenna subset seed fixed to 0 so
-    that every method sees the same positions)."""
+    that every method sees the same positions; ``layout`` and ``walk_frames`` as
+    :meth:`rfmitsuba.data.samples.SampleData.open_samples`)."""
     dup = 1
     if method.duplicate:
 
         dup = 1 + len(open_dataset(dataset).split.human_train)
     return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,
-                                   noise_seed=seed, train_antennas=train_antennas, subset_seed=0)
+                                   noise_seed=seed, train_antennas=train_antennas, subset_seed=0, layout=layout,
+                                   walk_frames=walk_frames)
 
 
 def joint_field(mcfg: MethodConfig):
@@ -204,7 +206,7 @@ def prior_kwargs(name: str, prior_job: str | Path | None) -> dict:
 
 
 def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
-                  ours_dir: Path | None, quiet: bool) -> dict:
+                  layout: str, walk_frames: int | None, ours_dir: Path | None, quiet: bool) -> dict:
     """Stage 3 (method "refined"; :func:`train_method` has checked the model family): Ours'
     background and person field, unfrozen as one joint field
     (:class:`~rfmitsuba.models.coherent_gaussians_joint.CoherentGaussianJointField`), trained on
@@ -215,7 +217,7 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
     if ours_dir is None:
         ours_dir = out / "ours_job"
         train_method("ours", dataset, ours_dir, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                     train_antennas=train_antennas, quiet=quiet)
+                     train_antennas=train_antennas, layout=layout, walk_frames=walk_frames, quiet=quiet)
     ours_dir = Path(ours_dir)
     s2_file = ours_dir / "stage2" / "final" / "summary.json"
     if not s2_file.is_file() or not (ours_dir / "stage1.json").is_file():
@@ -228,6 +230,7 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
         raise RunError(f"{ours_dir}: Stage 3 needs a coherent_gaussians_person Stage 2, found {type(person).__name__}")
     _, width, feats = joint_field(mcfg)
     data = open_data(dataset, get_method("refined"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                     layout=layout, walk_frames=walk_frames,
                      seed=seed)
     tr = Trainer(stage3_config(mcfg, seed=seed), data, out / "stage3", quiet=quiet, extra=lambda idx: feats(data, idx),
                  extra_inputs=width, field_factory=lambda t, rng: CoherentGaussianJointField.from_person(person))
@@ -240,12 +243,13 @@ def _train_stage3(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
 
 
 def _baseline_run(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
-                  stage1_dir: str | Path | None, quiet: bool) -> tuple[Path, dict]:
+                  layout: str, walk_frames: int | None, stage1_dir: str | Path | None,
+                  quiet: bool) -> tuple[Path, dict]:
     """The finished Baseline run a method builds on (``stage1_dir``, or one trained into
     ``out/stage1_job``) and its summary. RunError when ``stage1_dir`` has not finished."""
     if stage1_dir is None:
         train_method("baseline", dataset, out / "stage1_job", mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                     train_antennas=train_antennas, quiet=quiet)
+                     train_antennas=train_antennas, layout=layout, walk_frames=walk_frames, quiet=quiet)
         stage1_dir = out / "stage1_job" / "train"
     stage1_dir = Path(stage1_dir)
     if not (stage1_dir / "final" / "summary.json").is_file():
@@ -254,13 +258,15 @@ def _baseline_run(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_sn
 
 
 def _train_continued(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise_snr_db, train_antennas,
-                     stage1_dir: str | Path | None, quiet: bool) -> dict:
+                     layout: str, walk_frames: int | None, stage1_dir: str | Path | None, quiet: bool) -> dict:
     """Continued: the Baseline's trained field (``stage1_dir``) trained n2 steps more on the same
     empty-room data at Stage 1's final learning rates (:func:`stage3_config`), into ``out/train``."""
     stage1_dir, s1 = _baseline_run(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                                   train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+                                   train_antennas=train_antennas,
+                                   layout=layout, walk_frames=walk_frames, stage1_dir=stage1_dir, quiet=quiet)
     start = load_field(stage1_dir / "final" / "field.npz")
     data = open_data(dataset, get_method("continued"), noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                     layout=layout, walk_frames=walk_frames,
                      seed=seed)
     write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
     s = Trainer(stage3_config(mcfg, seed=seed), data, out / "train", quiet=quiet,
@@ -271,7 +277,8 @@ def _train_continued(dataset, out: Path, *, mcfg: MethodConfig, seed: int, noise
 
 
 def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: MethodConfig, seed: int = 0,
-                 noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+                 noise_snr_db: float | None = None, train_antennas: int = 0, layout: str = "random",
+                 walk_frames: int | None = None, stage1_dir: str | Path | None = None,
                  ours_dir: str | Path | None = None, quiet: bool = True) -> dict:
     """Train method ``name`` on ``dataset`` into folder ``out`` (resumable).
 
@@ -282,7 +289,9 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
             field of ``stage1_dir``), Ours into ``out/stage2`` on top of ``stage1_dir`` (default for
             both: trains its own Baseline into ``out/stage1_job``).
         mcfg: sizes; seed: training (and noise) seed; noise_snr_db: noise on the training data;
-        train_antennas: number of training antenna positions (0 = all).
+        train_antennas: number of training antenna positions (0 = all); layout: how they are
+        drawn ("random" or "grid"); walk_frames: train on the first this many walk positions only
+        (None = the whole walk): :meth:`rfmitsuba.data.samples.SampleData.open_samples`.
         ours_dir: Stage 3 ("refined") starts from this finished Ours job folder (default: trains
             its own ``out/ours_job``).
         quiet: no progress bars.
@@ -299,13 +308,16 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
                               f"{mcfg.stage1.model!r}: only that family trains its background and person together")
         out.mkdir(parents=True, exist_ok=True)
         return _train_stage3(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                             train_antennas=train_antennas, ours_dir=ours_dir, quiet=quiet)
+                             train_antennas=train_antennas,
+                             layout=layout, walk_frames=walk_frames, ours_dir=ours_dir, quiet=quiet)
     out.mkdir(parents=True, exist_ok=True)
     if m.builds_on == "baseline" and not m.two_stage:
         return _train_continued(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                                train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+                                train_antennas=train_antennas,
+                                layout=layout, walk_frames=walk_frames, stage1_dir=stage1_dir, quiet=quiet)
     if not m.two_stage:
-        data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+        data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                         layout=layout, walk_frames=walk_frames, seed=seed)
         cfg = stage1_config(mcfg, m, seed=seed)
         kw = {}
         if m.human_input and cfg.model == "coherent_gaussians":
@@ -318,10 +330,12 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
                 "runs": [str(out / "train")]}
     stage1_dir, s1 = _baseline_run(dataset, out, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                                   train_antennas=train_antennas, stage1_dir=stage1_dir, quiet=quiet)
+                                   train_antennas=train_antennas,
+                                   layout=layout, walk_frames=walk_frames, stage1_dir=stage1_dir, quiet=quiet)
     bg = load_field(stage1_dir / "final" / "field.npz")
     bg.freeze()
-    data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas, seed=seed)
+    data = open_data(dataset, m, noise_snr_db=noise_snr_db, train_antennas=train_antennas,
+                     layout=layout, walk_frames=walk_frames, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
     kind, pcfg = person_field(mcfg, bg)
     oct_ = pcfg.human_octaves
@@ -367,7 +381,8 @@ FLOORS_FOLDER = "floors"
 
 
 def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: MethodConfig, seed: int, record: dict,
-            noise_snr_db: float | None = None, train_antennas: int = 0, stage1_dir: str | Path | None = None,
+            noise_snr_db: float | None = None, train_antennas: int = 0, layout: str = "random",
+            walk_frames: int | None = None, stage1_dir: str | Path | None = None,
             ours_dir: str | Path | None = None, reevaluate: bool = False, quiet: bool = True,
             eval_dataset: str | Path | None = None, floors_cache: str | Path | None = None) -> dict:
     """Train method ``name`` into ``job_dir``, evaluate it (on ``eval_dataset``, default
@@ -378,7 +393,8 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     killed caller (:mod:`rfmitsuba.experiments.compare`, :mod:`rfmitsuba.experiments.reproduce`) resumes where it stopped.
 
     Args:
-        name, dataset, mcfg, seed, noise_snr_db, train_antennas, stage1_dir, ours_dir: as :func:`train_method`.
+        name, dataset, mcfg, seed, noise_snr_db, train_antennas, layout, walk_frames, stage1_dir, ours_dir:
+            as :func:`train_method`; the evaluation's floors look up the same training samples.
         job_dir: the job folder.
         record: what the caller files the job under (merged into the metrics).
         reevaluate: a finished job is evaluated again (its training kept, ``metrics.json``
@@ -392,18 +408,23 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
         result, "wall_s": training + evaluation wall time in seconds}.
     """
     jd = Path(job_dir)
+    # the floors look up what the model trained on (on another dataset: its whole training split)
+    chosen = ({} if eval_dataset is not None else
+              {"train_antennas": train_antennas, "layout": layout, "walk_frames": walk_frames})
     if (jd / "DONE").is_file():
         metrics = json.loads((jd / "metrics.json").read_text())
         if reevaluate:
             metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
-                                       noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
+                                       noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache,
+                                       **chosen)
             write_json_with_numpy(jd / "metrics.json", metrics)
         return metrics
     t0 = time.perf_counter()
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
-                      train_antennas=train_antennas, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
+                      train_antennas=train_antennas,
+                      layout=layout, walk_frames=walk_frames, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
     ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
-                  noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache)
+                  noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache, **chosen)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     write_json_with_numpy(jd / "metrics.json", metrics)
     (jd / "DONE").write_text("done\n")

@@ -36,7 +36,7 @@ from ..core.errors import DatasetError
 from ..data.store import open_dataset
 from .job import Job
 from .paper_tables import all_jobs
-from .reproduce import check_experiment, dataset_path, dataset_specs, states_written, truth_checks
+from .reproduce import check_experiment, dataset_path, dataset_shape, dataset_specs, states_written, truth_checks
 from .sizes import ExperimentConfig
 from .truth import load_summary, truth_folder
 
@@ -230,9 +230,8 @@ def plan(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | None 
         if _complete(path):
             datasets.append(DatasetPlan(spec.key, str(path), True))
             continue
-        positions, states = ((spec.static_positions, 1) if spec.static_positions
-                             else (cfg.data.positions, 1 + cfg.data.human_positions))
-        left = max(states - states_written(path), 0) * positions
+        positions, walk = dataset_shape(spec, cfg)
+        left = max(1 + walk - states_written(path), 0) * positions
         by = next((k for k in (f"{spec.scene}/{spec.task}", spec.scene, f"task:{spec.task}", "any") if rates.get(k)),
                   None)
         datasets.append(DatasetPlan(spec.key, str(path), False, left,

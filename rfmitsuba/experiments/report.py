@@ -176,14 +176,14 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
     noisy_floor: dict = {}   # (dataset, snr, positions, part) -> NN floors on the noisy training data, per job
     for r in results.values():
         j = r["job"]
-        key = (j["dataset"], j["method"], j["snr_db"], j["positions"])
+        key = (j["dataset"], j["method"], j["snr_db"], j["positions"], j.get("layout", "random"), j.get("walk_frames"))
         groups.setdefault(key, []).append(r)
         for part, fp in (("dynamic", DYN_NN_NOISY), ("static", STAT_NN_NOISY)):
             v = mean([r], fp)
             if j["snr_db"] != "none" and math.isfinite(v):
                 noisy_floor.setdefault((j["dataset"], j["snr_db"], j["positions"], part), []).append(v)
     broken = []
-    for (ds, m, snr, n), rs in sorted(groups.items(), key=lambda kv: str(kv[0])):
+    for (ds, m, snr, n, layout, walk), rs in sorted(groups.items(), key=lambda kv: str(kv[0])):
         for part, mp, fp in (("dynamic", DYN, DYN_NN), ("static", STAT, STAT_NN)):
             a, f = mean(rs, mp), mean(rs, fp)
             floor_name = "nearest neighbour"
@@ -191,7 +191,9 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
                 f = sum(noisy_floor[(ds, snr, n, part)]) / len(noisy_floor[(ds, snr, n, part)])
                 floor_name = "nearest neighbour on the same noisy training data"
             if math.isfinite(a) and math.isfinite(f) and a < f:
-                cond = ds + ("" if snr == "none" else f", SNR {snr:g} dB") + (f", {n} positions" if n else "")
+                cond = (ds + ("" if snr == "none" else f", SNR {snr:g} dB")
+                        + (f", {n} positions" + (f" ({layout})" if layout != "random" else "") if n else "")
+                        + ("" if walk is None else f", walk {walk}"))
                 broken.append(f"- {LABEL[m]}, {cond}: {part} {a:.3f} < {floor_name} {f:.3f}")
     L += broken or ["- none: every method beats the nearest-neighbour floor everywhere"]
     n_runs = sum(1 for rs in groups.values() for mp, fp in ((DYN, DYN_NN), (STAT, STAT_NN))

@@ -5,7 +5,7 @@
     OUT/experiment.toml     the configuration; a later run into OUT must keep its size, source,
                             data and train (else RunError) and may add seeds, rooms, tables, ...
     OUT/data/<dataset>/     generated datasets (unless --data points elsewhere)
-    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>][_on_<dataset>]/
+    OUT/jobs/<dataset>/<method>_s<seed>[_snr<dB>][_n<positions>][_grid][_w<walk>][_on_<dataset>]/
         job.json            what the job is (checked on resume)
         train/ | stage2/    Trainer run folders (resumable from their checkpoints)
         metrics.json        both evaluations, written atomically, then
@@ -23,10 +23,10 @@ Every job is one (dataset, method, seed[, SNR][, training positions]). Ours reus
 Baseline job of the same dataset, seed and variant as its Stage 1 (so Baseline *is* Ours'
 first stage, as in the paper). Tables (:data:`rfmitsuba.experiments.paper_tables.TABLES`):
 main, two_stage, perturbation, material, large_room, positions, noise, rx_count,
-third_stage; one dataset's jobs run in a row. :mod:`rfmitsuba.experiments.plan` says what is
+third_stage, data_scarce (only when named); one dataset's jobs run in a row. :mod:`rfmitsuba.experiments.plan` says what is
 left and how long it should take, before anything runs. Sizes (:data:`SIZES`): ``tiny`` (synthetic data,
-no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 cores) and
-``full`` (the paper's 900 positions x 35 walk positions).
+no Sionna; tests), ``quick`` (Sionna, 36 positions x 7 states; minutes on 2 cores), ``medium``
+(300 positions x 36 states) and ``full`` (the paper's 900 positions x 35 walk positions).
 """
 from __future__ import annotations
 
@@ -52,12 +52,29 @@ from .report import RUNS_FILE, write_report
 from .sizes import DatasetSpec, DataSize, ExperimentConfig, method_config
 
 
-def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
-    """Where the dataset of ``spec`` lives: ``data_dir/<key>_<source>_<positions>x<walk positions>``."""
+def dataset_shape(spec: DatasetSpec, cfg: ExperimentConfig) -> tuple[int, int]:
+    """(antenna positions, walk positions) of the dataset of ``spec`` at the size of ``cfg``: an
+    empty-room dataset's own positions and no walk, a long-walk dataset's own walk, else the size's."""
     d = cfg.data
     if spec.static_positions:
-        return Path(data_dir) / f"{spec.key}_{cfg.source}_{spec.static_positions}x0"
-    return Path(data_dir) / f"{spec.key}_{cfg.source}_{d.positions}x{d.human_positions}"
+        return spec.static_positions, 0
+    return d.positions, spec.walk_positions or d.human_positions
+
+
+#: the walk's own pace: positions per minute (the paper's 35 positions in a minute)
+WALK_PER_MINUTE = 35
+
+
+def walk_duration_s(spec: DatasetSpec, cfg: ExperimentConfig) -> float:
+    """How long the walk of ``spec``'s dataset lasts [s]: a long-walk dataset
+    (:attr:`DatasetSpec.walk_positions`) walks at :data:`WALK_PER_MINUTE`, every other one 60 s."""
+    return 60.0 * spec.walk_positions / WALK_PER_MINUTE if spec.walk_positions else 60.0
+
+
+def dataset_path(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path) -> Path:
+    """Where the dataset of ``spec`` lives: ``data_dir/<key>_<source>_<positions>x<walk positions>``."""
+    positions, walk = dataset_shape(spec, cfg)
+    return Path(data_dir) / f"{spec.key}_{cfg.source}_{positions}x{walk}"
 
 
 #: position seed of the Rx-count table's empty-room datasets (added to the main dataset's seed):
@@ -70,7 +87,7 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
     path = dataset_path(spec, cfg, data_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
     d = cfg.data
-    positions, walk = (spec.static_positions, 0) if spec.static_positions else (d.positions, d.human_positions)
+    positions, walk = dataset_shape(spec, cfg)
     if cfg.source == "synthetic":
         if not (path / "meta.json").is_file():
             from ..sim import synthetic
@@ -83,9 +100,12 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
     from ..sim import generate as gen
 
     solver = solver_config(spec.scene, d)
-    seed = data_seed(spec.scene, d.human_positions) + (STATIC_SEED_OFFSET if spec.static_positions else 0)
+    duration = walk_duration_s(spec, cfg)
+    # an empty-room dataset (the Rx-count table's extra positions) is seeded by the size's walk
+    seed = (data_seed(spec.scene, walk if spec.walk_positions else d.human_positions, duration_s=duration)
+            + (STATIC_SEED_OFFSET if spec.static_positions else 0))
     gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=positions, human_positions=walk,
-                            material=spec.material, seed=seed, solver=solver)
+                              material=spec.material, seed=seed, solver=solver, walk_duration_s=duration)
     gen.generate(path, gcfg, quiet=quiet)
     return path
 
@@ -127,9 +147,10 @@ def ensure_truth(scene: str, task: str, cfg: ExperimentConfig, out: Path, *, qui
     return truth_uncertainty(truth_folder(out, scene, task), tc, quiet=quiet)["stats"]["ssim"]
 
 
-def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
+def data_seed(scene: str, human_positions: int, *, tries: int = 8, duration_s: float = 60.0) -> int:
     """The first seed in 0..tries-1 for which :func:`rfmitsuba.sim.person.walk` finds a clear walk of
-    ``human_positions`` steps in ``scene`` (the walk sampler gives up on some seeds in small rooms).
+    ``human_positions`` steps over ``duration_s`` seconds in ``scene`` (the walk sampler gives up
+    on some seeds in small rooms).
 
     Raises:
         PlacementError: no seed works.
@@ -142,7 +163,7 @@ def data_seed(scene: str, human_positions: int, *, tries: int = 8) -> int:
     geom = RoomGeometry.from_xml(resolve_scene(scene))
     for s in range(tries):
         try:
-            human.walk(geom, n=human_positions, seed=s)
+            human.walk(geom, n=human_positions, duration_s=duration_s, seed=s)
             return s
         except RfmError:
             continue
@@ -210,7 +231,7 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
         reproduce_job(prior, out, cfg, data_dir, quiet=quiet)
     return run_job(job.method, dataset_path(job.dataset, cfg, data_dir), jd, mcfg=mcfg, seed=job.seed,
                    record={"job": job.record()}, noise_snr_db=job.snr_db, train_antennas=job.positions,
-                   reevaluate=reevaluate, quiet=quiet, **prior_kwargs(job.method, prior and prior.folder(out)),
+                   layout=job.layout, walk_frames=job.walk_frames, reevaluate=reevaluate, quiet=quiet, **prior_kwargs(job.method, prior and prior.folder(out)),
                    floors_cache=Path(out) / FLOORS_FOLDER,
                    eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
@@ -268,8 +289,8 @@ def disk_needed(specs: list[DatasetSpec], cfg: ExperimentConfig, data_dir: Path)
     as done): :data:`BYTES_PER_PAS` per PAS still to generate."""
     need = 0
     for spec in specs:
-        positions, states = ((spec.static_positions, 1) if spec.static_positions
-                             else (cfg.data.positions, 1 + cfg.data.human_positions))
+        positions, walk = dataset_shape(spec, cfg)
+        states = 1 + walk
         need += max(states - states_written(dataset_path(spec, cfg, data_dir)), 0) * positions * BYTES_PER_PAS
     return need
 

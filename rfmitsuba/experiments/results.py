@@ -19,13 +19,15 @@ LABEL = {k: m.label for k, m in METHODS.items()}
 
 
 def select(results: dict, *, dataset: str, method: str, snr=None, positions: int = 0,
-           eval_dataset: str | None = None) -> list[dict]:
+           eval_dataset: str | None = None, layout: str = "random", walk_frames: int | None = None) -> list[dict]:
     """The jobs trained on ``dataset`` by ``method`` at noise ``snr`` (None = clean) with
-    ``positions`` training positions (0 = all), evaluated on ``eval_dataset`` (None = ``dataset``)."""
+    ``positions`` training positions (0 = all) laid out by ``layout``, on the first ``walk_frames``
+    walk positions (None = the whole walk), evaluated on ``eval_dataset`` (None = ``dataset``)."""
     out = []
     for r in results.values():
         j = r["job"]
         if (j["dataset"] == dataset and j["method"] == method and j["positions"] == positions
+                and j.get("layout", "random") == layout and j.get("walk_frames") == walk_frames
                 and j.get("eval_dataset", j["dataset"]) == (eval_dataset or dataset)
                 and (j["snr_db"] == "none" if snr is None else j["snr_db"] == float(snr))):
             out.append(r)
@@ -109,23 +111,35 @@ class Claims:
         every seed's difference is positive and the effect exceeds the spread, **does not hold**
         when no seed's difference is positive or the effect is below minus the spread, and is
         **unclear** otherwise (also with fewer than 2 seeds)."""
-        va = {r["job"]["seed"]: value(r, path) for r in a if value(r, path) is not None}
-        vb = {r["job"]["seed"]: value(r, path) for r in b if value(r, path) is not None}
-        seeds = sorted(set(va) & set(vb))
-        if not seeds:
+        v = paired_verdict(a, b, path)
+        if v is None:
             self.add(claim, paper_evidence, "-", None)
             return
-        d = np.array([va[s] - vb[s] for s in seeds], np.float64)
-        eff, sd = float(d.mean()), (float(d.std(ddof=1)) if len(d) > 1 else float("nan"))
-        if len(d) < 2:
-            holds = "unclear"
-        elif (d > 0).all() and eff > sd:
-            holds = True
-        elif (d <= 0).all() or eff < -sd:
-            holds = False
-        else:
-            holds = "unclear"
-        ma, mb = np.mean([va[s] for s in seeds]), np.mean([vb[s] for s in seeds])
+        d = v["per_seed"]
         self.add(claim, paper_evidence,
-                 f"{names[0]} {ma:.3f} vs {names[1]} {mb:.3f}: effect {eff:+.3f} ± {sd:.3f} over {len(d)} seeds "
-                 f"(per seed {', '.join(f'{x:+.3f}' for x in d)})", holds)
+                 f"{names[0]} {v['a']:.3f} vs {names[1]} {v['b']:.3f}: effect {v['effect']:+.3f} ± {v['spread']:.3f} "
+                 f"over {len(d)} seeds (per seed {', '.join(f'{x:+.3f}' for x in d)})", v["holds"])
+
+
+def paired_verdict(a: list[dict], b: list[dict], path: str) -> dict | None:
+    """The paired rule of :meth:`Claims.paired` on ``path`` of jobs ``a`` against jobs ``b``: None
+    when no seed ran both, else {"holds": True / False / "unclear", "effect": mean per-seed
+    difference, "spread": its sample std (NaN for one seed), "per_seed": the differences [seeds],
+    "a" / "b": the means over those seeds}."""
+    va = {r["job"]["seed"]: value(r, path) for r in a if value(r, path) is not None}
+    vb = {r["job"]["seed"]: value(r, path) for r in b if value(r, path) is not None}
+    seeds = sorted(set(va) & set(vb))
+    if not seeds:
+        return None
+    d = np.array([va[s] - vb[s] for s in seeds], np.float64)
+    eff, sd = float(d.mean()), (float(d.std(ddof=1)) if len(d) > 1 else float("nan"))
+    if len(d) < 2:
+        holds = "unclear"
+    elif (d > 0).all() and eff > sd:
+        holds = True
+    elif (d <= 0).all() or eff < -sd:
+        holds = False
+    else:
+        holds = "unclear"
+    return {"holds": holds, "effect": eff, "spread": sd, "per_seed": [float(x) for x in d],
+            "a": float(np.mean([va[s] for s in seeds])), "b": float(np.mean([vb[s] for s in seeds]))}

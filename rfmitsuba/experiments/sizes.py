@@ -4,7 +4,8 @@
 every method trains (and, through ``overrides``, any finer setting). :class:`ExperimentConfig`
 holds both plus what ``reproduce`` runs; ``compare`` holds a :class:`TrainSize` and ``demo`` an
 :class:`ExperimentConfig`. :data:`SIZES` holds the named sizes ``tiny`` (synthetic data,
-tests), ``quick``, ``full`` (the paper's tables) and ``demo`` / ``demo_tiny`` (the README's main
+tests), ``quick``, ``medium`` (300 positions: the data-scarce table on 2 cores), ``full`` (the
+paper's tables) and ``demo`` / ``demo_tiny`` (the README's main
 job); :func:`size_config` returns a copy of one. :func:`method_config` is the one place a
 :class:`TrainSize` becomes the :class:`~rfmitsuba.experiments.methods.MethodConfig` every
 method shares. :class:`DatasetSpec` names one dataset of a table.
@@ -24,7 +25,11 @@ from ..train.density import DensityConfig
 from .methods import MethodConfig
 
 TABLES = ("main", "two_stage", "perturbation", "material", "large_room", "positions", "noise", "rx_count",
-          "third_stage")
+          "third_stage", "data_scarce")
+#: the tables a size runs unless told otherwise: every one but ``data_scarce``, whose long-walk
+#: datasets are the largest of all (at the full size 900 positions x 281 states each, about 40 GB;
+#: run it by naming it: ``reproduce --tables data_scarce``)
+DEFAULT_TABLES = tuple(t for t in TABLES if t != "data_scarce")
 
 
 @dataclass
@@ -113,8 +118,13 @@ class ExperimentConfig:
     skip); snr_db: noise levels of the noise table; position_counts: training antenna positions of
     the positions table; rx_counts: Baseline's training positions in the Rx-count table beyond
     the main dataset's (from an empty-room dataset of ``max(rx_counts) / 0.8`` positions of the
-    same room and task, :attr:`DatasetSpec.static_positions`); tables: which tables to run
-    (``third_stage`` runs only with ``train.model = "coherent_gaussians"``); truth_positions:
+    same room and task, :attr:`DatasetSpec.static_positions`); scarce_positions: the static
+    training positions of the data-scarce table, each laid out on a coarse grid over the free
+    floor (at most the training split of ``data.positions``); walk_lengths: its walk lengths
+    [walk positions], the first N of one walk of ``max(walk_lengths)`` positions at the walk's
+    own pace (0 = no walk; the table's datasets, :attr:`DatasetSpec.walk_positions`); tables:
+    which tables to run (default :data:`DEFAULT_TABLES`; ``third_stage`` runs only with
+    ``train.model = "coherent_gaussians"``, ``data_scarce`` has Stage 3 only then); truth_positions:
     antenna positions of the truth-uncertainty check beside the main table (each room x task of
     Sionna data traced again with every array element as its own antenna,
     :mod:`rfmitsuba.experiments.truth`, at the datasets' ray samples; 0 = skip; at most 200).
@@ -132,7 +142,9 @@ class ExperimentConfig:
     snr_db: list[float] = dc_field(default_factory=lambda: [20.0, 10.0, 0.0])
     position_counts: list[int] = dc_field(default_factory=lambda: [180, 360])
     rx_counts: list[int] = dc_field(default_factory=lambda: [1800, 3600, 6000])
-    tables: list[str] = dc_field(default_factory=lambda: list(TABLES))
+    scarce_positions: list[int] = dc_field(default_factory=lambda: [20, 45, 90, 180, 360, 720])
+    walk_lengths: list[int] = dc_field(default_factory=lambda: [0, 35, 70, 140, 280])
+    tables: list[str] = dc_field(default_factory=lambda: list(DEFAULT_TABLES))
     truth_positions: int = 48
 
     def __post_init__(self) -> None:
@@ -145,6 +157,12 @@ class ExperimentConfig:
             raise ConfigError("ExperimentConfig: seeds, rooms and tasks must not be empty")
         if any(n < 1 for n in self.rx_counts):
             raise ConfigError(f"ExperimentConfig.rx_counts must be >= 1, got {self.rx_counts}")
+        train = self.data.positions - int(round(0.2 * self.data.positions))   # data.split.ANTENNA_TEST_FRACTION
+        if "data_scarce" in self.tables and any(not 1 <= n <= train for n in self.scarce_positions or [0]):
+            raise ConfigError(f"ExperimentConfig.scarce_positions must lie in 1..{train} (the training split of "
+                              f"data.positions = {self.data.positions}), got {self.scarce_positions}")
+        if any(n < 0 for n in self.walk_lengths) or not any(n > 0 for n in self.walk_lengths):
+            raise ConfigError(f"ExperimentConfig.walk_lengths must be >= 0 with one > 0, got {self.walk_lengths}")
         if not 0 <= self.truth_positions <= 200:     # rfmitsuba.sim.generate.EXACT_MAX_POSITIONS
             raise ConfigError(f"ExperimentConfig.truth_positions must be in 0..200, got {self.truth_positions}")
         if any(t not in ("rx", "tx") for t in self.tasks):
@@ -155,7 +173,7 @@ class ExperimentConfig:
 
 
 #: the sizes of ``reproduce`` (the paper's tables, 3 seeds); the others are the demo's
-PAPER_SIZES = ("tiny", "quick", "full")
+PAPER_SIZES = ("tiny", "quick", "medium", "full")
 
 SIZES = {
     "tiny": ExperimentConfig(
@@ -163,13 +181,22 @@ SIZES = {
         train=TrainSize(model="splat", stage1_iterations=30, stage2_iterations=30, downsample=10, batch_views=4,
                         num_gaussians=120, max_gaussians=400, human_gaussians=24, val_every=30, density=False),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", snr_db=[10.0],
-        position_counts=[10], rx_counts=[30], tables=["main", "two_stage", "perturbation", "positions", "noise",
-                                                      "rx_count"]),
+        position_counts=[10], rx_counts=[30], scarce_positions=[4, 8, 20], walk_lengths=[0, 4, 8],
+        tables=["main", "two_stage", "perturbation", "positions", "noise", "rx_count"]),
     "quick": ExperimentConfig(
         size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
         train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
                         num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
-        snr_db=[10.0], position_counts=[12], rx_counts=[60], truth_positions=6),
+        snr_db=[10.0], position_counts=[12], rx_counts=[60], scarce_positions=[4, 9, 29], walk_lengths=[0, 6, 12],
+        truth_positions=6),
+    # between quick and full, for the data-scarce table on 2 cores: the full size's scarce
+    # static positions up to its 240 training positions, walks of 35 and 70 positions (the full
+    # size's 35-position walk and its double), a fifth of the full size's steps
+    "medium": ExperimentConfig(
+        size="medium", data=DataSize(positions=300, human_positions=35, samples_per_src=20000),
+        train=TrainSize(stage1_iterations=600, stage2_iterations=300, val_every=300, density=False),
+        snr_db=[10.0], position_counts=[90], rx_counts=[600], scarce_positions=[20, 45, 90, 180, 240],
+        walk_lengths=[0, 35, 70], truth_positions=12),
     # a quarter of each room's default ray samples (DataSize.samples_scale): 2.8x faster solves
     "full": ExperimentConfig(data=DataSize(samples_scale=0.25)),
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
@@ -197,17 +224,20 @@ def size_config(name: str) -> ExperimentConfig:
 class DatasetSpec:
     """One dataset: scene, task and perturber material; ``static_positions`` > 0: instead an
     empty-room dataset of that many antenna positions (another position seed, no walk), the
-    Rx-count table's extra training positions."""
+    Rx-count table's extra training positions; ``walk_positions`` > 0: a walk of that many
+    positions at the walk's own pace (35 a minute) instead of the size's, the data-scarce table's."""
 
     scene: str
     task: str
     material: str = "tissue"
     static_positions: int = 0
+    walk_positions: int = 0
 
     @property
     def key(self) -> str:
         k = f"{self.scene}_{self.task}_{self.material}"
-        return k + (f"_static{self.static_positions}" if self.static_positions else "")
+        k += f"_static{self.static_positions}" if self.static_positions else ""
+        return k + (f"_walk{self.walk_positions}" if self.walk_positions else "")
 
 
 def method_config(train: TrainSize, *, scene_known: bool = True):

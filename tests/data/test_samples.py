@@ -141,3 +141,32 @@ def test_downsample_is_the_block_mean():
         ref = x.reshape(3, 90 // d, d, 360 // d, d).astype(np.float64).mean(axis=(2, 4))
         np.testing.assert_allclose(downsample(x, d), ref, atol=1e-6)
         assert downsample(x, d).dtype == np.float32
+
+
+def test_grid_layout_and_the_first_walk_frames(synthetic_ds):
+    """A grid layout keeps its count, spread over the floor and the same for every subset seed;
+    walk_frames trains on the first walk positions only and keeps the test ones out."""
+    from rfmitsuba.data.layout import grid_layout
+    from rfmitsuba.data.samples import SampleData
+
+    grid = SampleData.open_samples(synthetic_ds, states="empty", train_antennas=8, layout="grid")
+    again = SampleData.open_samples(synthetic_ds, states="empty", train_antennas=8, layout="grid", subset_seed=5)
+    chosen = np.unique(grid.antennas[grid.train])
+    assert len(chosen) == 8 and np.array_equal(chosen, np.unique(again.antennas[again.train]))
+    assert np.array_equal(grid.test, SampleData.open_samples(synthetic_ds, states="empty").test)
+    d = SampleData.open_samples(synthetic_ds, states="human", walk_frames=3)
+    sp = d.split
+    assert set(d.states[d.train]) == {int(h) + 1 for h in sp.human_train if h < 3}
+    assert np.array_equal(d.test, SampleData.open_samples(synthetic_ds, states="human").test)
+    none = SampleData.open_samples(synthetic_ds, states="all", walk_frames=0)
+    assert (none.states[none.train] == 0).all()
+    with pytest.raises(ConfigError, match="layout"):
+        SampleData.open_samples(synthetic_ds, states="all", train_antennas=8, layout="spiral")
+    # the grid: a 10 x 10 lattice thinned to 4 keeps one position near each quarter's middle
+    xy = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), -1).reshape(-1, 2)
+    pos = np.c_[xy, np.ones(len(xy))]
+    idx = grid_layout(pos, 4)
+    assert len(idx) == 4 and np.array_equal(idx, np.sort(idx))
+    quarters = {(int(x >= 5), int(y >= 5)) for x, y in xy[idx]}
+    assert len(quarters) == 4
+    assert np.array_equal(grid_layout(pos, 200), np.arange(100))

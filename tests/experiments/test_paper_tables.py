@@ -169,3 +169,78 @@ def test_main_table_places_the_static_figures_against_the_truth_band(tmp_path):
     assert "25000 ray samples per source" in text
     assert "differ by at most 0.010" in text and "at least 0.075 below 1" in text
     assert "moving TX" not in text                                    # its check has not run
+
+
+def test_data_scarce_table_jobs_share_their_baselines_and_the_test_positions():
+    """Every job trains on the long-walk dataset of its room and task, on a grid of static
+    positions; Baseline and Continued see no walk, the walk methods the first N positions of it,
+    and Ours (every walk length) builds on the one Baseline of its positions."""
+    import dataclasses
+
+    from rfmitsuba.experiments.paper_tables import DataScarceTable, all_jobs
+
+    table = DataScarceTable()
+    tiny = size_config("tiny")
+    jobs = table.jobs(tiny, 0)
+    counts, walks = sorted(tiny.scarce_positions), [w for w in sorted(tiny.walk_lengths) if w]
+    # splat: no Stage 3, Baseline (human) carries the walk's static figures
+    assert table.static_method(tiny) == "baseline_human"
+    assert len(jobs) == len(counts) * (2 + 2 * len(walks))
+    assert {j.dataset.walk_positions for j in jobs} == {max(tiny.walk_lengths)} and {j.layout for j in jobs} == {"grid"}
+    assert {(j.method, j.walk_frames) for j in jobs if j.walk_frames == 0} == {("baseline", 0), ("continued", 0)}
+    ours = next(j for j in jobs if j.method == "ours" and j.walk_frames == walks[-1])
+    assert ours.prior_job() == dataclasses.replace(ours, method="baseline", walk_frames=0)
+    assert ours.key == f"ours_s0_n{ours.positions}_grid_w{walks[-1]}"
+    assert "layout" in ours.record() and "layout" not in dataclasses.replace(ours, layout="random").record()
+    full = size_config("full")
+    assert table.static_method(full) == "refined" and table.one_walk(full) == 35
+    fj = table.jobs(full, 0)
+    assert len(fj) == 2 * 2 * 6 * (2 + 3 * 4)          # rooms x tasks x static positions x methods per cell
+    refined = next(j for j in fj if j.method == "refined")
+    assert refined.prior_job().method == "ours" and refined.prior_job().walk_frames == refined.walk_frames
+    # named tables only: the defaults leave it out
+    assert "data_scarce" not in full.tables
+    names = {f"{j.dataset.key}/{j.key}" for j in all_jobs(dataclasses.replace(full, tables=["data_scarce"]))}
+    assert len(names) == len(fj) * len(full.seeds)
+
+
+@pytest.mark.parametrize("gain", [0.03, 0.0])
+def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_helps(tmp_path, gain):
+    """Made-up results: Baseline climbs 0.60 -> 0.70 -> 0.80 over the static positions; with the walk
+    the static score is ``gain`` higher at the scarcest positions. A gain: the bold cell, its worth
+    read off the curve and the verdict holds; none: the verdict fails and the page says so."""
+    from rfmitsuba.experiments.paper_tables import DataScarceTable
+
+    cfg = size_config("tiny")
+    table = DataScarceTable()
+    counts = sorted(cfg.scarce_positions)
+    curve = dict(zip(counts, (0.60, 0.70, 0.80)))
+    results = {}
+    for seed in cfg.seeds:
+        for job in table.jobs(cfg, seed):
+            stat = curve[job.positions] + 0.001 * seed
+            if job.method == "baseline_human" and job.positions == counts[0]:
+                stat += gain
+            name, r = _result(job, 0.7, stat)
+            r["eval"]["static"]["nearest_neighbour"]["mean"] = 0.65
+            r["train"]["train_time_s"] = 2.0
+            results[name] = r
+    claims = Claims()
+    text = "\n".join(table.section(cfg, results, claims))
+    assert "| 4 | 0.601 ± 0.001 |" in text
+    verdict_row = next(line for line in text.splitlines() if line.startswith("| Scene 1 (bedroom) | moving RX |"))
+    if gain:
+        assert f"| **{0.63 + 0.001:.3f} ± 0.001** |" in text
+        # 0.63 on the Baseline's curve: 30% of the way from 4 to 8 in log positions
+        worth = 4 * 2 ** 0.3 - 4
+        assert f"| 4 | {worth:.0f} ± 0 (per seed" in text
+        assert "| +0.030 ± 0.000 | **holds** | +0.030 ± 0.000 | **holds** |" in verdict_row
+        assert "never improves" not in text
+    else:
+        assert "| 4 | 0 ± 0 (per seed 0, 0, 0) |" in text
+        assert verdict_row.endswith("| +0.000 ± 0.000 | **fails** | +0.000 ± 0.000 | **fails** |")
+        assert "**The walk never improves the static scene.**" in text
+    assert "- Baseline, walk 0, static: 4 (0.601 < 0.650)" in text
+    assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
+    assert table.figures(tmp_path, cfg, results) and (tmp_path / "data_scarce.png").is_file()
+    assert table.figures(tmp_path / "none", cfg, {}) == []
