@@ -137,8 +137,8 @@ def open_two_stage(job: str | Path) -> TwoStage:
     """Open an Ours job folder (``stage1.json`` naming its Stage-1 run, ``stage2/final/field.npz``).
 
     Raises:
-        RunError: not a two-stage job (a Stage-1 run, another method's job, an unfinished job),
-        a Stage-2 field that is not a person field, or a dataset that is gone.
+        RunError: not a two-stage job (a Stage-1 run, another method's job, an unfinished job,
+            a Stage-2 field that is not a person field, or a dataset that is gone).
     """
     jd = Path(job)
     if not (jd / "stage1.json").is_file():
@@ -331,12 +331,12 @@ class Query:
         model: the two-stage model; pas: float [K, 90, 360] (or [90, 360]) raw or normalised PAS;
         positions: float [K, 3] (or [3]) the moving device's positions [m] (the array's in the
         moving-RX task, the transmitter's in the moving-TX task); loss: "train" or "ssim";
-        downsample: block size d of the compared images (90 and 360 divisible by it); empty:
-        None or float [K, 90, 360] the empty room's PAS at ``positions``.
+        downsample: block size d of the compared images (90 and 360 divisible by it).
+        empty: None or float [K, 90, 360] the empty room's PAS at ``positions``.
 
     Raises:
-        ImageError: PAS of the wrong shape or not finite; ConfigError: positions that do not
-        match them, a bad loss or block size.
+        ImageError: PAS of the wrong shape or not finite.
+        ConfigError: positions that do not match them, a bad loss or block size.
     """
 
     def __init__(self, model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, loss: str = "train",
