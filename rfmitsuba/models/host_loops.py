@@ -24,9 +24,9 @@ the sign of its input).
 """
 from __future__ import annotations
 
-import threading
-
 import numpy as np
+
+from ..core.compile_once import CompiledOnce
 
 #: Negative slope of the networks' LeakyReLU.
 SLOPE = np.float32(0.01)
@@ -101,19 +101,8 @@ def _compile():
     return add_leaky, leaky_grad
 
 
-_LOOPS = None
-_TRIED = False
-_LOCK = threading.Lock()
-
-
-def _loops():
-    """The compiled loops (made once; the host threads may ask at the same time), or None."""
-    global _LOOPS, _TRIED
-    if not _TRIED:
-        with _LOCK:
-            if not _TRIED:
-                _LOOPS, _TRIED = _compile(), True
-    return _LOOPS
+#: the compiled loops (made on first use, from any thread), or None
+_loops = CompiledOnce(_compile)
 
 
 def compiled() -> bool:

@@ -14,9 +14,9 @@ arrays), per-row values float32 [B].
 """
 from __future__ import annotations
 
-import threading
-
 import numpy as np
+
+from ..core.compile_once import CompiledOnce
 
 #: the smallest amplitude an adjoint divides by (as the Dr.Jit kernels of :mod:`rfmitsuba.rf.bartlett`)
 TINY = np.float32(1e-30)
@@ -127,19 +127,8 @@ def _compile():
     return amplitude, normalized, beam_grad, image_sums
 
 
-_LOOPS = None
-_TRIED = False
-_LOCK = threading.Lock()
-
-
-def _loops():
-    """The compiled loops (made once; the host lanes may ask at the same time), or None."""
-    global _LOOPS, _TRIED
-    if not _TRIED:
-        with _LOCK:
-            if not _TRIED:
-                _LOOPS, _TRIED = _compile(), True
-    return _LOOPS
+#: the compiled loops (made on first use, from any thread), or None
+_loops = CompiledOnce(_compile)
 
 
 def compiled() -> bool:

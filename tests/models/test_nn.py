@@ -396,8 +396,7 @@ def test_host_pass_matches_numpy_reference(views, loops, monkeypatch):
     from rfmitsuba.models import host_loops, nn
 
     if loops == "numpy twins":
-        monkeypatch.setattr(host_loops, "_LOOPS", None)
-        monkeypatch.setattr(host_loops, "_TRIED", True)
+        monkeypatch.setattr(host_loops, "_loops", lambda: None)
     monkeypatch.setattr(nn, "HOST_BLOCK_ROWS", 8)
     monkeypatch.setattr(nn, "HOST_THREAD_MIN_ROWS", 0)
     x, y, w, layers, dz = _host_pass_case(np.random.default_rng(11), n=45, views=views, widths=(6, 16, 16, 4))
