@@ -176,16 +176,20 @@ def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
                             "density.max_gaussians=2000", "density.reset_every=0"])
 
 
-def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
-    """Dotted keys where two (nested) config dicts differ, with both values."""
-    out = []
+def differences(a: dict, b: dict, prefix: str = ""):
+    """(dotted key, value in ``a``, value in ``b``) for every option where two (nested) config
+    dicts differ, in key order; "<missing>" where one lacks the key."""
     for k in sorted(set(a) | set(b)):
         va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
         if isinstance(va, dict) and isinstance(vb, dict):
-            out += config_diff(va, vb, f"{prefix}{k}.")
+            yield from differences(va, vb, f"{prefix}{k}.")
         elif va != vb:
-            out.append(f"{prefix}{k} (run has {va!r}, requested {vb!r})")
-    return out
+            yield f"{prefix}{k}", va, vb
+
+
+def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted keys where two (nested) config dicts differ, with both values."""
+    return [f"{k} (run has {va!r}, requested {vb!r})" for k, va, vb in differences(a, b, prefix)]
 
 
 def _number(v) -> bool:

@@ -60,7 +60,7 @@ from ..rf.bartlett_ref import (
 )
 from ..rf.grid import PAS_SHAPE
 from . import resolve
-from .config import TrainConfig, config_diff, training_downsample
+from .config import TrainConfig, config_diff, differences, training_downsample
 from .density import make_strategy
 from .frozen_step import FrozenLoss
 from .jitter import jittered
@@ -142,7 +142,7 @@ class Trainer:
         #: the training images' block size (TrainConfig.downsample, or the field's advice)
         self.d = training_downsample(cfg)
         self.h, self.w = PAS_SHAPE[0] // self.d, PAS_SHAPE[1] // self.d
-        #: steps this run trains (planned_iterations, set once the field exists)
+        #: steps this run trains (rfmitsuba.train.resolve.iterations, set once the field exists)
         self.iterations = cfg.iterations
         self._tail_best = None   # {"step", "val_ssim", "state"}: the best validation check of the tail
         self._check_run_dir()
@@ -361,8 +361,8 @@ class Trainer:
 
     # ---- main loop --------------------------------------------------------------------------
     def run(self, *, stop_at: int | None = None) -> dict:
-        """Train (or resume) to :func:`planned_iterations` steps (``cfg.iterations``, or more
-        where ``cfg.epochs`` asks for more passes); returns the summary dict.
+        """Train (or resume) to the decided steps (:func:`rfmitsuba.train.resolve.iterations`:
+        ``cfg.iterations``, or more where ``cfg.epochs`` asks for more passes); returns the summary dict.
 
         A run folder this call created is removed again when the run fails before its first
         checkpoint (a configuration the field refuses, bad data, a diverging first step), so a
@@ -691,24 +691,6 @@ class Trainer:
 TAIL = 0.7
 
 
-def planned_iterations(cfg: TrainConfig, num_fit: int, field: Field) -> int:
-    """Steps a run trains: ``cfg.iterations``, or more where ``cfg.epochs`` ("auto": the field's
-    ``epochs_advised``) passes over ``num_fit`` fitting positions at ``cfg.batch_views`` views a
-    step take more (:func:`rfmitsuba.train.resolve.iterations`)."""
-    return int(resolve.iterations(cfg, num_fit, resolve.epochs(cfg, field).value).value)
-
-
-def _changed_options(a: dict, b: dict, prefix: str = "") -> list[str]:
-    """``"key = value"`` for every option where config dict ``b`` differs from ``a``."""
-    out = []
-    for k in sorted(set(a) | set(b)):
-        if isinstance(a.get(k), dict) and isinstance(b.get(k), dict):
-            out += _changed_options(a[k], b[k], f"{prefix}{k}.")
-        elif a.get(k) != b.get(k):
-            out.append(f"{prefix}{k} = {json.dumps(b.get(k))}")
-    return out
-
-
 def dry_run(dataset: str | Path, *, cfg: TrainConfig | None = None) -> str:
     """What ``train(dataset, cfg=cfg)`` would decide, without training: the resolved
     configuration (:mod:`rfmitsuba.train.resolve`) as commented TOML text. For ``model = "auto"``
@@ -736,7 +718,8 @@ def dry_run(dataset: str | Path, *, cfg: TrainConfig | None = None) -> str:
             split = t._make_split(rng)
             field = t._init_field(rng)
             decided = resolve.resolve(c, field, num_fit=len(split["fit"]))
-            changed = _changed_options(C.to_dict(dataclasses.replace(cfg, model=c.model)), C.to_dict(c))
+            changed = [f"{k} = {json.dumps(v)}" for k, _, v in
+                       differences(C.to_dict(dataclasses.replace(cfg, model=c.model)), C.to_dict(c))]
             lines += ["", f"# {'if the trials choose ' if cfg.model == 'auto' else ''}{name}"
                           + (f" ({', '.join(changed)})" if changed else "")
                           + f": {len(split['fit'])} fitting, {len(split['val'])} validation, {len(split['test'])} "

@@ -198,7 +198,8 @@ def test_epochs_lengthen_a_run_to_passes_over_the_fitting_positions(tiny_ds, tmp
     from rfmitsuba.core.errors import ConfigError
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.train.config import TrainConfig
-    from rfmitsuba.train.trainer import Trainer, planned_iterations
+    from rfmitsuba.train import resolve
+    from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
     cfg = dataclasses.replace(tiny_cfg(iterations=20), epochs=3.0)
@@ -211,8 +212,8 @@ def test_epochs_lengthen_a_run_to_passes_over_the_fitting_positions(tiny_ds, tmp
     t.iterations = 20
     assert t._lrs(19) == lr_end and t._lrs(want // 2) != lr_mid     # the schedule spans the longer run
     assert Trainer(tiny_cfg(iterations=20), data, tmp_path / "b", quiet=True).run()["steps"] == 20   # -1: splat, none
-    assert planned_iterations(dataclasses.replace(cfg, epochs=0.0), 43, t.field) == 20
-    assert planned_iterations(dataclasses.replace(cfg, epochs=1.0), 43, t.field) == 20       # 11 < 20
+    assert resolve.iterations(cfg, 43, 0.0).value == 20
+    assert resolve.iterations(cfg, 43, 1.0).value == 20                                      # 11 < 20
     for bad in (-2.0, float("nan"), float("inf")):
         with pytest.raises(ConfigError, match="epochs"):
             TrainConfig(epochs=bad)
