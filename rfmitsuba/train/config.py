@@ -21,6 +21,7 @@ from ..models.base import field_class
 from ..models.coherent import CoherentConfig
 from ..models.coherent_gaussians import CoherentGaussianConfig
 from ..models.splat import SplatConfig
+from . import resolve
 from .density import DensityConfig
 
 
@@ -200,6 +201,4 @@ def training_downsample(cfg: TrainConfig) -> int:
     """The block size ``d`` a run of ``cfg`` trains at (``(90/d) x (360/d)`` images):
     ``cfg.downsample``, or for "auto" what the field kind ``cfg.model`` advises
     (:func:`rfmitsuba.train.resolve.downsample`)."""
-    from .resolve import downsample
-
-    return int(downsample(cfg).value)
+    return int(resolve.downsample(cfg).value)

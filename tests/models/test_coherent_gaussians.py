@@ -473,7 +473,7 @@ def _stub_training_data(n: int, *, seed: int):
     q = np.c_[rng.uniform(1.0, 2.2, n), rng.uniform(2.2, 2.8, n), rng.uniform(1.0, 1.6, n)]
     y = np.tile([0.3, 0.3, 2.0], (n, 1))
     data = SimpleNamespace(path="stub", train=np.arange(n), rx_to_world=None, frequency_hz=F, measured=False,
-                           readout="amplitude", positions=lambda idx: (q[idx], y[idx], q[idx]),
+                           readout="amplitude", task="rx", positions=lambda idx: (q[idx], y[idx], q[idx]),
                            pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
     return data, q, y
 
@@ -613,7 +613,7 @@ def test_frame_search_reports_a_stated_frame_that_is_far_off():
     pas, x, y = los_spectra(true_to_world=np.eye(3), n=24)
     stated = rotation_matrix(np.radians(30) * np.array([0.6, 0.7, 0.39]) / np.linalg.norm([0.6, 0.7, 0.39]))
     data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=stated, frequency_hz=F920, measured=True,
-                           readout="phase_only", positions=lambda idx: (x[idx], y[idx], y[idx]),
+                           readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
                            pas=lambda idx, d=1: pas[idx] if d == 2 else None)
     base = ['model="coherent_gaussians"', "coherent_gaussians.images=0", "coherent_gaussians.scatterers=0",
             'coherent_gaussians.calibration_search="off"']

@@ -86,7 +86,7 @@ def initial_field(cfg, data, *, scene_xml: Path | None, field_class: type, extra
         which = "the finer grid where the data are dense" if grid == DENSE_VIS_GRID else "the default grid"
         decided.append((key + "vis_grid", grid, f"{'unknown' if init == 'data' else 'known'} room, {n_pos} distinct "
                         f"training positions: {which}"))
-    if init == "data" and (c.images == "auto" or c.pursuit == "auto") and hasattr(data, "task"):
+    if init == "data" and (c.images == "auto" or c.pursuit == "auto"):
         fixed = y if data.task == "rx" else x
         spread = position_spread_deg(fixed, q)
         where = f"the positions spread {spread:.1f} degrees seen from the fixed device"
