@@ -68,6 +68,26 @@ def quartiles(run: Path, data) -> dict:
     return {"edges_m": edges.tolist(), **{m: [float(z[m][q == i].mean()) for i in range(4)] for m in METHODS}}
 
 
+def oracles(run: Path, data) -> dict:
+    """Two upper bounds that know each test spectrum, mean and median SSIM: the best single training
+    spectrum per test spectrum, and the best of the model, nearest neighbour and mean image per test
+    spectrum (what a perfect chooser among the three would score)."""
+    from rfmitsuba.core.ssim import ssim_images
+
+    z = np.load(run / "eval" / "ssim.npz")
+    test = z["test_index"]
+    train = np.asarray(json.loads((run / "split.json").read_text())["train"], np.int64)
+    gt = data.pas(test)
+    best = np.max([ssim_images(np.broadcast_to(img, gt.shape), gt) for img in data.pas(train)], axis=0)
+    chooser = np.max([z[k] for k in ("model", "nearest_neighbour", "mean_image")], axis=0)
+    return {k: {"mean": float(v.mean()), "median": float(np.median(v))}
+            for k, v in (("oracle_training_image", best), ("oracle_chooser", chooser))}
+
+
+ORACLES = {"oracle_training_image": "*oracle: the best training spectrum per test spectrum*",
+           "oracle_chooser": "*oracle: the best of model, nearest neighbour, mean image per test spectrum*"}
+
+
 def figure(runs: dict, out: Path) -> None:
     from rfmitsuba.core import plots
     from rfmitsuba.train.trainer import load_run
@@ -116,6 +136,9 @@ conditioning spectrum predicted from all the others, is the figure that says how
 ![measured, predicted and nearest-neighbour spectra](fields.png)
 
 Four test positions per split (the rows: the model's lowest, two middle and its highest test SSIM).
+
+The two *oracle* rows know each test spectrum and are not methods: they bound what any prediction
+built from the training spectra, or any rule choosing between the model and the floors, can score.
 """
 
 REPRODUCE = """## Reproduce
@@ -149,7 +172,7 @@ def main() -> None:
             chosen = json.loads((run / "final" / "summary.json").read_text())["model"]
             _, data, renderer = load_run(run)
             rows.append({"seed": seed, "chosen": chosen, "loo": loo_ssim(run, data, renderer),
-                         "quartiles": quartiles(run, data),
+                         "quartiles": quartiles(run, data), **oracles(run, data),
                          **{k: m[k] for k in (*METHODS, "fit", "num_parameters", "train_time_s", "anchored")}})
             first.setdefault(split, run)
         result[split] = rows
@@ -162,6 +185,9 @@ def main() -> None:
             per = ", ".join(f"{r[k]['mean']:.4f}" for r in rows)
             lines.append(f"| {LABEL[k]} | {stat([r[k]['mean'] for r in rows])} | "
                          f"{stat([r[k]['median'] for r in rows])} | {per} |")
+        for k, label in ORACLES.items():
+            lines.append(f"| {label} | {stat([r[k]['mean'] for r in rows])} | {stat([r[k]['median'] for r in rows])} | "
+                         + ", ".join(f"{r[k]['mean']:.4f}" for r in rows) + " |")
         chosen = sorted({r["chosen"] for r in rows})
         lines += ["", f"- `auto` chose: {', '.join(chosen)}",
                   f"- fit at its own training positions: {stat([r['fit']['mean'] for r in rows])}; "
