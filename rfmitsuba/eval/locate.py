@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError, RunError
-from ..data.samples import SampleData, human_features
+from ..data.samples import SampleData, person_features
 from ..data.views import downsample as block_means
 from ..models.base import Field, Views, load_field, render
 from ..rf.bartlett_ref import normalize as minmax
@@ -126,10 +126,10 @@ class TwoStage:
 
     def features(self, feet: np.ndarray) -> np.ndarray:
         """The person field's extra inputs for feet positions float [N, 3] m: float32 [N, F + 3]
-        (features of :func:`~rfmitsuba.data.samples.human_features` on the training box, then the
+        (features of :func:`~rfmitsuba.data.samples.person_features` on the training box, then the
         position), as :meth:`~rfmitsuba.data.samples.SampleData.features` gives them in training."""
         h = np.asarray(feet, np.float64).reshape(-1, 3)
-        f = human_features(h, self.data.box, octaves=self.person.feature_octaves)
+        f = person_features(h, self.data.box, octaves=self.person.feature_octaves)
         return np.concatenate([f, h.astype(np.float32)], axis=1)
 
 
@@ -161,7 +161,7 @@ def open_two_stage(job: str | Path) -> TwoStage:
     if not dataset.is_dir():
         raise RunError(f"{jd}: its dataset {dataset} does not exist any more")
     data = SampleData.open_samples(dataset, states="all")
-    walk = data.human_pos[np.isin(data.states, np.asarray(data.split.human_train) + 1) & (data.antennas == 0)]
+    walk = data.person_pos[np.isin(data.states, np.asarray(data.split.person_train) + 1) & (data.antennas == 0)]
     if len(walk) == 0:
         raise DatasetError(f"{dataset}: no training walk positions")
     return TwoStage(background=background, person=person, data=data, feet_z=float(np.median(walk[:, 2])),
@@ -639,7 +639,7 @@ def fingerprint(data: SampleData, query_pas: np.ndarray, antennas: np.ndarray, *
         score[i:i + len(part)] = np.asarray(sc.numpy(), np.float64).reshape(len(part))
     j = int(np.argmax(score))
     row = lookup[(int(states[j]), int(antennas[0]))]
-    return {"state": int(states[j]), "position": np.asarray(data.human_pos[row], np.float64), "ssim": float(score[j])}
+    return {"state": int(states[j]), "position": np.asarray(data.person_pos[row], np.float64), "ssim": float(score[j])}
 
 
 # ------------------------------------------------------------------------ where it fails
@@ -743,8 +743,8 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
         raise RunError(f"{run}: its jobs trained on different datasets ({', '.join(sorted(paths))})")
     data = models[0][1].data
     sp = data.split
-    test_states = np.asarray(sp.human_test, np.int64) + 1
-    train_states = np.asarray(sp.human_train, np.int64) + 1
+    test_states = np.asarray(sp.person_test, np.int64) + 1
+    train_states = np.asarray(sp.person_train, np.int64) + 1
     if len(test_states) == 0:
         raise DatasetError(f"{data.path}: no held-out walk positions (person test split) to locate")
     ant = query_antennas(data, antennas=antennas, views=views)
@@ -760,7 +760,7 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
             rows = np.array([lookup[(int(s), int(a))] for a in ant], np.int64)
             pas = data.pas(rows)
             empty = data.pas(np.array([lookup[(0, int(a))] for a in ant], np.int64)) if reference == "empty" else None
-            feet = np.asarray(data.human_pos[rows[0]], np.float64)
+            feet = np.asarray(data.person_pos[rows[0]], np.float64)
             truth.append(feet)
             fp.append(fingerprint(data, pas, ant, states=train_states)["position"])
             x, y, q = data.positions(rows)

@@ -53,7 +53,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
-from ..data.samples import num_human_features
+from ..data.samples import num_person_features
 from .base import FlatParameterField, Views, register
 from ._points import columns32, write_points_ply
 from .coherent_gaussians import CoherentGaussianField
@@ -79,7 +79,7 @@ class CoherentGaussianPersonConfig:
     init_block_radius: initial blockage radius ``r`` [m]; strength_per_source /
     radius_per_source: one ``a`` / ``r`` per background source instead of one for all;
     first_leg: block the first leg of reflected images too (not only the last);
-    human_octaves: octaves of the person features the framework passes before the position
+    person_octaves: octaves of the person features the framework passes before the position
     (only the position is read).
     """
 
@@ -94,12 +94,12 @@ class CoherentGaussianPersonConfig:
     strength_per_source: bool = False
     radius_per_source: bool = False
     first_leg: bool = True
-    human_octaves: int = 3
+    person_octaves: int = 3
 
     def __post_init__(self) -> None:
         self.init_height = tuple(float(v) for v in self.init_height)
-        if self.num_points < 0 or self.human_octaves < 0:
-            raise ConfigError("CoherentGaussianPersonConfig: num_points and human_octaves must be >= 0")
+        if self.num_points < 0 or self.person_octaves < 0:
+            raise ConfigError("CoherentGaussianPersonConfig: num_points and person_octaves must be >= 0")
         if not (self.max_offset > 0 and self.body_height > 0 and self.init_block_radius > 0):
             raise ConfigError("CoherentGaussianPersonConfig: max_offset, body_height and init_block_radius must be > 0")
         if not 0 <= self.init_radius < self.max_offset:
@@ -144,7 +144,7 @@ class CoherentGaussianPersonField(FlatParameterField):
             as the other fields; params: stored parameters instead of the initial ones.
 
     Per-view input ``extra``: float [B, F + 3], the person features (F =
-    ``num_human_features(human_octaves)``) followed by the feet position in metres.
+    ``num_person_features(person_octaves)``) followed by the feet position in metres.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -154,7 +154,7 @@ class CoherentGaussianPersonField(FlatParameterField):
     person = True
 
     def __init__(self, bg: CoherentGaussianField, *, cfg: CoherentGaussianPersonConfig | None = None,
-                 reference_amplitude: float = 1.0, seed: int = 0, name: str = "human", params: dict | None = None):
+                 reference_amplitude: float = 1.0, seed: int = 0, name: str = "person", params: dict | None = None):
         if not isinstance(bg, CoherentGaussianField):
             raise ConfigError(f"the coherent Gaussian person field needs a coherent_gaussians background, got "
                               f"{type(bg).__name__}")
@@ -164,7 +164,7 @@ class CoherentGaussianPersonField(FlatParameterField):
         self.readout, self.frequency_hz = bg.readout, bg.frequency_hz
         self.reference_amplitude = float(reference_amplitude)
         self.seed, self.name = int(seed), name
-        self.extra_inputs = num_human_features(c.human_octaves) + 3
+        self.extra_inputs = num_person_features(c.person_octaves) + 3
         self.frozen = False
         #: 1 for a reflected image (two legs to block), 0 for the direct path; scatterers always two
         self._two_legs = B.Float(np.asarray(bg.order > 0, np.float32))
@@ -186,7 +186,7 @@ class CoherentGaussianPersonField(FlatParameterField):
 
     @classmethod
     def for_background(cls, bg: CoherentGaussianField, *, cfg: CoherentGaussianPersonConfig | None = None,
-                       seed: int = 0, name: str = "human", walk: np.ndarray | None = None,
+                       seed: int = 0, name: str = "person", walk: np.ndarray | None = None,
                        rng: np.random.Generator | None = None) -> "CoherentGaussianPersonField":
         """A fresh person field on a trained background: scatterer gains start at ``init_gain``
         of its direct path's gain times its scatterer scale (``walk`` and ``rng`` are not needed)."""
@@ -208,7 +208,7 @@ class CoherentGaussianPersonField(FlatParameterField):
 
     @property
     def feature_octaves(self) -> int:
-        return self.cfg.human_octaves
+        return self.cfg.person_octaves
 
     @property
     def num_primitives(self) -> int:
@@ -232,9 +232,9 @@ class CoherentGaussianPersonField(FlatParameterField):
                 raise RunError(f"not a CoherentGaussianPersonField state (format {meta.get('format')!r})")
             bg = CoherentGaussianField.from_state_dict({k[3:]: v for k, v in state.items() if k.startswith("bg.")})
             bg.freeze()
-            f = cls(bg, cfg=from_dict(CoherentGaussianPersonConfig, meta["config"]),
+            f = cls(bg, cfg=from_dict(CoherentGaussianPersonConfig, meta["config"], saved=True),
                     reference_amplitude=meta["reference_amplitude"], seed=meta["seed"],
-                    name=meta.get("name", "human"), params=state)
+                    name=meta.get("name", "person"), params=state)
         except KeyError as e:
             raise RunError(f"CoherentGaussianPersonField state lacks {e}") from None
         if meta.get("frozen"):

@@ -36,7 +36,7 @@ from ..data.store import (
 )
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
-from . import person as human
+from . import person as person
 from .geometry import RoomGeometry
 from .simulate import ARRAYS, Simulator, SolverConfig, versions
 
@@ -51,7 +51,7 @@ class GenerateConfig:
     scene: str = "bedroom"
     task: str = "rx"
     positions: int = 900
-    human_positions: int = 35
+    person_positions: int = 35
     material: str = "tissue"
     seed: int = 0
     frequency_hz: float = 2.4e9
@@ -59,7 +59,7 @@ class GenerateConfig:
     #: distance of antenna positions to walls and furniture, metres
     clearance: float = 0.15
     #: extra horizontal distance of antenna positions (below head height) to every walk position, metres
-    human_margin: float = 0.15
+    person_margin: float = 0.15
     corner_inset: float = 0.3
     corner_height: float = 2.0
     walk_duration_s: float = 60.0
@@ -74,15 +74,15 @@ class GenerateConfig:
 #: most antenna positions ``array="exact"`` accepts: it traces 16 antennas per position
 EXACT_MAX_POSITIONS = 200
 
-QUICK = {"positions": 36, "human_positions": 4, "samples_per_src": 20_000}
+QUICK = {"positions": 36, "person_positions": 4, "samples_per_src": 20_000}
 
 
 def quick_config(scene: str = "bedroom", **overrides) -> GenerateConfig:
     """The ``--quick`` configuration: 36 positions x (1 + 4) states at 2e4 samples per source."""
 
     # the walk keeps the full walk's step (60 s / 35 positions), so its straight steps stay short
-    kw = {"scene": scene, "positions": QUICK["positions"], "human_positions": QUICK["human_positions"],
-          "walk_duration_s": 60.0 * QUICK["human_positions"] / 35,
+    kw = {"scene": scene, "positions": QUICK["positions"], "person_positions": QUICK["person_positions"],
+          "walk_duration_s": 60.0 * QUICK["person_positions"] / 35,
           "solver": SolverConfig(samples_per_src=QUICK["samples_per_src"])}
     kw.update(overrides)
     return GenerateConfig(**kw)
@@ -94,7 +94,7 @@ def place_antennas(geometry, n: int, *, rng: np.random.Generator, z_range: tuple
     """``n`` antenna positions in the free volume, float64 [n, 3], metres.
 
     Never inside furniture (``clearance`` from walls and furniture), never inside the
-    human at any walk position (horizontal distance > ``body_radius`` unless above
+    person at any walk position (horizontal distance > ``body_radius`` unless above
     ``body_height``), and at least 0.3 m from ``avoid`` (the fixed device, float [3]).
     """
     out: list[np.ndarray] = []
@@ -171,10 +171,10 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
 
     if cfg.task not in ("rx", "tx"):
         raise ConfigError(f"task must be 'rx' or 'tx', got {cfg.task!r}")
-    if cfg.positions < 1 or cfg.human_positions < 0:
-        raise ConfigError(f"need positions >= 1 and human_positions >= 0, got {cfg.positions}, {cfg.human_positions}")
-    if cfg.material not in human.PERTURBER_MATERIALS:
-        raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(human.PERTURBER_MATERIALS)}")
+    if cfg.positions < 1 or cfg.person_positions < 0:
+        raise ConfigError(f"need positions >= 1 and person_positions >= 0, got {cfg.positions}, {cfg.person_positions}")
+    if cfg.material not in person.PERTURBER_MATERIALS:
+        raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(person.PERTURBER_MATERIALS)}")
     if cfg.array not in ARRAYS:
         raise ConfigError(f"array must be one of {', '.join(ARRAYS)}, got {cfg.array!r}")
     if cfg.array == "exact" and cfg.positions > EXACT_MAX_POSITIONS:
@@ -189,18 +189,18 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         solver = _config.from_dict(SolverConfig, solver)
     solver.check()
     fixed = geom.corner(inset=cfg.corner_inset, height=cfg.corner_height)
-    if cfg.human_positions:
-        walk = human.walk(geom, n=cfg.human_positions, duration_s=cfg.walk_duration_s, seed=cfg.seed)
+    if cfg.person_positions:
+        walk = person.walk(geom, n=cfg.person_positions, duration_s=cfg.walk_duration_s, seed=cfg.seed)
         walk_pos, walk_head = np.asarray(walk.positions), np.asarray(walk.headings)
     else:
         walk_pos, walk_head = np.zeros((0, 3)), np.zeros(0)
-    body_r = human.radius() + cfg.human_margin
+    body_r = person.radius() + cfg.person_margin
     ant = place_antennas(geom, cfg.positions, rng=np.random.default_rng([cfg.seed, 1]), z_range=cfg.z_range,
                          clearance=cfg.clearance, walk_positions=walk_pos, body_radius=body_r,
-                         body_height=human.HEIGHT + 0.1, avoid=fixed)
+                         body_height=person.HEIGHT + 0.1, avoid=fixed)
     geom.check_points(ant, what="antenna")
     ant32 = ant.astype(np.float32)
-    plugin, params = human.PERTURBER_MATERIALS[cfg.material]
+    plugin, params = person.PERTURBER_MATERIALS[cfg.material]
     record = {k: v for k, v in _config.to_dict(_replace(cfg, solver=None)).items() if k != "solver"}
     if cfg.array == "synthetic":  # the default, and what every dataset made before the option holds
         del record["array"]
@@ -209,9 +209,9 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         "generate": record,
         "solver": _config.to_dict(solver),
         "seeds": {"antenna_positions": [cfg.seed, 1], "walk": cfg.seed, "split": cfg.seed, "solver": solver.seed},
-        "human": {"headings_rad": walk_head.tolist(), "height_m": human.HEIGHT, "width_m": human.WIDTH,
+        "person": {"headings_rad": walk_head.tolist(), "height_m": person.HEIGHT, "width_m": person.WIDTH,
                   "material": cfg.material, "material_plugin": plugin, "material_params": params,
-                  "placement": "feet at human_positions, facing headings_rad (about +z)"},
+                  "placement": "feet at person_positions, facing headings_rad (about +z)"},
         "fixed_device": "isotropic TX" if cfg.task == "rx" else "4x4 array",
         "moving_device": "4x4 array" if cfg.task == "rx" else "isotropic TX",
         "reciprocity": "one solve: TX at fixed_pos, isotropic RX at each antenna position; "
@@ -224,11 +224,11 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         "versions": versions(),
     }
     meta = base_meta(task=cfg.task, frequency_hz=cfg.frequency_hz, num_antennas=cfg.positions,
-                     human_positions=walk_pos, fixed_pos=fixed, extra=extra)
-    split = make_split(cfg.positions, cfg.human_positions, seed=cfg.seed)
+                     person_positions=walk_pos, fixed_pos=fixed, extra=extra)
+    split = make_split(cfg.positions, cfg.person_positions, seed=cfg.seed)
     root = prepare_folder(out, meta, antenna_pos=ant32, split=split)
     remove_stale_tmp(root)
-    S = 1 + cfg.human_positions
+    S = 1 + cfg.person_positions
     todo = []
     for s in range(S):
         if not (root / "chunks" / chunk_name(s)).exists():
@@ -327,15 +327,15 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
         with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
             for s in states:
                 if s == 0:
-                    sim.set_human(None)
+                    sim.set_person(None)
                 else:
-                    mesh = human.human_mesh(walk_pos[s - 1], float(walk_head[s - 1]))
+                    mesh = person.person_mesh(walk_pos[s - 1], float(walk_head[s - 1]))
                     if faces is None:
-                        faces = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).faces)
-                        first = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).vertices)
-                        sim.set_human(first, faces, material=human.radio_material(job.material,
-                                                                                  name=f"rfm-human-{job.material}"))
-                    sim.set_human(np.asarray(mesh.vertices))
+                        faces = np.asarray(person.person_mesh(walk_pos[0], float(walk_head[0])).faces)
+                        first = np.asarray(person.person_mesh(walk_pos[0], float(walk_head[0])).vertices)
+                        sim.set_person(first, faces, material=person.radio_material(job.material,
+                                                                                  name=f"rfm-person-{job.material}"))
+                    sim.set_person(np.asarray(mesh.vertices))
                 t0 = sim.timing.solver_s
                 h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0

@@ -16,7 +16,7 @@ def tiny_compare_cfg(**over):
 
     sets = ["methods=['baseline','ours']", "seeds=[0]", "train.stage1_iterations=8", "train.val_every=8",
             "train.stage2_iterations=6", "train.room_order=1", "train.furniture_order=0",
-            "train.overrides=['coherent_human.num_points=4']"]
+            "train.overrides=['coherent_person.num_points=4']"]
     return C.override(CompareConfig(), sets + [f"{k}={v}" for k, v in over.items()])
 
 
@@ -51,6 +51,26 @@ def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
     assert new["train"] == old["train"]
     assert all(p.stat().st_mtime_ns == t for p, t in ckpt.items())
     assert len(json.loads((out / "results.json").read_text())) == 4  # seed 1 kept, re-evaluated too
+
+
+def test_a_comparison_written_with_the_old_method_name_resumes_without_training(quick_dataset, tmp_path):
+    """A folder whose Baseline (person) job is ``seed0/baseline_human`` (the method's name before)
+    resumes: nothing trains again and the results name the method as it is called now."""
+    from rfmitsuba.experiments.compare import compare
+
+    out = tmp_path / "cmp"
+    cfg = tiny_compare_cfg(methods="['baseline_person']")
+    compare(quick_dataset.path, out, cfg=cfg, progress=False)
+    (out / "seed0" / "baseline_person").rename(out / "seed0" / "baseline_human")
+    for f in (out / "compare.toml", out / "seed0" / "baseline_human" / "metrics.json"):
+        f.write_text(f.read_text().replace("baseline_person", "baseline_human"))
+    done = {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")}
+    compare(quick_dataset.path, out, cfg=cfg, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")} == done
+    assert [r["method"] for r in json.loads((out / "results.json").read_text())] == ["baseline_person"]
+    assert not (out / "seed0" / "baseline_person").exists()
+    with pytest.raises(ConfigError, match="'baseline_human': this value is called 'baseline_person' now"):
+        tiny_compare_cfg(methods="['baseline_human']")
 
 
 def test_compare_config_errors():

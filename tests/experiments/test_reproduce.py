@@ -377,3 +377,9 @@ def test_an_unfinished_job_of_an_older_folder_still_matches_its_configuration():
     assert config_diff(R._saved_job(old), want) == []
     s1["iterations"] += 1
     assert config_diff(R._saved_job(old), want) != []
+
+
+def test_a_job_record_with_the_old_method_name_reads_as_the_new_one():
+    from rfmitsuba.experiments.reproduce import _saved_job
+
+    assert _saved_job({"job": {"method": "baseline_human", "seed": 0}})["job"] == {"method": "baseline_person", "seed": 0}

@@ -45,7 +45,7 @@ def _person(bg, *, perturb=True, **cfg):
         CoherentGaussianPersonField,
     )
 
-    kw = {"num_points": 3, "human_octaves": OCT, "init_gain": 0.3, "init_strength": 0.4, **cfg}
+    kw = {"num_points": 3, "person_octaves": OCT, "init_gain": 0.3, "init_strength": 0.4, **cfg}
     p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(**kw), seed=1)
     if perturb:
         rng = np.random.default_rng(3)
@@ -58,7 +58,7 @@ def _person(bg, *, perturb=True, **cfg):
 def _views(task="tx", n=3, person=None):
     """Moving TX around (2, 1.5, 1.25), array at (3.5, 2.5, 2.0); the person stands near the middle
     of each view's direct path (10-20 cm off it), feet on the floor."""
-    from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.data.samples import num_person_features
     from rfmitsuba.models.base import Views
 
     rng = np.random.default_rng(1)
@@ -68,7 +68,7 @@ def _views(task="tx", n=3, person=None):
     if person is None:
         person = 0.5 * (x + y) + np.c_[0.1 + 0.1 * rng.random(n), np.zeros(n), np.zeros(n)]
         person[:, 2] = 0.0
-    extra = np.concatenate([np.zeros((n, num_human_features(OCT)), np.float32), person], axis=1)
+    extra = np.concatenate([np.zeros((n, num_person_features(OCT)), np.float32), person], axis=1)
     return Views(antenna_pos=q, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F, task=task,
                  inputs=lambda field: extra)
 
@@ -143,10 +143,10 @@ def test_zero_at_no_blockage_and_no_scatterers_and_small_at_the_start():
     views = _views()
     for kw in ({"num_points": 0}, {"num_points": 4, "init_gain": 0.0}):
         p = CoherentGaussianPersonField.for_background(
-            bg, cfg=CoherentGaussianPersonConfig(init_strength=0.0, human_octaves=OCT, **kw))
+            bg, cfg=CoherentGaussianPersonConfig(init_strength=0.0, person_octaves=OCT, **kw))
         assert np.all(_h(p, views) == 0)
         np.testing.assert_array_equal(render([bg, p], views).numpy(), render([bg], views).numpy())
-    p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(human_octaves=OCT))
+    p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(person_octaves=OCT))
     rel = np.abs(_h(p, views)).max() / np.abs(_h(bg, views)).max()
     assert 1e-4 < rel < 0.3, rel
 
@@ -166,11 +166,11 @@ def test_person_on_the_direct_path_removes_it(wavefront):
         bg = _bg(wavefront=wavefront, direct_only=direct_only, scatterers=False, perturb=False)
         p = _person(bg, perturb=False, num_points=0, init_strength=0.5, init_block_radius=0.2)
         p.params["block_logit"] = B.Float(np.array([50.0], np.float32))          # a = 1 in float32
-        from rfmitsuba.data.samples import num_human_features
+        from rfmitsuba.data.samples import num_person_features
         from rfmitsuba.models.base import Views
 
         def views(person):
-            extra = np.concatenate([np.zeros((n, num_human_features(OCT))), person], axis=1)
+            extra = np.concatenate([np.zeros((n, num_person_features(OCT))), person], axis=1)
             return Views(antenna_pos=x, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F, task="rx",
                          inputs=lambda field: extra)
 

@@ -12,7 +12,7 @@ from rfmitsuba.sim.simulate import SolverConfig
 
 
 def _cfg(xml, **kw):
-    return gen.GenerateConfig(scene=str(xml), positions=4, human_positions=0,
+    return gen.GenerateConfig(scene=str(xml), positions=4, person_positions=0,
                               solver=SolverConfig(samples_per_src=2000, max_depth=1), **kw)
 
 
@@ -50,7 +50,7 @@ def test_exact_array_options_refused(box_room, tmp_path):
 def test_a_state_is_beamformed_and_written_block_by_block(variant, box_room, tmp_path, monkeypatch):
     """``PAS_BLOCK`` images at a time (here 3 of 10, the last block short): the chunk files are
     those of one block holding the whole state, byte for byte, and its timing names both parts."""
-    cfg = gen.GenerateConfig(scene=str(box_room), positions=10, human_positions=1,
+    cfg = gen.GenerateConfig(scene=str(box_room), positions=10, person_positions=1,
                              solver=SolverConfig(samples_per_src=2000, max_depth=1))
     whole = gen.generate(tmp_path / "whole", cfg, quiet=True)
     monkeypatch.setattr(gen, "PAS_BLOCK", 3)
