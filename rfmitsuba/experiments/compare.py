@@ -127,10 +127,11 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 def _compare(dataset: Path, out: Path, cfg: CompareConfig, *, quiet: bool, progress: bool, reevaluate: bool,
              cluster: ClusterConfig) -> Path:
     """:func:`compare` once its folder is checked and locked."""
+    # the methods' configuration first: a bad override or dataset leaves the folder as it was
+    mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     C.save(cfg, out / "compare.toml")
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
 
-    mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     order = sorted(cfg.methods, key=lambda m: (_depth(m), m))     # each after what it builds on
     jobs = [(m, seed) for seed in cfg.seeds for m in order]
     # jobs of earlier seeds / methods of the same comparison stay in the results

@@ -73,6 +73,17 @@ def test_a_comparison_written_with_the_old_method_name_resumes_without_training(
         tiny_compare_cfg(methods="['baseline_human']")
 
 
+def test_a_bad_override_leaves_the_folder_as_it_was(quick_dataset, tmp_path):
+    """An unknown option in ``train.overrides`` is refused before the comparison writes anything, so
+    the corrected command runs into the same folder."""
+    from rfmitsuba.experiments.compare import compare
+
+    out = tmp_path / "cmp"
+    with pytest.raises(ConfigError, match="threads"):
+        compare(quick_dataset.path, out, cfg=tiny_compare_cfg(**{"train.overrides": "['threads=1']"}), progress=False)
+    assert not out.exists() or [p.name for p in out.iterdir()] == [".lock"]
+
+
 def test_compare_config_errors():
     with pytest.raises(ConfigError, match="TrainSize.model"):
         tiny_compare_cfg(**{"train.model": "'nerf'"})
