@@ -360,6 +360,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reevaluate: bool, quiet: bool,
                cluster: ClusterConfig) -> Path:
     """:func:`reproduce` once its folder is checked and locked."""
+    method_config(cfg.train, scene_known=cfg.source == "sionna")   # a bad override stops here, before any write
     C.save(cfg, out / "experiment.toml")        # the latest selection of jobs (the shared keys are checked)
     data_dir = Path(data_dir) if data_dir else out / "data"
     # workers elsewhere resolve relative paths against their own folder
