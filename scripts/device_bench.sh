@@ -72,7 +72,7 @@ step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions
 # needs the LLVM variant, which the carried Mitsuba leaves out.
 step pytest_cuda "${PYTEST_LIMIT:-150}" python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
     --deselect tests/core/test_backend.py::test_alias_and_unknown \
-    ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/test_coherent_gaussians.py \
+    ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/coherent_gaussians \
     tests/models/test_splat.py}
 gen() {  # Sionna RT on CUDA: 900 bedroom positions x 5 states (empty room + 4 person positions)
   local t0=$(date +%s.%N)
