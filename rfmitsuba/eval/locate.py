@@ -549,6 +549,33 @@ def _descend_nelder_mead(query: Query, region: SearchRegion, starts: np.ndarray,
     return np.asarray(best_x), np.asarray(best_l)
 
 
+def refine(query: Query, region: SearchRegion, starts: np.ndarray, *, steps: int = 30, lr_m: float = 0.03,
+           grid_m: float = 0.25, descent: str = "ad") -> tuple[np.ndarray, np.ndarray]:
+    """Descend from each start, hop to the best neighbouring fringe, descend again (the search of
+    :func:`locate` after its grid).
+
+    Args:
+        query: what is compared; region: where the feet may be; starts: float [S, 2] (x, y) [m];
+        steps: descent steps (AD) or a quarter of the losses per start (Nelder-Mead); lr_m: first
+        AD step [m]; grid_m: the grid spacing the starts came from [m] (Nelder-Mead's simplex);
+        descent: "ad" or "nelder_mead".
+
+    Returns:
+        (float64 [S, 2] the best point met from each start, float64 [S] its loss).
+    """
+    hop = wavelength(query.model) / 4
+
+    def descend(x0, n, scale):
+        if descent == "ad":
+            return _descend_ad(query, region, x0, steps=n, lr_m=scale)
+        return _descend_nelder_mead(query, region, x0, steps=n, simplex_m=scale)
+
+    xs, ls = descend(np.asarray(starts, np.float64).reshape(-1, 2), steps, lr_m if descent == "ad" else 0.5 * grid_m)
+    hx, hl = _hop(query, region, xs, ls, spacing=hop)                  # the best neighbouring fringe
+    px, pl = descend(hx, max(1, steps // 3), lr_m / 3 if descent == "ad" else hop / 2)
+    return np.where((pl < hl)[:, None], px, hx), np.minimum(pl, hl)
+
+
 def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: float = 0.25, starts: int = 4,
            steps: int = 30, lr_m: float = 0.03, loss: str = "train", downsample: int = 2, region: str = "walk",
            descent: str = "auto", search: SearchRegion | None = None, empty: np.ndarray | None = None,
@@ -587,20 +614,10 @@ def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: f
     gl = q.losses(grid)
     best = int(np.argmin(gl))
     pick = _spread_starts(grid, gl, starts, 2 * grid_m)
-    hop = wavelength(model) / 4
-
-    def descend(x0, n, scale):
-        if kind == "ad":
-            return _descend_ad(q, reg, x0, steps=n, lr_m=scale)
-        return _descend_nelder_mead(q, reg, x0, steps=n, simplex_m=scale)
-
     if kind == "none":
         xs, ls = grid[pick], gl[pick]
     else:
-        xs, ls = descend(grid[pick], steps, lr_m if kind == "ad" else 0.5 * grid_m)
-        hx, hl = _hop(q, reg, xs, ls, spacing=hop)                     # the best neighbouring fringe
-        px, pl = descend(hx, max(1, steps // 3), lr_m / 3 if kind == "ad" else hop / 2)
-        xs, ls = np.where((pl < hl)[:, None], px, hx), np.minimum(pl, hl)
+        xs, ls = refine(q, reg, grid[pick], steps=steps, lr_m=lr_m, grid_m=grid_m, descent=kind)
     i = int(np.argmin(ls))
     x, lo = (xs[i], float(ls[i])) if ls[i] <= gl[best] else (grid[best], float(gl[best]))
     out = {"position": reg.feet(x)[0], "loss": lo, "grid_position": reg.feet(grid[best])[0],

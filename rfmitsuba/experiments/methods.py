@@ -11,12 +11,16 @@ continued           Baseline's field trained n2 steps more on the same empty-roo
                     data, at Stage 1's final learning rates (the paper's "continue
                     training the baseline")
 duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
-baseline_person      one field on empty + person-present data, no person position        n1 + n2
-end_to_end          one field on empty + person-present data, person position as input  n1 + n2
+baseline_person     one field on empty + person-present data, no person position      n1 + n2
+end_to_end          one field on empty + person-present data, person position as input n1 + n2
                     (coherent Gaussian family: background + person field trained together,
                     :mod:`rfmitsuba.models.coherent_gaussians_joint`)
-ours                Stage 1 = baseline (n1), then Stage 2: frozen background + person   n1 + n2
+ours                Stage 1 = baseline (n1), then Stage 2: frozen background + person  n1 + n2
                     Gaussians (:mod:`rfmitsuba.models.splat_person`) on the person-present data
+ours_untracked      Ours without the walk's positions: R rounds of a search for the   n1 + R n2
+                    walk from frame order alone (grid, walk within a walking speed,
+                    descent; :mod:`rfmitsuba.experiments.walk_search`) and Stage 2 on
+                    it (coherent Gaussian family only)
 refined             Ours, then Stage 3: background and person field trained together    n1 + 2 n2
                     on empty + person-present data at Stage 1's final learning rates
                     (coherent Gaussian family only; does the walk improve the background?)
@@ -60,6 +64,7 @@ from ..models.coherent_person import CoherentPersonConfig
 from ..models.splat_person import SplatPersonConfig
 from ..train.config import OptimConfig, TrainConfig
 from ..train.trainer import Trainer
+from .walk_search import WalkSearchConfig
 
 
 @dataclass(frozen=True)
@@ -88,6 +93,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
            person_input=True),
     Method("ours", "Ours (two-stage)", "frozen background + person Gaussians", "person", person_input=True,
            two_stage=True, builds_on="baseline"),
+    Method("ours_untracked", "Ours (no tracker)", "Ours with the walk's positions estimated from frame order alone",
+           "person", person_input=True, two_stage=True, builds_on="baseline"),
     Method("refined", "Ours + Stage 3", "Ours, then background and person trained together on empty + walk data",
            "all", person_input=True, builds_on="ours"),
 ]}
@@ -111,8 +118,9 @@ class MethodConfig:
     person: the Stage-2 person Gaussians (model "splat"); coherent_person: the Stage-2 person
     scatterers (model "coherent"); coherent_gaussians_person: the Stage-2 person field of the coherent
     Gaussian family (body scatterers + blockage, model "coherent_gaussians"); stage2_optim:
-    Stage-2 learning rates. ``person.person_octaves`` are the encoding octaves of the person position
-    for the end-to-end model.
+    Stage-2 learning rates; walk_search: how Ours (no tracker) estimates the walk
+    (:class:`~rfmitsuba.experiments.walk_search.WalkSearchConfig`). ``person.person_octaves`` are
+    the encoding octaves of the person position for the end-to-end model.
     """
 
     stage1: TrainConfig = dc_field(default_factory=TrainConfig)
@@ -123,6 +131,7 @@ class MethodConfig:
     stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
         lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
         lr_net=1e-2, lr_net_final=1e-3))
+    walk_search: WalkSearchConfig = dc_field(default_factory=WalkSearchConfig)
 
     def __post_init__(self) -> None:
         if self.stage2_iterations < 1:
@@ -348,14 +357,64 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     def factory(tr, rng):
         return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")
 
-    tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="person",
-                 extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
-                 extra_inputs=num_person_features(oct_) + 3, field_factory=factory)
     write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
-    s2 = tr.run()
+    if name == "ours_untracked":
+        s2 = _train_untracked(data, bg, out, mcfg=mcfg, cfg2=cfg2, person_cls=person_cls, pcfg=pcfg, seed=seed,
+                              quiet=quiet)
+    else:
+        s2 = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="person",
+                     extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
+                     extra_inputs=num_person_features(oct_) + 3, field_factory=factory).run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
-            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")]}
+            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")],
+            **{k: s2[k] for k in ("walk", "walk_rounds", "walk_search_s") if k in s2}}
+
+
+def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg2: TrainConfig, person_cls,
+                     pcfg, seed: int, quiet: bool) -> dict:
+    """Stage 2 of Ours (no tracker): rounds of walk search and Stage-2 training
+    (:mod:`rfmitsuba.experiments.walk_search`); the last round's field is ``out/stage2``, the walks
+    ``out/walk.json``. Returns the last Stage-2 summary, its training time the rounds' and the
+    searches' sum (``walk_search_s`` the searches'), with
+    ``walk``: the last walk's error against the dataset's person positions [cm] (a report only)."""
+    from ..eval.locate import TwoStage
+    from . import walk_search as W
+
+    wcfg = mcfg.walk_search
+    if bg.family != "coherent_gaussians" or person_cls.kind != "coherent_gaussians_person":
+        raise ConfigError(f"Ours (no tracker) needs the coherent Gaussian family (stage1.model = "
+                          f"'coherent_gaussians'), got {bg.family!r}")
+    frames = W.training_frames(data)
+    region = W.search_region(data)
+    interval = W.frame_interval_s(data)
+    oct_ = pcfg.person_octaves
+    centre = region.feet(0.5 * (region.lo + region.hi)[None])
+    walk_data = W.with_walk(data, frames, np.repeat(centre, len(frames), axis=0))
+    person = person_cls.for_background(bg, cfg=dataclasses.replace(pcfg, init_strength=wcfg.search_strength,
+                                                                    init_gain=0.0), seed=seed, name="person")
+    person.freeze()
+    rounds, total_s, search_s, s2 = [], 0.0, 0.0, None
+    for r in range(wcfg.rounds):
+        model = TwoStage(background=bg, person=person, data=walk_data, feet_z=region.z, walk=centre, job=out)
+        t0 = time.perf_counter()
+        found = W.search_walk(model, frames, wcfg, interval_s=interval, region=region, quiet=quiet)
+        search_s += time.perf_counter() - t0
+        walk_data = W.with_walk(data, frames, found["positions"])
+        rounds.append({**found, "error": W.walk_error(data, frames, found["positions"])})
+        W.write_walk(out / "walk.json", rounds, frames)
+        folder = out / ("stage2" if r == wcfg.rounds - 1 else f"stage2_round{r}")
+        d, walk = walk_data, found["positions"]
+        s2 = Trainer(cfg2, d, folder, frozen=[bg], quiet=quiet, name="person",
+                     extra=lambda idx, d=d: d.features(idx, octaves=oct_, raw=True),
+                     extra_inputs=num_person_features(oct_) + 3,
+                     field_factory=lambda tr, rng, walk=walk: person_cls.for_background(
+                         bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")).run()
+        total_s += s2["train_time_s"]
+        person = load_field(folder / "final" / "field.npz")
+        person.freeze()
+    return {**s2, "train_time_s": total_s + search_s, "walk_search_s": search_s, "walk": rounds[-1]["error"],
+            "walk_rounds": [x["error"] for x in rounds]}
 
 
 def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:

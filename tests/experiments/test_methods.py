@@ -24,9 +24,10 @@ def _mcfg(stage1, stage2):
 def test_registry_and_budgets():
     from rfmitsuba.experiments.methods import METHODS, get_method, stage1_config
 
-    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_person", "end_to_end", "ours", "refined"}
-    assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "refined")] == \
-        [None, "baseline", "baseline", "ours"]
+    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_person", "end_to_end", "ours",
+                            "ours_untracked", "refined"}
+    assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "ours_untracked", "refined")] == \
+        [None, "baseline", "baseline", "baseline", "ours"]
     mc = _mcfg(30, 20)
     assert stage1_config(mc, get_method("baseline"), seed=0).iterations == 30
     for m in ("duplicated", "baseline_person", "end_to_end"):   # from scratch (Continued: Baseline's n1 + n2)
