@@ -315,6 +315,25 @@ def override(cfg: T, assignments: list[str]) -> T:
     return from_dict(type(cfg), data)
 
 
+def differences(a: Any, b: Any, prefix: str = "", *, first: tuple = (), into_lists: bool = False):
+    """(dotted key, value in ``a``, value in ``b``) for every place where two nested dicts differ:
+    keys in ``first`` (in that order) before the others (sorted); "<missing>" where one lacks a key.
+    ``into_lists``: lists of the same length are compared element by element (``key[i]``), else
+    as values."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = sorted(set(a) | set(b))
+        for k in [k for k in first if k in keys] + [k for k in keys if k not in first]:
+            va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+            yield from differences(va, vb, f"{prefix}{k}.", first=first, into_lists=into_lists)
+        return
+    key = prefix.rstrip(".") or "<root>"
+    if into_lists and isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b)):
+            yield from differences(x, y, f"{key}[{i}].", first=first, into_lists=True)
+    elif a != b:
+        yield key, a, b
+
+
 def finite(value: float, name: str) -> float:
     """Return ``value`` or raise :class:`ConfigError` if it is NaN or infinite."""
     if not math.isfinite(value):

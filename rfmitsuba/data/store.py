@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import write_json
+from ..core.config import differences
 from ..core.direct_io import save_npy, save_npy_blocks
 from ..core.errors import DatasetError, SceneError
 from ..core.folder_lock import holds_work
@@ -354,30 +355,11 @@ _DIFF_FIRST = ("format", "task", "scene", "frequency_hz", "generate", "solver", 
                "num_states", "versions")
 
 
-def first_difference(a: Any, b: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
-    """The first place where two meta dicts differ: (dotted key, the value in ``a``, the value in
-    ``b``; "<missing>" where one lacks the key), or None when they are equal."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        keys = sorted(set(a) | set(b))
-        keys = [k for k in _DIFF_FIRST if k in keys] + [k for k in keys if k not in _DIFF_FIRST]
-        for k in keys:
-            if k not in a or k not in b:
-                return f"{prefix}{k}", a.get(k, "<missing>"), b.get(k, "<missing>")
-            d = first_difference(a[k], b[k], f"{prefix}{k}.")
-            if d is not None:
-                return d
-        return None
-    if isinstance(a, list) and isinstance(b, list):
-        if len(a) != len(b):
-            return prefix.rstrip(".") or "<root>", a, b
-        for i, (x, y) in enumerate(zip(a, b)):
-            d = first_difference(x, y, f"{prefix.rstrip('.')}[{i}].")
-            if d is not None:
-                return (d[0].rstrip("."), *d[1:])
-        return None
-    if a != b:
-        return prefix.rstrip(".") or "<root>", a, b
-    return None
+def first_difference(a: Any, b: Any) -> tuple[str, Any, Any] | None:
+    """The first place where two meta dicts differ, the identifying keys first: (dotted key, the
+    value in ``a``, the value in ``b``; "<missing>" where one lacks the key), or None when they
+    are equal (:func:`rfmitsuba.core.config.differences`)."""
+    return next(differences(a, b, first=_DIFF_FIRST, into_lists=True), None)
 
 
 def _without_location(meta: dict) -> dict:
