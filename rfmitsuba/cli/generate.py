@@ -5,7 +5,7 @@ import json
 import time
 
 from ..core import cluster
-from ._values import nonnegative_int
+from ._values import nonnegative_int, positive_int
 
 
 def register(sub) -> None:
@@ -20,6 +20,9 @@ def register(sub) -> None:
     p.add_argument("--positions", type=int, default=None, help="antenna positions (default 900; 36 with --quick)")
     p.add_argument("--person-positions", type=int, default=None,
                    help="person positions along a 60 s walk (default 35; 4 with --quick)")
+    p.add_argument("--people", type=positive_int, default=1,
+                   help="people walking at once, each on a walk of its own that never comes within 0.1 m of "
+                        "another's body (default 1)")
     p.add_argument("--material", choices=["tissue", "metal", "concrete"], default="tissue",
                    help="material of the person-shaped perturber (default tissue)")
     p.add_argument("--seed", type=int, default=0, help="seed of positions, walk and split (default 0)")
@@ -67,6 +70,7 @@ def run(args) -> int:
     cfg.frequency_hz = args.frequency
     cfg.solver = solver
     cfg.array = args.array
+    cfg.people = args.people
     if args.positions is not None:
         cfg.positions = args.positions
     if args.person_positions is not None:

@@ -95,12 +95,14 @@ class SampleData(TrainData):
 
     Extra attributes: ``states`` int64 [K] dataset state per sample, ``antennas`` int64 [K]
     antenna index per sample, ``person_pos`` float64 [K, 3] metres (NaN = empty room),
+    ``people_pos`` float64 [K, P, 3] metres (every person; ``[:, 0]`` is ``person_pos``),
     ``box`` float64 [2, 3] metres (bounds used to normalise person positions).
     """
 
     states: np.ndarray = None
     antennas: np.ndarray = None
     person_pos: np.ndarray = None
+    people_pos: np.ndarray = None
     noise_snr_db: float | None = None
     noise_seed: int = 0
     _ds: object = None
@@ -189,7 +191,8 @@ class SampleData(TrainData):
         data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
                    train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, transmitter=base.transmitter,
                    bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,
-                   person_pos=hp,
+                   person_pos=hp, people_pos=np.asarray(getattr(ds, "people_pos", ds.person_pos[:, None]),
+                                                        np.float64)[s_arr],
                    noise_snr_db=noise_snr_db, noise_seed=int(noise_seed))
         data._ds = ds
         data._noisy = {}
@@ -277,11 +280,19 @@ class SampleData(TrainData):
         (:class:`rfmitsuba.data.views.PasRows`)."""
         return PasRows(rows=np.asarray(idx, np.int64), read=self.pas)
 
-    def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False) -> np.ndarray:
+    def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False, people: int = 1) -> np.ndarray:
         """:func:`person_features` of samples ``idx``: float32 [K, num_person_features(octaves)];
-        with ``raw`` followed by the person position in metres (zeros for the empty room), [K, F + 3]."""
-        hp = self.person_pos[np.asarray(idx, np.int64)]
+        with ``raw`` followed by the person position in metres (zeros for the empty room), [K, F + 3],
+        and with ``people`` P > 1 by every person's, [K, F + 3 P] (DatasetError where the dataset
+        walks fewer people)."""
+        idx = np.asarray(idx, np.int64)
+        hp = self.person_pos[idx]
         f = person_features(hp, self.box, octaves=octaves)
         if raw:
+            if people > 1:
+                pp = self.people_pos if self.people_pos is not None else self.person_pos[:, None]
+                if pp.shape[1] < people:
+                    raise DatasetError(f"{self.path}: {people} people asked for, the dataset walks {pp.shape[1]}")
+                hp = pp[idx, :people].reshape(len(idx), 3 * people)
             f = np.concatenate([f, np.nan_to_num(hp, nan=0.0).astype(np.float32)], axis=1)
         return f

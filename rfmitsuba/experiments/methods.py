@@ -21,6 +21,10 @@ ours_untracked      Ours without the walk's positions: R rounds of a search for 
                     walk from frame order alone (grid, walk within a walking speed,
                     descent; :mod:`rfmitsuba.experiments.walk_search`) and Stage 2 on
                     it (coherent Gaussian family only)
+ours_people         Ours with one person field for every person of the walk (each     n1 + n2
+                    person's feet an input; same body, own scatterers, blockages
+                    multiplied; coherent Gaussian family only): on a walk of several
+                    people, against Ours whose field sees person 1 alone
 refined             Ours, then Stage 3: background and person field trained together    n1 + 2 n2
                     on empty + person-present data at Stage 1's final learning rates
                     (coherent Gaussian family only; does the walk improve the background?)
@@ -94,6 +98,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("ours", "Ours (two-stage)", "frozen background + person Gaussians", "person", person_input=True,
            two_stage=True, builds_on="baseline"),
     Method("ours_untracked", "Ours (no tracker)", "Ours with the walk's positions estimated from frame order alone",
+           "person", person_input=True, two_stage=True, builds_on="baseline"),
+    Method("ours_people", "Ours (every person)", "Ours with one person field drawing every person of the walk",
            "person", person_input=True, two_stage=True, builds_on="baseline"),
     Method("refined", "Ours + Stage 3", "Ours, then background and person trained together on empty + walk data",
            "all", person_input=True, builds_on="ours"),
@@ -358,13 +364,20 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")
 
     write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
+    people = 1
+    if name == "ours_people":
+        people = int(np.asarray(data.people_pos).shape[1]) if data.people_pos is not None else 1
+        if kind != "coherent_gaussians_person":
+            raise ConfigError(f"Ours (every person) needs the coherent Gaussian family (stage1.model = "
+                              f"'coherent_gaussians'), got the {kind!r} person field")
+        pcfg = dataclasses.replace(pcfg, people=people)
     if name == "ours_untracked":
         s2 = _train_untracked(data, bg, out, mcfg=mcfg, cfg2=cfg2, person_cls=person_cls, pcfg=pcfg, seed=seed,
                               quiet=quiet)
     else:
         s2 = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="person",
-                     extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
-                     extra_inputs=num_person_features(oct_) + 3, field_factory=factory).run()
+                     extra=lambda idx: data.features(idx, octaves=oct_, raw=True, people=people),
+                     extra_inputs=num_person_features(oct_) + 3 * people, field_factory=factory).run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
             "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")],

@@ -216,6 +216,7 @@ def with_walk(data: SampleData, frames: np.ndarray, positions: np.ndarray) -> Sa
     for h, p in zip(np.asarray(frames), np.asarray(positions, np.float64)):
         pp[data.states == h + 1] = p
     out.person_pos = pp
+    out.people_pos = pp[:, None, :]
     lo, hi = (np.asarray(v, np.float64) for v in data.bounds)
     p = np.asarray(positions, np.float64)
     lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0) + [0.0, 0.0, 1.8])

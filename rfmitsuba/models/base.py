@@ -413,6 +413,9 @@ class FieldSet:
         def inputs(field: Field):
             raw = field.person or field.position_input
             octaves = field.feature_octaves if raw else self.octaves
+            people = getattr(field, "people", 1)
+            if people > 1:
+                return data.features(k, octaves=octaves, raw=raw, people=people)
             return data.features(k, octaves=octaves, raw=raw)
 
         return inputs

@@ -159,3 +159,21 @@ def test_compare_on_local_cluster_matches_serial(quick_dataset, one_thread, tmp_
     assert len(done) == 4
     compare(quick_dataset.path, tmp_path / "dask", cfg=cfg, progress=False)
     assert all(p.stat().st_mtime_ns == t for p, t in done.items())
+
+
+def test_ours_every_person_draws_both_people_of_a_two_person_walk(two_people_dataset, tmp_path):
+    """Ours (every person) on a walk of two people: its person field takes both people's feet (F + 6
+    extra inputs) and is evaluated beside Ours, whose field sees person 1 alone."""
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.experiments.compare import compare
+    from rfmitsuba.models.base import load_field
+
+    out = tmp_path / "cmp"
+    compare(two_people_dataset.path, out, cfg=tiny_compare_cfg(methods="['ours', 'ours_people']"), progress=False)
+    f = load_field(out / "seed0" / "ours_people" / "stage2" / "final" / "field.npz")
+    one = load_field(out / "seed0" / "ours" / "stage2" / "final" / "field.npz")
+    assert f.people == 2 and one.people == 1
+    assert f.extra_inputs == num_person_features(f.feature_octaves) + 6
+    res = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
+    assert all(math.isfinite(res[m]["eval"]["dynamic"]["model"]["mean"]) for m in ("ours", "ours_people"))
+    assert "Ours (every person)" in (out / "report.md").read_text()

@@ -251,3 +251,83 @@ def test_bad_input_is_named():
         CoherentGaussianPersonConfig(init_strength=1.0)
     with pytest.raises(ConfigError, match="init_radius"):
         CoherentGaussianPersonConfig(init_radius=0.5, max_offset=0.3)
+
+
+def _two_people_views(second):
+    """The views of :func:`_views` with a second person's feet at ``second`` float [3, 3] [m]."""
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.models.base import Views
+
+    v = _views()
+    one = v.inputs(None)
+    extra = np.concatenate([one, np.asarray(second, np.float32)], axis=1)
+    assert extra.shape[1] == num_person_features(OCT) + 6
+    return Views(antenna_pos=v.antenna_pos, view_pos=v.view_pos, transmitter=v.transmitter, rx_to_world=None,
+                 frequency_hz=F, task=v.task, inputs=lambda field: extra)
+
+
+def _people_field(bg, people):
+    p1 = _person(bg)
+    p = _person(bg, people=people)
+    p.assign(p1.parameters())
+    return p1, p
+
+
+def test_two_people_far_apart_are_one_and_the_order_of_people_does_not_matter():
+    """With the scatterers' gains zero, a second person 100 m away changes nothing (its blockage
+    factor is 1); the two people swapped draw the same channels; two people on the paths change
+    them more than one."""
+    from rfmitsuba.core import backend as B
+
+    bg = _bg()
+    one, two = _people_field(bg, 2)
+    for f in (one, two):
+        f.params["sc_amp"] = B.Float(np.zeros(f.params["sc_amp"].shape[0], np.float32))
+    v1 = _views()
+    feet = v1.inputs(None)[:, -3:]
+    far = feet + [100.0, 100.0, 0.0]
+    h1 = np.concatenate([np.asarray(a.numpy()) for a in one.channels(v1)])
+    h2 = np.concatenate([np.asarray(a.numpy()) for a in two.channels(_two_people_views(far))])
+    np.testing.assert_allclose(h2, h1, rtol=1e-6, atol=1e-9)
+    near = feet + [0.05, -0.05, 0.0]
+    ab = np.concatenate([np.asarray(a.numpy()) for a in two.channels(_two_people_views(near))])
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.models.base import Views
+
+    swapped = np.concatenate([np.zeros((3, num_person_features(OCT)), np.float32), near, feet], axis=1)
+    v = _views()
+    ba = np.concatenate([np.asarray(a.numpy()) for a in two.channels(
+        Views(antenna_pos=v.antenna_pos, view_pos=v.view_pos, transmitter=v.transmitter, rx_to_world=None,
+              frequency_hz=F, task=v.task, inputs=lambda field: swapped))])
+    np.testing.assert_allclose(ab, ba, rtol=1e-5, atol=1e-7)
+    assert np.abs(ab).sum() > 1.05 * np.abs(h1).sum()
+
+
+@pytest.mark.parametrize("name", PARAMS)
+def test_two_people_channel_gradients(name):
+    """The shared parameters of a two-person field against central differences (as
+    :func:`test_channel_gradients`, both people near the direct paths)."""
+    bg = _bg()
+    _, p = _people_field(bg, 2)
+    views = _two_people_views(_views().inputs(None)[:, -3:] + [-0.15, 0.1, 0.0])
+    rng = np.random.default_rng(2)
+    c_re, c_im = _w(rng, 48), _w(rng, 48)
+
+    def loss(q):
+        p.assign(q)
+        hr, hi = p.channels(views)
+        return [hr * c_re, hi * c_im]
+
+    r = fd_check(loss, p.parameters(), name, count=3, top=3, rel_eps=STEP.get(name, 1e-2), min_scale=1.0, seed=4)
+    assert r.ok(5e-2, 3e-2), r.report()
+
+
+def test_people_is_checked_and_the_inputs_must_hold_every_person():
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians_person import CoherentGaussianPersonConfig
+
+    with pytest.raises(ConfigError, match="people must be >= 1"):
+        CoherentGaussianPersonConfig(people=0)
+    _, two = _people_field(_bg(), 2)
+    with pytest.raises(ConfigError, match="each of 2 people"):
+        two.channels(_views())
