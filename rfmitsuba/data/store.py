@@ -233,7 +233,9 @@ class Dataset:
         self.person_pos = np.concatenate([np.full((1, 3), np.nan, np.float32), hp])
         others = (self.meta.get("other_people") or {}).get("positions") if isinstance(self.meta.get("other_people"),
                                                                                       dict) else None
-        op = np.asarray(others if others is not None else np.zeros((len(hp), 0, 3)), np.float32).reshape(len(hp), -1, 3)
+        op = np.zeros((len(hp), 0, 3), np.float32)
+        if others is not None and len(hp):
+            op = np.asarray(others, np.float32).reshape(len(hp), -1, 3)
         #: float32 [S, P, 3] every person's feet [m] (person 1 is ``person_pos``; row 0 NaN: the empty room)
         self.people_pos = np.concatenate([self.person_pos[:, None, :],
                                           np.concatenate([np.full((1, op.shape[1], 3), np.nan, np.float32), op])],

@@ -76,7 +76,7 @@ class GenerateConfig:
 
 #: closest two people's bodies come at one frame, beyond their footprints' radii [m]
 PEOPLE_GAP_M = 0.1
-#: walks drawn for each further person before :func:`other_walks` gives up
+#: walks drawn for each further person before :func:`other_walks` gives up (each steers clear of the others)
 WALK_ATTEMPTS = 50
 
 
@@ -100,17 +100,15 @@ def other_walks(geom: RoomGeometry, first: np.ndarray, *, people: int, n: int, d
     gap = 2.0 * person.radius() + PEOPLE_GAP_M
     walks, heads = [np.asarray(first, np.float64)], []
     for j in range(1, people):
-        for k in range(WALK_ATTEMPTS):
-            w = person.walk(geom, n=n, duration_s=duration_s, seed=int(np.random.SeedSequence([seed, j, k])
-                                                                        .generate_state(1)[0]))
-            pos = np.asarray(w.positions)
-            if all(np.hypot(*(pos[:, :2] - o[:, :2]).T).min() >= gap for o in walks):
-                walks.append(pos)
-                heads.append(np.asarray(w.headings))
-                break
-        else:
+        try:
+            w = person.walk(geom, n=n, duration_s=duration_s, seed=int(np.random.SeedSequence([seed, j])
+                                                                        .generate_state(1)[0]),
+                            max_attempts=WALK_ATTEMPTS, avoid=np.stack(walks), gap_m=gap)
+        except PlacementError:
             raise PlacementError(f"no walk for person {j + 1} in {WALK_ATTEMPTS} draws keeps {gap:.2f} m from the "
-                                 f"others at every frame in {geom.path}; ask for fewer people or positions")
+                                 f"others at every moment in {geom.path}; ask for fewer people") from None
+        walks.append(np.asarray(w.positions))
+        heads.append(np.asarray(w.headings))
     if people < 2:
         return np.zeros((n, 0, 3)), np.zeros((n, 0))
     return np.stack(walks[1:], axis=1), np.stack(heads, axis=1)

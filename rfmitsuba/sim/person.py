@@ -209,7 +209,7 @@ class Walk(NamedTuple):
 
 def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed: int = 0,
          clearance: float = 0.25, height: float = HEIGHT, speed: tuple[float, float] = (0.5, 1.0),
-         max_attempts: int = 50) -> Walk:
+         max_attempts: int = 50, avoid: np.ndarray | None = None, gap_m: float = 0.0) -> Walk:
     """A seeded casual walk through the free floor (see the module docstring).
 
     geometry: the room. n: number of sampled positions, evenly spaced in time over
@@ -222,6 +222,9 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     positions over 60 s are exactly such steps); when fewer positions are asked for, they are
     taken at evenly spaced times of that finer walk, so a short sample of a walk is a real walk,
     not a few metre-long jumps across the room.
+    avoid: None, or float [M, n, 3] other people's feet at the same ``n`` times [m]: every step
+    of this walk keeps at least ``gap_m`` [m] horizontally from each of them at that time (their
+    positions between two of the times taken on the straight line).
     Returns a :class:`Walk` (positions float64 [n, 3], headings [n], times [n]); unpack as
     ``positions, headings, times = walk(...)``. Raises :class:`PlacementError` if no clear walk
     is found (room too cluttered for the clearance).
@@ -232,9 +235,14 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     n_fine = max(n, math.ceil(duration_s / MAX_STEP_S - 1e-9) + 1)
     pick = np.round(np.linspace(0, n_fine - 1, n)).astype(int)
     ss = np.random.SeedSequence(seed)
+    others = None
+    if avoid is not None:                        # the others at every simulated time
+        a = np.asarray(avoid, np.float64).reshape(-1, n, 3)
+        fine, at = np.linspace(0.0, duration_s, n_fine), np.linspace(0.0, duration_s, n_fine)[pick]
+        others = np.stack([np.stack([np.interp(fine, at, w[:, c]) for c in range(3)], 1) for w in a])
     for child in ss.spawn(max_attempts):
         w = _simulate(geometry, np.random.default_rng(child), n=n_fine, duration_s=duration_s,
-                      clearance=clearance, height=height, speed=speed)
+                      clearance=clearance, height=height, speed=speed, others=others, gap_m=gap_m)
         if w is not None:
             return Walk(w.positions[pick], w.headings[pick], w.times[pick])
     raise PlacementError(f"no clear walk found in {max_attempts} attempts (clearance {clearance} m); "
@@ -247,15 +255,22 @@ MAX_STEP_S = 60.0 / 34
 _OFFSETS = np.deg2rad(np.r_[0, np.repeat(np.arange(15, 181, 15), 2) * np.tile([1, -1], 12)])
 
 
-def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed):
+def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed,
+              others=None, gap_m=0.0):
     z = g.floor_z
 
-    def free_spot():
+    def apart(q, i):
+        """``q`` keeps ``gap_m`` from every other person at step ``i``."""
+        return others is None or bool(np.all(np.hypot(others[:, i, 0] - q[0], others[:, i, 1] - q[1]) >= gap_m))
+
+    def free_spot(i=None):
         c = np.c_[g.lo[:2] + (g.hi[:2] - g.lo[:2]) * rng.random((256, 2)), np.full(256, z)]
         ok = np.flatnonzero(g.free_mask(c, clearance=clearance, body_height=height))
+        if i is not None:
+            ok = [k for k in ok if apart(c[k], i)]
         return c[ok[0]] if len(ok) else None
 
-    start = free_spot()
+    start = free_spot(0)
     if start is None:
         return None
     t = np.linspace(0.0, duration_s, n)
@@ -271,7 +286,7 @@ def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clear
 
     def clear(p, hh, length):
         q = p + length * np.array([math.cos(hh), math.sin(hh), 0.0])
-        return g.segment_clear(p, q, clearance=clearance, body_height=height), q
+        return g.segment_clear(p, q, clearance=clearance, body_height=height) and apart(q, i + 1), q
 
     for i in range(n - 1):
         if goal is None or goal_age > 8 or np.hypot(*(goal - pos[i])[:2]) < 1.0:

@@ -9,7 +9,7 @@ import trimesh
 
 from rfmitsuba import scenes
 from rfmitsuba.core.errors import PlacementError
-from rfmitsuba.sim import person as person
+from rfmitsuba.sim import person
 from rfmitsuba.sim.geometry import RoomGeometry
 
 
@@ -122,3 +122,13 @@ def test_written_ply_is_the_body(tmp_path):
     path = person.write_person_ply(tmp_path / "h.ply")
     m = trimesh.load(path, force="mesh")
     assert m.bounds[1][2] - m.bounds[0][2] == pytest.approx(person.HEIGHT, abs=0.02)
+
+
+def test_a_walk_that_avoids_another_keeps_its_distance_at_every_moment(bedroom):
+    first = person.walk(bedroom, n=60, seed=0).positions
+    w = person.walk(bedroom, n=60, seed=5, avoid=first[None], gap_m=0.62)
+    assert np.hypot(*(w.positions[:, :2] - first[:, :2]).T).min() >= 0.62
+    person.check_walk(bedroom, w.positions)
+    plain = person.walk(bedroom, n=60, seed=5)
+    assert np.hypot(*(plain.positions[:, :2] - first[:, :2]).T).min() < 0.62   # the draw alone would collide
+    np.testing.assert_array_equal(plain.positions, person.walk(bedroom, n=60, seed=5, avoid=None).positions)
