@@ -60,7 +60,7 @@ def figure(entries: list[dict], path: Path) -> None:
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.sim.geometry import RoomGeometry
 
-    fig, axes = plots.subplots(1, len(entries), figsize=(5.5 * len(entries), 4.8))
+    fig, axes = plots.subplots(1, len(entries), figsize=(5.5 * len(entries), 5.0))
     axes = np.atleast_1d(axes)
     for ax, e in zip(axes, entries):
         walk = json.loads(Path(e["walk_file"]).read_text())
@@ -72,14 +72,15 @@ def figure(entries: list[dict], path: Path) -> None:
             RoomGeometry.from_xml(xml).plot_top_view(ax, labels=False)
         for t, p in zip(truth, est):
             ax.plot([t[0], p[0]], [t[1], p[1]], color="0.6", lw=0.8)
-        ax.plot(truth[:, 0], truth[:, 1], "o-", ms=3, lw=1, label="walk (dataset)")
+        ax.plot(truth[:, 0], truth[:, 1], "o-", ms=3, lw=0.6, label="walk (dataset's positions)")
         ax.plot(est[:, 0], est[:, 1], "x", ms=5, label="estimated, last round")
         err = walk["rounds"][-1]["error"]
-        ax.set_title(f"{e['name']}, seed {e['seeds'][0]}: median {err['median_cm']:.0f} cm, p90 {err['p90_cm']:.0f} cm")
+        ax.set_title(f"{e['name']}, seed {e['seeds'][0]}: walk error median {err['median_cm']:.0f} cm, "
+                     f"p90 {err['p90_cm']:.0f} cm", fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8)
+        ax.legend(loc="lower right", fontsize=8, framealpha=0.9)
     plots.save(fig, path, dpi=90)
 
 
