@@ -3,7 +3,7 @@
 Plugins extend Mitsuba/Sionna RT through their registries, so that scene XML
 can name them:
 
-- ``human-tissue`` (:mod:`rfmitsuba.plugins.human_tissue`): a radio material for people.
+- ``body-tissue`` (:mod:`rfmitsuba.plugins.body_tissue`): a radio material for people.
 
 Call :func:`register` once before loading a scene that uses them (it is
 idempotent; it selects the default Mitsuba variant if none is active).
@@ -21,9 +21,9 @@ def register() -> list[str]:
     from rfmitsuba.core import backend
 
     variant = backend.variant()
-    from . import human_tissue
+    from . import body_tissue
 
     if variant not in _registered:
-        human_tissue.register()
+        body_tissue.register()
         _registered.add(variant)
-    return [human_tissue.PLUGIN_NAME]
+    return [body_tissue.PLUGIN_NAME]

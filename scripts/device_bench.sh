@@ -64,7 +64,7 @@ step train_dense 170 bash -c "rfmitsuba nerf2like --tags 2000 --out /tmp/n2k --q
     && rfmitsuba train /tmp/n2k --model coherent_gaussians --out /tmp/r_n2k --set seed=0 && rfmitsuba eval /tmp/r_n2k \
     && cp /tmp/r_n2k/eval/metrics.json $OUT/metrics_dense.json && cp /tmp/r_n2k/final/summary.json $OUT/summary_dense.json"
 # Stage 1 of the default field in a known room: bedroom, moving RX, 900 positions, empty room only.
-step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions 900 --human-positions 0 \
+step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions 900 --person-positions 0 \
     --out /tmp/bedroom_rx && rfmitsuba train /tmp/bedroom_rx --model coherent_gaussians --out /tmp/r_bed --set seed=0 \
     && rfmitsuba eval /tmp/r_bed && cp /tmp/r_bed/eval/metrics.json $OUT/metrics_bedroom.json \
     && cp /tmp/r_bed/log.jsonl $OUT/log_bedroom.jsonl"
@@ -72,12 +72,12 @@ step train_bedroom 170 bash -c "rfmitsuba generate bedroom --task rx --positions
 # needs the LLVM variant, which the carried Mitsuba leaves out.
 step pytest_cuda "${PYTEST_LIMIT:-150}" python3 -m pytest -q --no-header -p no:cacheprovider -o addopts="" \
     --deselect tests/core/test_backend.py::test_alias_and_unknown \
-    ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/test_coherent_gaussians.py \
+    ${TESTS:-tests/core/test_backend.py tests/rf tests/models/test_nn.py tests/models/coherent_gaussians \
     tests/models/test_splat.py}
 gen() {  # Sionna RT on CUDA: 900 bedroom positions x 5 states (empty room + 4 person positions)
   local t0=$(date +%s.%N)
   rfmitsuba generate bedroom --task rx \
-      --positions 900 --human-positions 4 --out /tmp/gen_bedroom || return
+      --positions 900 --person-positions 4 --out /tmp/gen_bedroom || return
   python3 -c "import sys; n = 900 * 5; s = float(sys.argv[2]) - float(sys.argv[1]); print(f'{n} PAS in {s:.1f} s: {n / s:.1f} PAS/s')" "$t0" "$(date +%s.%N)"
 }
 export -f gen

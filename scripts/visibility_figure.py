@@ -7,7 +7,7 @@ The dataset must name its room (a Sionna dataset made by ``rfmitsuba generate``)
 those of the coherent Gaussian field's known-room start (room order 2, furniture faces,
 every plane sequence its own image; ``rfmitsuba.rf.images.scene_image_maps``), cast by
 ``rfmitsuba.sim.visibility.SpecularVisibility``. Made docs/results/coherent_field/bedroom_visibility.png
-from ``rfmitsuba generate bedroom --task rx --positions 900 --human-positions 0``.
+from ``rfmitsuba generate bedroom --task rx --positions 900 --person-positions 0``.
 """
 from __future__ import annotations
 

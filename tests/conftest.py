@@ -102,13 +102,23 @@ def quick_dataset(tmp_path_factory, variant):
 
 
 @pytest.fixture(scope="session")
+def two_people_dataset(tmp_path_factory, variant):
+    """A quick bedroom dataset with two people walking at once (moving RX, 36 antenna positions x
+    5 states), generated once per session: ``rfmitsuba generate bedroom --quick --people 2``."""
+    from rfmitsuba.sim import generate as gen
+
+    out = tmp_path_factory.mktemp("two_people") / "ds"
+    return gen.generate(out, gen.quick_config("bedroom", task="rx", seed=0, people=2), quiet=True)
+
+
+@pytest.fixture(scope="session")
 def synthetic_ds(tmp_path_factory, variant):
     """A synthetic dynamic dataset (30 antennas x (1 + 6) states) rendered from known background and
-    human Gaussians (rfmitsuba.sim.synthetic.make_dataset, seed 0); no Sionna."""
+    person Gaussians (rfmitsuba.sim.synthetic.make_dataset, seed 0); no Sionna."""
     from rfmitsuba.sim import synthetic
 
     out = tmp_path_factory.mktemp("synthetic") / "ds"
-    synthetic.make_dataset(out, antennas=30, humans=6, seed=0)
+    synthetic.make_dataset(out, antennas=30, people=6, seed=0)
     return out
 
 

@@ -46,7 +46,7 @@ def make_dataset(path: Path, *, num_antennas: int = 60, task: str = "rx", seed: 
     fixed = np.array([0.3, 0.3, 2.0])
     view = ap if task == "rx" else np.tile(fixed, (num_antennas, 1))
     pas = render_pas(known_field(), ap, view)
-    write_dataset(path, pas=pas[None], antenna_pos=ap, human_pos=np.full((1, 3), np.nan),
+    write_dataset(path, pas=pas[None], antenna_pos=ap, person_pos=np.full((1, 3), np.nan),
                   meta={"task": task, "fixed_pos": fixed.tolist()}, seed=seed)
     return Path(path)
 

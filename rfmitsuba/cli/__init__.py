@@ -14,6 +14,7 @@ import warnings
 
 from ..core.errors import RfmError
 from ..core.interrupt import Terminated, sigterm_interrupts
+from ..core.legacy_names import current_name
 
 #: Sub-command modules, in help order.
 COMMANDS = ["info", "generate", "nerf2like", "export", "show", "invert", "train", "eval", "predict", "locate", "experiment", "compare", "reproduce", "demo", "bench"]
@@ -33,9 +34,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _renamed_flag(argv: list[str]) -> tuple[str, str] | None:
+    """The first option in ``argv`` whose name holds a word that changed (``--human-positions``:
+    :mod:`rfmitsuba.core.legacy_names`) and its new name, or None."""
+    for a in argv:
+        flag = a.split("=", 1)[0]
+        if flag.startswith("--") and current_name(flag) != flag:
+            return flag, current_name(flag)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code (2 for bad input, with the reason on stderr)."""
     parser = build_parser()
+    renamed = _renamed_flag(sys.argv[1:] if argv is None else argv)
+    if renamed:
+        print(f"rfmitsuba: error: {renamed[0]} is called {renamed[1]} now (see the changelog)", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
@@ -102,7 +117,7 @@ def _named_fault(e: BaseException, *, out: str | None = None) -> tuple[int | Non
         if "(--" in what:   # the check that raised it names the option (rfmitsuba.core.allocation)
             return 1, f"error: out of memory: {what}"
         return 1, (f"error: out of memory ({what}); ask for fewer positions, states or views per call "
-                   "(--positions, --human-positions, --batch)")
+                   "(--positions, --person-positions, --batch)")
     ose = next((x for x in chain if isinstance(x, OSError) and (x.filename or x.errno)), None)
     if ose is not None:
         path = ose.filename if ose.filename is not None else (f"writing under {out}" if out else "(no path)")

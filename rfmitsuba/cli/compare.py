@@ -6,7 +6,7 @@ from ..core import cluster
 
 def register(sub) -> None:
     p = sub.add_parser("compare", help="train and evaluate methods over seeds on one dataset (resumable)")
-    p.add_argument("dataset", help="dataset folder with human-present states (rfmitsuba generate), or One Walk folders (static and dynamic)")
+    p.add_argument("dataset", help="dataset folder with person-present states (rfmitsuba generate), or One Walk folders (static and dynamic)")
     p.add_argument("--out", required=True, help="output folder (report.md, results.json, speed_accuracy.png)")
     p.add_argument("--methods", default=None, help="comma-separated methods (default baseline,end_to_end,ours)")
     p.add_argument("--seeds", default=None, help="comma-separated training seeds (default 0,1,2)")

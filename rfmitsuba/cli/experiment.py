@@ -27,7 +27,7 @@ def register(sub) -> None:
     t.add_argument("--scene", default="bedroom", help="truth: built-in scene or XML file (default bedroom)")
     t.add_argument("--task", choices=["rx", "tx"], default="rx", help="truth: moving RX or moving TX (default rx)")
     t.add_argument("--positions", type=int, default=48, help="truth: antenna positions (default 48, at most 200)")
-    t.add_argument("--human-positions", type=int, default=0,
+    t.add_argument("--person-positions", type=int, default=0,
                    help="truth: person positions along the walk (default 0: empty room)")
     t.add_argument("--seed", type=int, default=0, help="truth: seed of positions and walk (default 0)")
     t.add_argument("--samples", type=int, default=None, help="truth: ray samples per source (default: the room's)")
@@ -56,11 +56,11 @@ def _run(args) -> int:
 
         if args.dataset is not None:
             raise ConfigError("experiment truth generates its own datasets: give --scene, not a dataset folder")
-        if args.positions < 1 or args.human_positions < 0:
-            raise ConfigError(f"need --positions >= 1 and --human-positions >= 0, got {args.positions}, "
-                              f"{args.human_positions}")
+        if args.positions < 1 or args.person_positions < 0:
+            raise ConfigError(f"need --positions >= 1 and --person-positions >= 0, got {args.positions}, "
+                              f"{args.person_positions}")
         cfg = T.TruthConfig(scene=args.scene, task=args.task, positions=args.positions,
-                            human_positions=args.human_positions, seed=args.seed, samples=args.samples,
+                            person_positions=args.person_positions, seed=args.seed, samples=args.samples,
                             repeat=not args.no_repeat)
         T.truth_uncertainty(args.out, cfg, quiet=args.quiet)
         print((Path(args.out) / "table.md").read_text().split("\nPer PAS")[0])

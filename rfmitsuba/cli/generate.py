@@ -5,12 +5,12 @@ import json
 import time
 
 from ..core import cluster
-from ._values import nonnegative_int
+from ._values import nonnegative_int, positive_int
 
 
 def register(sub) -> None:
     p = sub.add_parser("generate", help="simulate a PAS dataset of a scene (moving RX or moving TX); resumable",
-                       description="Simulate a dataset: empty room + one state per human position, one chunk per "
+                       description="Simulate a dataset: empty room + one state per person position, one chunk per "
                                    "state. Re-running the same command into the same --out continues where it "
                                    "stopped; the result is bit-identical to an uninterrupted run.")
     p.add_argument("scene", help="built-in scene name (bedroom, living_room, dining_room, large_room) or an XML file")
@@ -18,10 +18,13 @@ def register(sub) -> None:
                    help="rx: the 4x4 array moves, TX fixed in a corner; tx: the TX moves, array fixed (default rx)")
     p.add_argument("--out", required=True, help="dataset folder (created, or resumed if it holds this configuration)")
     p.add_argument("--positions", type=int, default=None, help="antenna positions (default 900; 36 with --quick)")
-    p.add_argument("--human-positions", type=int, default=None,
-                   help="human positions along a 60 s walk (default 35; 4 with --quick)")
+    p.add_argument("--person-positions", type=int, default=None,
+                   help="person positions along a 60 s walk (default 35; 4 with --quick)")
+    p.add_argument("--people", type=positive_int, default=1,
+                   help="people walking at once, each on a walk of its own that never comes within 0.1 m of "
+                        "another's body (default 1)")
     p.add_argument("--material", choices=["tissue", "metal", "concrete"], default="tissue",
-                   help="material of the human-shaped perturber (default tissue)")
+                   help="material of the person-shaped perturber (default tissue)")
     p.add_argument("--seed", type=int, default=0, help="seed of positions, walk and split (default 0)")
     p.add_argument("--quick", action="store_true", help="a small dataset in well under a minute (36 x 5 states)")
     p.add_argument("--diffuse", action="store_true", help="add diffuse reflection (seed-dependent, slow)")
@@ -51,8 +54,8 @@ def run(args) -> int:
 
     if args.positions is not None and args.positions < 1:
         raise ConfigError(f"--positions must be >= 1, got {args.positions}")
-    if args.human_positions is not None and args.human_positions < 0:
-        raise ConfigError(f"--human-positions must be >= 0, got {args.human_positions}")
+    if args.person_positions is not None and args.person_positions < 0:
+        raise ConfigError(f"--person-positions must be >= 0, got {args.person_positions}")
     if args.samples is not None and (args.samples < 1 or args.samples != int(args.samples)):
         raise ConfigError(f"--samples must be a positive integer, got {args.samples}")
     xml = D.resolve_scene(args.scene)
@@ -67,10 +70,11 @@ def run(args) -> int:
     cfg.frequency_hz = args.frequency
     cfg.solver = solver
     cfg.array = args.array
+    cfg.people = args.people
     if args.positions is not None:
         cfg.positions = args.positions
-    if args.human_positions is not None:
-        cfg.human_positions = args.human_positions
+    if args.person_positions is not None:
+        cfg.person_positions = args.person_positions
     t = time.perf_counter()
     ds = gen.generate(args.out, cfg, repair=args.repair, cluster=cluster.from_cli(args))
     wall = time.perf_counter() - t

@@ -1,4 +1,4 @@
-"""``rfmitsuba show``: look at a dataset (PAS grid, top view, how much the human changes)."""
+"""``rfmitsuba show``: look at a dataset (PAS grid, top view, how much the person changes)."""
 from __future__ import annotations
 
 import json
@@ -10,25 +10,25 @@ from ..core import plots
 
 
 def register(sub) -> None:
-    p = sub.add_parser("show", help="write PNGs of a dataset: PAS grid, top view, SSIM empty vs human",
-                       description="Writes pas_grid.png (empty vs human vs difference), top_view.png (room, "
+    p = sub.add_parser("show", help="write PNGs of a dataset: PAS grid, top view, SSIM empty vs person",
+                       description="Writes pas_grid.png (empty vs person vs difference), top_view.png (room, "
                                    "antenna, fixed-device and walk positions), ssim_hist.png (per-image SSIM "
-                                   "of empty vs human-present PAS) and summary.json into --out.")
+                                   "of empty vs person-present PAS) and summary.json into --out.")
     p.add_argument("dataset", help="dataset folder (rfmitsuba or NeRF2 spectrum format)")
     p.add_argument("--out", required=True, help="folder for the PNGs")
     p.add_argument("--rows", type=int, default=4, help="antenna positions in the PAS grid (default 4)")
     p.set_defaults(func=run)
 
 
-def ssim_empty_vs_human(ds, *, quiet: bool = False) -> np.ndarray:
-    """Per-image SSIM (metric protocol (docs/conventions.md)) between the empty-room PAS and each human-present PAS: float64 [S-1, A]."""
+def ssim_empty_vs_person(ds, *, quiet: bool = False) -> np.ndarray:
+    """Per-image SSIM (metric protocol (docs/conventions.md)) between the empty-room PAS and each person-present PAS: float64 [S-1, A]."""
     from ..core import progress
     from ..core.ssim import ssim_images
     from ..rf.bartlett_ref import normalize
 
     empty = normalize(np.asarray(ds.pas(0)))
     out = np.empty((ds.num_states - 1, ds.num_antennas))
-    with progress.bar(ds.num_states - 1, desc="SSIM empty vs human", unit="state", quiet=quiet) as pb:
+    with progress.bar(ds.num_states - 1, desc="SSIM empty vs person", unit="state", quiet=quiet) as pb:
         for s in range(1, ds.num_states):
             hum = normalize(np.asarray(ds.pas(s)))
             out[s - 1] = ssim_images(hum, empty)
@@ -47,22 +47,22 @@ def run(args) -> int:
                "num_states": ds.num_states}
     written = []
 
-    # 1) SSIM empty vs human (only datasets with a human)
+    # 1) SSIM empty vs person (only datasets with a person)
     ss = None
     if ds.num_states > 1:
-        ss = ssim_empty_vs_human(ds)
+        ss = ssim_empty_vs_person(ds)
         summary.update({"ssim_mean": float(ss.mean()), "ssim_median": float(np.median(ss)),
                         "share_below_0.9": float((ss < 0.9).mean())})
         fig, ax = plots.subplots(figsize=(6, 4))
         ax.hist(ss.ravel(), bins=50, range=(min(0.0, float(ss.min())), 1.0), color="#4477aa")
         ax.axvline(0.9, color="k", ls="--", lw=1)
-        ax.set_xlabel("SSIM(empty PAS, human-present PAS)")
+        ax.set_xlabel("SSIM(empty PAS, person-present PAS)")
         ax.set_ylabel("images")
         ax.set_title(f"mean {ss.mean():.3f}, {100 * (ss < 0.9).mean():.1f}% below 0.9")
         plots.save(fig, out / "ssim_hist.png", dpi=120)
         written.append("ssim_hist.png")
 
-    # 2) PAS grid: the antenna positions the human changes most (or the first ones)
+    # 2) PAS grid: the antenna positions the person changes most (or the first ones)
     rows = max(1, min(args.rows, ds.num_antennas))
     if ss is not None:
         s_idx, a_idx = np.unravel_index(np.argsort(ss, axis=None)[:rows], ss.shape)
@@ -76,8 +76,8 @@ def run(args) -> int:
         imgs = [(empty, f"antenna {a}: empty room", "viridis", (0, 1))]
         if s is not None:
             hum = normalize(np.asarray(ds.pas(s)[a]))
-            imgs += [(hum, f"human at state {s} (SSIM {ss[s - 1, a]:.2f})", "viridis", (0, 1)),
-                     (hum - empty, "human - empty", "RdBu_r", (-1, 1))]
+            imgs += [(hum, f"person at state {s} (SSIM {ss[s - 1, a]:.2f})", "viridis", (0, 1)),
+                     (hum - empty, "person - empty", "RdBu_r", (-1, 1))]
         for c, (img, title, cmap, lim) in enumerate(imgs):
             ax = axes[r, c]
             ax.imshow(img, origin="lower", aspect="auto", cmap=cmap, vmin=lim[0], vmax=lim[1],
@@ -103,9 +103,9 @@ def run(args) -> int:
     ax.plot(f[0], f[1], marker="*", ms=16, color="red", ls="none",
             label="fixed TX" if ds.task == "rx" else "fixed array")
     if ds.num_states > 1:
-        h = ds.human_pos[1:]
-        ax.plot(h[:, 0], h[:, 1], "-o", color="#cc3311", ms=4, lw=1, label="walk (human positions)")
-        test = set(int(i) for i in ds.split.human_test)
+        h = ds.person_pos[1:]
+        ax.plot(h[:, 0], h[:, 1], "-o", color="#cc3311", ms=4, lw=1, label="walk (person positions)")
+        test = set(int(i) for i in ds.split.person_test)
         for i, (x, y) in enumerate(h[:, :2]):
             if i in test:
                 ax.plot(x, y, "s", mfc="none", mec="k", ms=8)
@@ -119,6 +119,6 @@ def run(args) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(f"wrote {', '.join(written)} and summary.json to {out}")
     if ss is not None:
-        print(f"SSIM empty vs human: mean {summary['ssim_mean']:.3f}, median {summary['ssim_median']:.3f}, "
+        print(f"SSIM empty vs person: mean {summary['ssim_mean']:.3f}, median {summary['ssim_median']:.3f}, "
               f"{100 * summary['share_below_0.9']:.1f}% below 0.9")
     return 0

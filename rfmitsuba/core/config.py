@@ -10,7 +10,10 @@ Renamed and removed options: a config class may name the options it renamed in a
 attribute ``renamed_options`` (old name -> new name), and list the options it no longer has in
 ``removed_options`` (option -> the value under which it behaved as the code does now, or None
 where the option only steered training) and the values it no longer takes in
-``removed_values`` (option -> {old value: the value that rebuilds the same thing}). A saved file
+``removed_values`` (option -> {old value: the value that rebuilds the same thing}), and the values it
+renamed in ``renamed_values`` (option -> {old value: new value}). An option or section whose name
+holds a word that changed (:mod:`rfmitsuba.core.legacy_names`: ``human`` is ``person`` now) is
+renamed the same way. A saved file
 (``saved=True``: a run's ``config.toml``, a field's state) that names them loads without them
 where that is exact, and is refused, naming the option, where it is not; a user's file that names
 a removed option is told so.
@@ -41,6 +44,7 @@ import tomllib
 
 from .atomic import write_text
 from .errors import ConfigError
+from .legacy_names import current_name
 
 T = TypeVar("T")
 
@@ -134,22 +138,34 @@ def _check(tp: Any, value: Any, where: str) -> Any:
     return value
 
 
+def _new_name(owner: type | None, name: str) -> str | None:
+    """What option ``name`` of config class ``owner`` is called now, or None where it was not
+    renamed (``renamed_options``, or a changed word: :func:`rfmitsuba.core.legacy_names.current_name`)."""
+    new = getattr(owner, "renamed_options", {}).get(name)
+    if new is None and current_name(name) != name:
+        new = current_name(name)
+    return new
+
+
 def _without_removed(cls: type, data: dict, where: str) -> dict:
     """``data`` without the options ``cls`` removed, and with its removed values replaced (the
     module docstring); ConfigError where that would not rebuild the same thing, or where a user's
     file names a removed option."""
     removed = getattr(cls, "removed_options", {})
     values = getattr(cls, "removed_values", {})
-    renamed = getattr(cls, "renamed_options", {})
+    renamed_values = getattr(cls, "renamed_values", {})
     saved = _READING_SAVED.get()
     out = {}
     for k, v in data.items():
-        if k in renamed:
+        new = _new_name(cls, k)
+        if new is not None:
             if not saved:
-                raise ConfigError(f"{where}.{k}: this option is called {renamed[k]!r} now (see the changelog)")
-            if renamed[k] in data:
-                raise ConfigError(f"{where}: both {k!r} and its new name {renamed[k]!r}")
-            k = renamed[k]
+                raise ConfigError(f"{where}.{k}: this option is called {new!r} now (see the changelog)")
+            if new in data:
+                raise ConfigError(f"{where}: both {k!r} and its new name {new!r}")
+            k = new
+        if k in renamed_values:
+            v = _renamed_value(v, renamed_values[k], saved=saved, where=f"{where}.{k}")
         if k in removed:
             same = removed[k]
             if not saved:
@@ -166,6 +182,18 @@ def _without_removed(cls: type, data: dict, where: str) -> dict:
             v = values[k][v]
         out[k] = v
     return out
+
+
+def _renamed_value(v, renamed: dict, *, saved: bool, where: str):
+    """``v`` (a value, or a list of values) with the values in ``renamed`` (old -> new) replaced
+    where reading a saved file; ConfigError naming the new value in a user's file."""
+    if isinstance(v, list):
+        return [_renamed_value(x, renamed, saved=saved, where=where) for x in v]
+    if _hashable_scalar(v) and v in renamed:
+        if not saved:
+            raise ConfigError(f"{where} = {v!r}: this value is called {renamed[v]!r} now (see the changelog)")
+        return renamed[v]
+    return v
 
 
 def _hashable_scalar(v) -> bool:
@@ -270,21 +298,40 @@ def override(cfg: T, assignments: list[str]) -> T:
         parts = key.strip().split(".")
         for p in parts[:-1]:
             if not isinstance(node.get(p), dict):
-                if p in getattr(owner, "renamed_options", {}):
+                if _new_name(owner, p) is not None:
                     raise ConfigError(f"override {key!r}: the section {p!r} is called "
-                                      f"{getattr(owner, 'renamed_options')[p]!r} now (see the changelog)")
+                                      f"{_new_name(owner, p)!r} now (see the changelog)")
                 raise ConfigError(f"override {key!r}: {p!r} is not a section of {type(cfg).__name__}")
             node, owner = node[p], typing.get_type_hints(owner).get(p)
         if parts[-1] not in node:
-            if parts[-1] in getattr(owner, "renamed_options", {}):
+            if _new_name(owner, parts[-1]) is not None:
                 raise ConfigError(f"override {key!r}: {parts[-1]!r} is called "
-                                  f"{getattr(owner, 'renamed_options')[parts[-1]]!r} now (see the changelog)")
+                                  f"{_new_name(owner, parts[-1])!r} now (see the changelog)")
             if parts[-1] in getattr(owner, "removed_options", {}):
                 raise ConfigError(f"override {key!r}: {parts[-1]}: this option was removed (it did not help; see "
                                   "the changelog)")
             raise ConfigError(f"override {key!r}: unknown option {parts[-1]!r}")
         node[parts[-1]] = value
     return from_dict(type(cfg), data)
+
+
+def differences(a: Any, b: Any, prefix: str = "", *, first: tuple = (), into_lists: bool = False):
+    """(dotted key, value in ``a``, value in ``b``) for every place where two nested dicts differ:
+    keys in ``first`` (in that order) before the others (sorted); "<missing>" where one lacks a key.
+    ``into_lists``: lists of the same length are compared element by element (``key[i]``), else
+    as values."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = sorted(set(a) | set(b))
+        for k in [k for k in first if k in keys] + [k for k in keys if k not in first]:
+            va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+            yield from differences(va, vb, f"{prefix}{k}.", first=first, into_lists=into_lists)
+        return
+    key = prefix.rstrip(".") or "<root>"
+    if into_lists and isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b)):
+            yield from differences(x, y, f"{key}[{i}].", first=first, into_lists=True)
+    elif a != b:
+        yield key, a, b
 
 
 def finite(value: float, name: str) -> float:

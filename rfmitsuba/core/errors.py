@@ -15,7 +15,7 @@ class SceneError(RfmError, ValueError):
 
 
 class PlacementError(RfmError, ValueError):
-    """An antenna or human position is outside the room, inside furniture, or not finite."""
+    """An antenna or person position is outside the room, inside furniture, or not finite."""
 
 
 class DatasetError(RfmError, ValueError):

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.legacy_names import current_keys
 from ..rf.bartlett_ref import normalize
 from ..rf.grid import PAS_SHAPE
 from .split import Split, make_split
@@ -239,10 +240,10 @@ def write(dataset, folder: str | Path, *, state: int = 0) -> Path:
     sp = dataset.split
     (out / "train_index.txt").write_text("".join(f"{i + 1:05d}\n" for i in sp.antenna_train))
     (out / "test_index.txt").write_text("".join(f"{i + 1:05d}\n" for i in sp.antenna_test))
-    hp = np.asarray(dataset.human_pos[state], np.float64)
+    hp = np.asarray(dataset.person_pos[state], np.float64)
     extra = {"format": "rfmitsuba-nerf2/1", "task": dataset.task, "frequency_hz": dataset.frequency_hz,
              "source": str(dataset.path), "state": int(state),
-             "human_pos": None if np.isnan(hp).any() else hp.tolist(), "split_seed": int(sp.seed)}
+             "person_pos": None if np.isnan(hp).any() else hp.tolist(), "split_seed": int(sp.seed)}
     (out / EXTRA).write_text(json.dumps(extra, indent=1) + "\n")
     return out
 
@@ -280,7 +281,7 @@ class NerfDataset:
         extra = {}
         if (self.path / EXTRA).is_file():
             try:
-                extra = json.loads(_read_text(self.path / EXTRA))
+                extra = current_keys(json.loads(_read_text(self.path / EXTRA)))
             except json.JSONDecodeError as e:
                 raise DatasetError(f"{self.path / EXTRA}:{e.lineno}: not valid JSON ({e.msg})") from None
             if not isinstance(extra, dict):
@@ -325,10 +326,10 @@ class NerfDataset:
         self._pas = imgs
         self.num_antennas = A
         self.num_states = 1
-        hp = extra.get("human_pos")
+        hp = extra.get("person_pos")
         if hp is not None and _numbers(hp, 3) is None:
-            raise DatasetError(f"{self.path / EXTRA}: human_pos must be null or [x, y, z], got {hp!r}")
-        self.human_pos = np.array([hp if hp is not None else [np.nan] * 3], np.float32)
+            raise DatasetError(f"{self.path / EXTRA}: person_pos must be null or [x, y, z], got {hp!r}")
+        self.person_pos = np.array([hp if hp is not None else [np.nan] * 3], np.float32)
         self.split = self._read_split(A)
         self.meta = {"format": "nerf2", "task": self.task, "frequency_hz": self.frequency_hz,
                      "num_antenna_positions": A, "num_states": 1, "fixed_pos": self.fixed_pos.tolist(),
@@ -344,8 +345,8 @@ class NerfDataset:
         shared = np.intersect1d(train, test)
         if shared.size:
             raise DatasetError(f"{tr} and {te} share images (e.g. {int(shared[0]) + 1})")
-        return Split(antenna_train=train, antenna_test=test, human_train=np.zeros(0, np.int64),
-                     human_test=np.zeros(0, np.int64), seed=0)
+        return Split(antenna_train=train, antenna_test=test, person_train=np.zeros(0, np.int64),
+                     person_test=np.zeros(0, np.int64), seed=0)
 
     def __repr__(self) -> str:
         return f"NerfDataset({str(self.path)!r}, task={self.task!r}, antennas={self.num_antennas})"
@@ -373,11 +374,11 @@ class NerfDataset:
         raise DatasetError(f"{self.path}: a NeRF2 spectrum dataset stores no channels")
 
     def arrays(self, states: list[int] | None = None) -> dict[str, np.ndarray]:
-        """Flat arrays (docs/conventions.md) (K = A): pas, antenna_pos, human_pos, state, antenna."""
+        """Flat arrays (docs/conventions.md) (K = A): pas, antenna_pos, person_pos, state, antenna."""
         for s in states or [0]:
             self.pas(s)
         A = self.num_antennas
-        return {"pas": self._pas, "antenna_pos": self.antenna_pos, "human_pos": np.repeat(self.human_pos, A, 0),
+        return {"pas": self._pas, "antenna_pos": self.antenna_pos, "person_pos": np.repeat(self.person_pos, A, 0),
                 "state": np.zeros(A, np.int64), "antenna": np.arange(A, dtype=np.int64)}
 
 

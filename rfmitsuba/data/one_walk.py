@@ -319,7 +319,7 @@ class OneWalkDataset:
         num_antennas: A (the static folder's images); num_states: S = 1 + H.
         antenna_pos: float32 [A, 3] [m], the moving device.
         fixed_pos: float64 [3] [m]; rx_to_world: float64 [3, 3], the array frame.
-        human_pos: float32 [S, 3] [m] (row 0 NaN: the empty room); human_orientation: float64
+        person_pos: float32 [S, 3] [m] (row 0 NaN: the empty room); person_orientation: float64
             [S, 4] quaternions ``[x, y, z, w]`` (row 0 NaN); frame_idx: int64 [H], each state's frame.
         split: antenna split of the static index files, person split of the dynamic ones.
         measured: no ``rfmitsuba.json`` in either folder (a folder as published).
@@ -361,22 +361,22 @@ class OneWalkDataset:
         self._images: dict[int, _StateImages] = {}
         A = self.num_antennas
         H = 0
-        human_split = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        person_split = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         if dynamic is not None:
-            H, human_split = self._read_dynamic(dynamic, tol)
+            H, person_split = self._read_dynamic(dynamic, tol)
         self.num_states = 1 + H
         extra = {**st_extra.get("_file", {}), **dyn_extra.get("_file", {})}
         seed = extra.get("split_seed", 0)
         self.split = Split(antenna_train=self._antenna_split[0], antenna_test=self._antenna_split[1],
-                           human_train=human_split[0], human_test=human_split[1],
+                           person_train=person_split[0], person_test=person_split[1],
                            seed=seed if isinstance(seed, int) and not isinstance(seed, bool) else 0)
-        hum = {"orientation_xyzw": self.human_orientation[1:].tolist(),
-               "headings_rad": quaternion_heading(self.human_orientation[1:]).tolist() if H else [],
+        hum = {"orientation_xyzw": self.person_orientation[1:].tolist(),
+               "headings_rad": quaternion_heading(self.person_orientation[1:]).tolist() if H else [],
                "frame_idx": self.frame_idx.tolist()}
         self.meta = {"format": "one-walk", "task": self.task, "frequency_hz": self.frequency_hz,
                      "num_antenna_positions": A, "num_states": self.num_states, "fixed_pos": self.fixed_pos.tolist(),
                      "array_orientation_xyzw": (quat / np.linalg.norm(quat)).tolist(),
-                     "human_positions": self.human_pos[1:].astype(np.float64).tolist(), "human": hum,
+                     "person_positions": self.person_pos[1:].astype(np.float64).tolist(), "person": hum,
                      "one_walk": {"static": str(static), "dynamic": None if dynamic is None else str(dynamic),
                                   "extra": extra},
                      "warnings": self.warnings, "readout": self.readout, "measured": self.measured}
@@ -441,8 +441,8 @@ class OneWalkDataset:
             sp = make_split(A, 0, seed=0)
             train, test = sp.antenna_train, sp.antenna_test
         self._antenna_split = (train, test)
-        self.human_pos = np.full((1, 3), np.nan, np.float32)
-        self.human_orientation = np.full((1, 4), np.nan)
+        self.person_pos = np.full((1, 3), np.nan, np.float32)
+        self.person_orientation = np.full((1, 4), np.nan)
         self.frame_idx = np.zeros(0, np.int64)
 
     def _read_dynamic(self, dynamic: Path, tol: float) -> tuple[int, tuple[np.ndarray, np.ndarray]]:
@@ -517,8 +517,8 @@ class OneWalkDataset:
                                f"row {a + 1} {ap[a].tolist()} ({len(holes)} (frame, position) pairs missing in all); "
                                f"every frame needs one at each of the static folder's {A} positions")
         self._dynamic_files = [[files[int(idx[r])] for r in row] for row in grid]
-        self.human_pos = np.concatenate([self.human_pos, man[first].astype(np.float32)])
-        self.human_orientation = np.concatenate([self.human_orientation, quat[first]])
+        self.person_pos = np.concatenate([self.person_pos, man[first].astype(np.float32)])
+        self.person_orientation = np.concatenate([self.person_orientation, quat[first]])
         self.frame_idx = np.asarray(frames, np.int64)
         return H, self._person_split(dynamic, idx, state, ant, H)
 
@@ -529,7 +529,7 @@ class OneWalkDataset:
         tr, te, va = dynamic / "train_index.txt", dynamic / "test_index.txt", dynamic / "val_index.txt"
         if not (tr.is_file() and te.is_file()):
             sp = make_split(1, H, seed=0)
-            return sp.human_train, sp.human_test
+            return sp.person_train, sp.person_test
         known = {int(n): r for r, n in enumerate(idx)}
         rows = {f: _read_names(f, known) for f in (tr, te, va) if f.is_file()}
         names = list(rows)
@@ -607,14 +607,14 @@ class OneWalkDataset:
 
     def arrays(self, states: list[int] | None = None) -> dict[str, np.ndarray]:
         """Flat arrays (docs/conventions.md), row ``k = position in states * A + antenna``: pas
-        float32 [K, 90, 360], antenna_pos float32 [K, 3], human_pos float32 [K, 3], state and
+        float32 [K, 90, 360], antenna_pos float32 [K, 3], person_pos float32 [K, 3], state and
         antenna int64 [K]."""
         states = list(range(self.num_states)) if states is None else [int(s) for s in states]
         A = self.num_antennas
         return {"pas": np.concatenate([np.asarray(self.pas(s)) for s in states]) if states
                 else np.zeros((0, *PAS_SHAPE), np.float32),
                 "antenna_pos": np.tile(self.antenna_pos, (len(states), 1)),
-                "human_pos": np.repeat(self.human_pos[states], A, axis=0),
+                "person_pos": np.repeat(self.person_pos[states], A, axis=0),
                 "state": np.repeat(np.asarray(states, np.int64), A),
                 "antenna": np.tile(np.arange(A, dtype=np.int64), len(states))}
 
@@ -647,15 +647,15 @@ def write(dataset, folder: str | Path) -> Path:
     One Walk layout: ``folder/static`` (state 0) and, where it has person states, ``folder/dynamic``.
 
     Args:
-        dataset: the source (``pas(state)``, ``antenna_pos``, ``human_pos``, ``fixed_pos``, ``split``,
+        dataset: the source (``pas(state)``, ``antenna_pos``, ``person_pos``, ``fixed_pos``, ``split``,
             ``task``, ``frequency_hz``).
         folder: new or empty folder.
     Returns:
         The folder. Static images are numbered 1..A in antenna order; the image of state s > 0 at
         antenna a is number ``(s - 1) * A + a + 1``, with ``frame_idx = s - 1`` and the person's
-        heading (``meta["human"]["headings_rad"]``; none: the identity) as its quaternion. The
+        heading (``meta["person"]["headings_rad"]``; none: the identity) as its quaternion. The
         split's antenna indices become the static index files; the dynamic ones hold training
-        antennas x training persons (train), test x test (test) and the mixed pairs (val).
+        antennas x training people (train), test x test (test) and the mixed pairs (val).
         ``rfmitsuba.json`` in each folder records the task, carrier, fixed device, array frame,
         read-out, source, split seed and the source's scene.
     """
@@ -689,20 +689,20 @@ def write(dataset, folder: str | Path) -> Path:
     w = _names_width(H * A)
     for s in range(1, S):
         _save_images(dyn / "spectrums", dataset.pas(s), (s - 1) * A + 1, w)
-    quat = getattr(dataset, "human_orientation", None)
-    heads = (meta.get("human") or {}).get("headings_rad") if isinstance(meta.get("human"), dict) else None
+    quat = getattr(dataset, "person_orientation", None)
+    heads = (meta.get("person") or {}).get("headings_rad") if isinstance(meta.get("person"), dict) else None
     if quat is not None and np.shape(quat) == (S, 4):
         quat = np.asarray(quat, np.float64)[1:]
     elif isinstance(heads, list) and len(heads) == H:
         quat = heading_quaternion(heads)
     else:
         quat = np.tile(_IDENTITY, (H, 1))
-    hp = np.asarray(dataset.human_pos, np.float64)[1:]
+    hp = np.asarray(dataset.person_pos, np.float64)[1:]
     ap = np.asarray(dataset.antenna_pos, np.float64)
     lines = [",".join(INFO_COLUMNS)]
     groups = {"train": [], "val": [], "test": []}
     a_tr, a_te = set(int(i) for i in sp.antenna_train), set(int(i) for i in sp.antenna_test)
-    h_tr, h_te = set(int(i) for i in sp.human_train), set(int(i) for i in sp.human_test)
+    h_tr, h_te = set(int(i) for i in sp.person_train), set(int(i) for i in sp.person_test)
     for h in range(H):
         for a in range(A):
             n = h * A + a + 1

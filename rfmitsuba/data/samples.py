@@ -3,17 +3,17 @@
 A :class:`SampleData` looks like :class:`rfmitsuba.train.trainer.TrainData` to the
 :class:`~rfmitsuba.train.trainer.Trainer` (``antenna_pos``, ``view_pos``, ``train``, ``test``,
 ``pas(idx, d=)``...), but its index ``k`` runs over *samples*: pairs of a dataset state
-(0 = empty room, s > 0 = human at ``human_positions[s-1]``) and an antenna position.
+(0 = empty room, s > 0 = person at ``person_positions[s-1]``) and an antenna position.
 
-* which states: ``"empty"`` (state 0), ``"human"`` (states 1..H) or ``"all"``;
+* which states: ``"empty"`` (state 0), ``"person"`` (states 1..H) or ``"all"``;
 * ``duplicate``: the sample list repeated (the Baseline-duplicated ablation);
 * ``noise_snr_db``: complex white noise added to the *training* channels at this SNR
   (relative to the mean channel power per sample) and the PAS recomputed with the
   Bartlett beamformer; datasets without channels get the noise on the PAS amplitude.
 
-Training samples: antenna in the antenna-train split and (state 0 or human in the
-human-train split). Test samples: antenna-test x (state 0 for "empty", human-test states
-otherwise). Nothing of a test antenna or a test human position is ever a training sample.
+Training samples: antenna in the antenna-train split and (state 0 or person in the
+person-train split). Test samples: antenna-test x (state 0 for "empty", person-test states
+otherwise). Nothing of a test antenna or a test person position is ever a training sample.
 """
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, DatasetError
+from ..core.legacy_names import current_name
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
 from .layout import grid_layout
@@ -31,25 +32,25 @@ from .pas_cache import state_images
 from .store import Dataset, open_dataset
 from .views import PasRows, TrainData, normalised_pas
 
-STATE_SETS = ("empty", "human", "all")
+STATE_SETS = ("empty", "person", "all")
 #: how a subset of training antenna positions is drawn (``SampleData.open_samples(layout=...)``)
 LAYOUTS = ("random", "grid")
 
 
-def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
-    """Network input describing a human position (or its absence).
+def person_features(person_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
+    """Network input describing a person position (or its absence).
 
     Args:
-        human_pos: float [K, 3] metres; NaN rows = empty room.
+        person_pos: float [K, 3] metres; NaN rows = empty room.
         box: float [2, 3] metres, the normalisation box (lo, hi).
         octaves: sine/cosine octaves of the encoding.
 
     Returns:
         float32 [K, 3 * (1 + 2 * octaves) + 1]: position mapped to [0, 0.5] per axis, its
-        sin/cos encoding (period 1), and a presence flag (1 = a human is there); all zeros
+        sin/cos encoding (period 1), and a presence flag (1 = a person is there); all zeros
         for an empty room.
     """
-    h = np.asarray(human_pos, np.float64).reshape(-1, 3)
+    h = np.asarray(person_pos, np.float64).reshape(-1, 3)
     box = np.asarray(box, np.float64).reshape(2, 3)
     present = np.isfinite(h).all(axis=1)
     x01 = np.where(present[:, None], (h - box[0]) / (box[1] - box[0]), 0.0)
@@ -58,8 +59,8 @@ def human_features(human_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) 
     return out.astype(np.float32)
 
 
-def num_human_features(octaves: int = 3) -> int:
-    """Width of :func:`human_features`."""
+def num_person_features(octaves: int = 3) -> int:
+    """Width of :func:`person_features`."""
     return 3 * (1 + 2 * octaves) + 1
 
 
@@ -93,13 +94,15 @@ class SampleData(TrainData):
     """Samples over (state, antenna) pairs; see the module docstring.
 
     Extra attributes: ``states`` int64 [K] dataset state per sample, ``antennas`` int64 [K]
-    antenna index per sample, ``human_pos`` float64 [K, 3] metres (NaN = empty room),
-    ``box`` float64 [2, 3] metres (bounds used to normalise human positions).
+    antenna index per sample, ``person_pos`` float64 [K, 3] metres (NaN = empty room),
+    ``people_pos`` float64 [K, P, 3] metres (every person; ``[:, 0]`` is ``person_pos``),
+    ``box`` float64 [2, 3] metres (bounds used to normalise person positions).
     """
 
     states: np.ndarray = None
     antennas: np.ndarray = None
-    human_pos: np.ndarray = None
+    person_pos: np.ndarray = None
+    people_pos: np.ndarray = None
     noise_snr_db: float | None = None
     noise_seed: int = 0
     _ds: object = None
@@ -114,7 +117,7 @@ class SampleData(TrainData):
 
         Args:
             path: dataset folder (:mod:`rfmitsuba.data.store` format).
-            states: "empty", "human" or "all".
+            states: "empty", "person" or "all".
             duplicate: how many times the sample list is repeated (>= 1).
             noise_snr_db: SNR of the noise added to training samples (None = no noise).
             noise_seed: seed of that noise.
@@ -128,9 +131,10 @@ class SampleData(TrainData):
                 positions); None = the whole walk, 0 = none of it.
 
         Raises:
-            ConfigError: bad ``states`` / ``duplicate``; DatasetError: no human states when
+            ConfigError: bad ``states`` / ``duplicate``; DatasetError: no person states when
             they are asked for.
         """
+        states = current_name(states)
         if states not in STATE_SETS:
             raise ConfigError(f"states must be one of {STATE_SETS}, got {states!r}")
         if duplicate < 1:
@@ -144,11 +148,11 @@ class SampleData(TrainData):
         ds = open_dataset(path)
         A, S = ds.num_antennas, ds.num_states
         if states != "empty" and S < 2:
-            raise DatasetError(f"{path}: has no human-present states (needed for states={states!r})")
-        st = {"empty": [0], "human": list(range(1, S)), "all": list(range(S))}[states]
+            raise DatasetError(f"{path}: has no person-present states (needed for states={states!r})")
+        st = {"empty": [0], "person": list(range(1, S)), "all": list(range(S))}[states]
         sp = ds.split
-        h_train = set(int(h) + 1 for h in sp.human_train if walk_frames is None or h < walk_frames)
-        h_test = set(int(h) + 1 for h in sp.human_test)
+        h_train = set(int(h) + 1 for h in sp.person_train if walk_frames is None or h < walk_frames)
+        h_test = set(int(h) + 1 for h in sp.person_test)
         s_arr = np.repeat(np.asarray(st, np.int64), A)
         a_arr = np.tile(np.arange(A, dtype=np.int64), len(st))
         ant_train = np.asarray(base.train)
@@ -168,7 +172,7 @@ class SampleData(TrainData):
             train = np.concatenate([train + j * k for j in range(duplicate)])
         if len(train) == 0 or len(test) == 0:
             raise DatasetError(f"{path}: {len(train)} training and {len(test)} test samples for states={states!r}")
-        hp = np.asarray(ds.human_pos, np.float64)[s_arr]
+        hp = np.asarray(ds.person_pos, np.float64)[s_arr]
         ap = base.antenna_pos[a_arr]
         vp = base.view_pos[a_arr]
         lo, hi = base.bounds
@@ -187,7 +191,8 @@ class SampleData(TrainData):
         data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
                    train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, transmitter=base.transmitter,
                    bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,
-                   human_pos=hp,
+                   person_pos=hp, people_pos=np.asarray(getattr(ds, "people_pos", ds.person_pos[:, None]),
+                                                        np.float64)[s_arr],
                    noise_snr_db=noise_snr_db, noise_seed=int(noise_seed))
         data._ds = ds
         data._noisy = {}
@@ -275,11 +280,19 @@ class SampleData(TrainData):
         (:class:`rfmitsuba.data.views.PasRows`)."""
         return PasRows(rows=np.asarray(idx, np.int64), read=self.pas)
 
-    def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False) -> np.ndarray:
-        """:func:`human_features` of samples ``idx``: float32 [K, num_human_features(octaves)];
-        with ``raw`` followed by the human position in metres (zeros for the empty room), [K, F + 3]."""
-        hp = self.human_pos[np.asarray(idx, np.int64)]
-        f = human_features(hp, self.box, octaves=octaves)
+    def features(self, idx: np.ndarray, *, octaves: int = 3, raw: bool = False, people: int = 1) -> np.ndarray:
+        """:func:`person_features` of samples ``idx``: float32 [K, num_person_features(octaves)];
+        with ``raw`` followed by the person position in metres (zeros for the empty room), [K, F + 3],
+        and with ``people`` P > 1 by every person's, [K, F + 3 P] (DatasetError where the dataset
+        walks fewer people)."""
+        idx = np.asarray(idx, np.int64)
+        hp = self.person_pos[idx]
+        f = person_features(hp, self.box, octaves=octaves)
         if raw:
+            if people > 1:
+                pp = self.people_pos if self.people_pos is not None else self.person_pos[:, None]
+                if pp.shape[1] < people:
+                    raise DatasetError(f"{self.path}: {people} people asked for, the dataset walks {pp.shape[1]}")
+                hp = pp[idx, :people].reshape(len(idx), 3 * people)
             f = np.concatenate([f, np.nan_to_num(hp, nan=0.0).astype(np.float32)], axis=1)
         return f

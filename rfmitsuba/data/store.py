@@ -3,13 +3,13 @@
 Layout of one dataset folder (format ``rfmitsuba-dataset/1``)::
 
     meta.json          configuration, reproducibility record, units
-    split.json         antenna / human train-test indices and their seed
+    split.json         antenna / person train-test indices and their seed
     antenna_pos.npy    float32 [A, 3], metres, world frame
     chunks/00000/      state 0: the empty room
         pas.npy        float32 [A, 90, 360], raw linear Bartlett amplitude
         channel.npy    complex64 [A, 16], narrowband channel per element
         chunk.json     sha256 of both arrays (checked by Dataset.verify)
-    chunks/00001/ ...  state s > 0: the human at meta["human_positions"][s-1]
+    chunks/00001/ ...  state s > 0: the person at meta["person_positions"][s-1]
 
 Each chunk folder is written under a temporary name and renamed when
 complete, so a folder named ``chunks/<state:05d>`` is either whole or was
@@ -31,9 +31,11 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import write_json
+from ..core.config import differences
 from ..core.direct_io import save_npy, save_npy_blocks
 from ..core.errors import DatasetError, SceneError
 from ..core.folder_lock import holds_work
+from ..core.legacy_names import current_keys
 from ..rf import array as antenna
 from ..rf.array import NUM_ELEMENTS
 from ..rf.grid import PAS_SHAPE
@@ -202,7 +204,7 @@ class Dataset:
         num_antennas: A.
         num_states: S = 1 + H.
         antenna_pos: float32 [A, 3], metres, positions of the moving device.
-        human_pos: float32 [S, 3], metres (row 0 NaN: empty room).
+        person_pos: float32 [S, 3], metres (row 0 NaN: empty room).
         fixed_pos: float64 [3], metres, the fixed device in the room corner.
         split: the saved :class:`Split`.
     """
@@ -215,20 +217,29 @@ class Dataset:
                                "a NeRF2 folder holds spectrum/ and tx_pos.csv, a One Walk folder spectrum/ or "
                                "spectrums/ and rx_info.csv or spectrum_info.csv")
         try:
-            self.meta = json.loads(meta_file.read_text())
+            self.meta = current_keys(json.loads(meta_file.read_text()))
         except ValueError as e:
             raise DatasetError(f"{meta_file}: not valid JSON ({e})") from None
         if self.meta.get("format") != FORMAT:
             raise DatasetError(f"{meta_file}: format is {self.meta.get('format')!r}, expected {FORMAT!r}")
-        for key in ("task", "frequency_hz", "num_antenna_positions", "human_positions", "fixed_pos"):
+        for key in ("task", "frequency_hz", "num_antenna_positions", "person_positions", "fixed_pos"):
             if key not in self.meta:
                 raise DatasetError(f"{meta_file}: missing key {key!r}")
         self.task = self.meta["task"]
         self.frequency_hz = float(self.meta["frequency_hz"])
         self.num_antennas = int(self.meta["num_antenna_positions"])
-        hp = np.asarray(self.meta["human_positions"], dtype=np.float32).reshape(-1, 3)
+        hp = np.asarray(self.meta["person_positions"], dtype=np.float32).reshape(-1, 3)
         self.num_states = 1 + hp.shape[0]
-        self.human_pos = np.concatenate([np.full((1, 3), np.nan, np.float32), hp])
+        self.person_pos = np.concatenate([np.full((1, 3), np.nan, np.float32), hp])
+        others = (self.meta.get("other_people") or {}).get("positions") if isinstance(self.meta.get("other_people"),
+                                                                                      dict) else None
+        op = np.zeros((len(hp), 0, 3), np.float32)
+        if others is not None and len(hp):
+            op = np.asarray(others, np.float32).reshape(len(hp), -1, 3)
+        #: float32 [S, P, 3] every person's feet [m] (person 1 is ``person_pos``; row 0 NaN: the empty room)
+        self.people_pos = np.concatenate([self.person_pos[:, None, :],
+                                          np.concatenate([np.full((1, op.shape[1], 3), np.nan, np.float32), op])],
+                                         axis=1)
         self.fixed_pos = np.asarray(self.meta["fixed_pos"], dtype=np.float64)
         ap_file = self.path / "antenna_pos.npy"
         try:
@@ -242,7 +253,7 @@ class Dataset:
             sd = json.loads(split_file.read_text())
         except (OSError, ValueError) as e:
             raise DatasetError(f"{split_file}: missing or malformed ({e})") from None
-        self.split = Split.from_json(sd, num_antennas=self.num_antennas, num_humans=self.num_states - 1,
+        self.split = Split.from_json(sd, num_antennas=self.num_antennas, num_people=self.num_states - 1,
                                      where=str(split_file))
         if check:
             for s in range(self.num_states):
@@ -314,7 +325,7 @@ class Dataset:
 
         Returns:
             ``pas`` float32 [K, 90, 360], ``antenna_pos`` float32 [K, 3],
-            ``human_pos`` float32 [K, 3] (NaN rows for the empty room),
+            ``person_pos`` float32 [K, 3] (NaN rows for the empty room),
             ``channel`` complex64 [K, 16], ``state`` int64 [K], ``antenna`` int64 [K].
         """
         states = list(range(self.num_states)) if states is None else [int(s) for s in states]
@@ -325,7 +336,7 @@ class Dataset:
             "channel": np.concatenate([np.asarray(self.channel(s)) for s in states]) if states
             else np.zeros((0, NUM_ELEMENTS), np.complex64),
             "antenna_pos": np.tile(self.antenna_pos, (len(states), 1)),
-            "human_pos": np.repeat(self.human_pos[states], A, axis=0),
+            "person_pos": np.repeat(self.person_pos[states], A, axis=0),
             "state": np.repeat(np.asarray(states, np.int64), A),
             "antenna": np.tile(np.arange(A, dtype=np.int64), len(states)),
         }
@@ -353,30 +364,11 @@ _DIFF_FIRST = ("format", "task", "scene", "frequency_hz", "generate", "solver", 
                "num_states", "versions")
 
 
-def first_difference(a: Any, b: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
-    """The first place where two meta dicts differ: (dotted key, the value in ``a``, the value in
-    ``b``; "<missing>" where one lacks the key), or None when they are equal."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        keys = sorted(set(a) | set(b))
-        keys = [k for k in _DIFF_FIRST if k in keys] + [k for k in keys if k not in _DIFF_FIRST]
-        for k in keys:
-            if k not in a or k not in b:
-                return f"{prefix}{k}", a.get(k, "<missing>"), b.get(k, "<missing>")
-            d = first_difference(a[k], b[k], f"{prefix}{k}.")
-            if d is not None:
-                return d
-        return None
-    if isinstance(a, list) and isinstance(b, list):
-        if len(a) != len(b):
-            return prefix.rstrip(".") or "<root>", a, b
-        for i, (x, y) in enumerate(zip(a, b)):
-            d = first_difference(x, y, f"{prefix.rstrip('.')}[{i}].")
-            if d is not None:
-                return (d[0].rstrip("."), *d[1:])
-        return None
-    if a != b:
-        return prefix.rstrip(".") or "<root>", a, b
-    return None
+def first_difference(a: Any, b: Any) -> tuple[str, Any, Any] | None:
+    """The first place where two meta dicts differ, the identifying keys first: (dotted key, the
+    value in ``a``, the value in ``b``; "<missing>" where one lacks the key), or None when they
+    are equal (:func:`rfmitsuba.core.config.differences`)."""
+    return next(differences(a, b, first=_DIFF_FIRST, into_lists=True), None)
 
 
 def _without_location(meta: dict) -> dict:
@@ -400,7 +392,7 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
     meta_file = root / "meta.json"
     if meta_file.exists():
         try:
-            old = json.loads(meta_file.read_text())
+            old = current_keys(json.loads(meta_file.read_text()))
         except ValueError as e:
             raise DatasetError(f"{meta_file}: not valid JSON ({e}); refusing to overwrite") from None
         diff = first_difference(_without_location(old), _without_location(meta))
@@ -422,20 +414,20 @@ def prepare_folder(path: str | Path, meta: dict, *, antenna_pos: np.ndarray, spl
     return root
 
 
-def base_meta(*, task: str, frequency_hz: float, num_antennas: int, human_positions: np.ndarray,
+def base_meta(*, task: str, frequency_hz: float, num_antennas: int, person_positions: np.ndarray,
               fixed_pos: np.ndarray, extra: dict | None = None) -> dict:
     """The meta.json keys every dataset has, plus ``extra`` (scene, solver, seeds, versions...)."""
 
     if task not in ("rx", "tx"):
         raise DatasetError(f"task must be 'rx' or 'tx', got {task!r}")
-    hp = np.asarray(human_positions, np.float64).reshape(-1, 3)
+    hp = np.asarray(person_positions, np.float64).reshape(-1, 3)
     meta = {
         "format": FORMAT,
         "task": task,
         "frequency_hz": float(frequency_hz),
         "num_antenna_positions": int(num_antennas),
         "num_states": int(1 + hp.shape[0]),
-        "human_positions": hp.tolist(),
+        "person_positions": hp.tolist(),
         "fixed_pos": [float(x) for x in np.asarray(fixed_pos, np.float64).reshape(3)],
         "array": antenna.describe(float(frequency_hz)),
         "pas_layout": {"shape": list(PAS_SHAPE), "row": "elevation (i + 1) deg above the array plane",
@@ -446,7 +438,7 @@ def base_meta(*, task: str, frequency_hz: float, num_antennas: int, human_positi
     return _jsonable(meta)
 
 
-def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray, human_pos: np.ndarray,
+def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray, person_pos: np.ndarray,
                   meta: dict | None = None, split: Split | None = None, seed: int = 0,
                   channel: np.ndarray | None = None) -> Dataset:
     """Write a whole in-memory dataset (tests, converters); needs no Sionna.
@@ -455,7 +447,7 @@ def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray,
         path: new (or empty) folder.
         pas: float32 [S, A, 90, 360], raw or normalised amplitude.
         antenna_pos: float [A, 3], metres.
-        human_pos: float [S, 3], metres; row 0 must be NaN (the empty room).
+        person_pos: float [S, 3], metres; row 0 must be NaN (the empty room).
         meta: extra meta.json keys (e.g. ``task``, ``frequency_hz``, ``fixed_pos``, ``scene``).
         split: train/test split; default :func:`make_split` with ``seed``.
         seed: split seed when ``split`` is None.
@@ -470,18 +462,18 @@ def write_dataset(path: str | Path, *, pas: np.ndarray, antenna_pos: np.ndarray,
     antenna_pos = np.asarray(antenna_pos, np.float64)
     if antenna_pos.shape != (A, 3) or not np.isfinite(antenna_pos).all():
         raise DatasetError(f"antenna_pos must be finite [{A}, 3], got shape {antenna_pos.shape}")
-    human_pos = np.asarray(human_pos, np.float64)
-    if human_pos.shape != (S, 3):
-        raise DatasetError(f"human_pos must be [{S}, 3], got {human_pos.shape}")
-    if not np.isnan(human_pos[0]).all() or not np.isfinite(human_pos[1:]).all():
-        raise DatasetError("human_pos row 0 must be NaN (empty room) and rows 1.. finite")
+    person_pos = np.asarray(person_pos, np.float64)
+    if person_pos.shape != (S, 3):
+        raise DatasetError(f"person_pos must be [{S}, 3], got {person_pos.shape}")
+    if not np.isnan(person_pos[0]).all() or not np.isfinite(person_pos[1:]).all():
+        raise DatasetError("person_pos row 0 must be NaN (empty room) and rows 1.. finite")
     if channel is not None and np.shape(channel) != (S, A, NUM_ELEMENTS):
         raise DatasetError(f"channel must be [{S}, {A}, 16], got {np.shape(channel)}")
     meta = dict(meta or {})
     extra = {k: v for k, v in meta.items() if k not in
-             ("task", "frequency_hz", "fixed_pos", "human_positions", "num_antenna_positions", "num_states")}
+             ("task", "frequency_hz", "fixed_pos", "person_positions", "num_antenna_positions", "num_states")}
     full = base_meta(task=meta.get("task", "rx"), frequency_hz=meta.get("frequency_hz", 2.4e9), num_antennas=A,
-                     human_positions=human_pos[1:], fixed_pos=meta.get("fixed_pos", [0.0, 0.0, 0.0]),
+                     person_positions=person_pos[1:], fixed_pos=meta.get("fixed_pos", [0.0, 0.0, 0.0]),
                      extra={"source": "write_dataset", **extra})
     split = split if split is not None else make_split(A, S - 1, seed=seed)
     root = prepare_folder(path, full, antenna_pos=antenna_pos, split=split)

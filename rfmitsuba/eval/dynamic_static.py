@@ -47,12 +47,12 @@ def fit_rows(count: int) -> np.ndarray:
 
 def test_sets(data: SampleData) -> dict:
     """Sample indices (into ``data`` opened with states="all") of both evaluations:
-    ``dynamic_test``, ``dynamic_train`` (human-present training samples), ``static_test``,
+    ``dynamic_test``, ``dynamic_train`` (person-present training samples), ``static_test``,
     ``static_train``. The training sets are ``data``'s own (its training positions and walk,
     :meth:`SampleData.open_samples`); the test sets are the split's."""
     sp = data.split
     a_test = np.isin(data.antennas, sp.antenna_test)
-    h_test = np.isin(data.states, np.asarray(sp.human_test) + 1)
+    h_test = np.isin(data.states, np.asarray(sp.person_test) + 1)
     st0 = data.states == 0
     train = np.zeros(len(data.states), bool)
     train[data.train] = True
@@ -103,7 +103,7 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
     fixed = fixed_device(data)
     out = {"num_gaussians": model.num_primitives}
     t_render, n_render = 0.0, 0
-    for part, test_key, train_key, use_human in (("dynamic", "dynamic_test", "dynamic_train", True),
+    for part, test_key, train_key, use_person in (("dynamic", "dynamic_test", "dynamic_train", True),
                                                  ("static", "static_test", "static_train", False)):
         test, train = sets[test_key], sets[train_key]
         if len(test) == 0:
@@ -119,14 +119,14 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
         s_model = ssim_images(pred, gt)
         if len(train) == 0:   # nothing to look up: the model's figures alone
             out[part] = {"model": stats(s_model), "test_samples": int(len(test)), "train_samples": 0}
-            if use_human:
+            if use_person:
                 out["affected"] = _affected(data, test, gt, s_model, None, floors_cache=floors_cache, fingerprint=fp)
             continue
-        human = {"train_human": data.human_pos[train] if use_human else None,
-                 "test_human": data.human_pos[test] if use_human else None}
+        person = {"train_person": data.person_pos[train] if use_person else None,
+                 "test_person": data.person_pos[test] if use_person else None}
         fl = floor_cache.cached(
             floors_cache, {"floors": part, "dataset": fp, **picked},
-            lambda: floors(data.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+            lambda: floors(data.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **person),
             length=len(test))
         res = {"model": stats(s_model), "nearest_neighbour": stats(fl["nearest_neighbour"]),
                "idw3": stats(fl["idw3"]), "mean_image": stats(fl["mean_image"]),
@@ -135,21 +135,21 @@ def evaluate(model, dataset: str | Path, *, batch: int = 8, keep: bool = False,
                "by_distance": breakdown(data.antenna_pos[test], data.antenna_pos[train], fixed,
                                         {"model": s_model, "nearest_neighbour": fl["nearest_neighbour"],
                                          "idw3": fl["idw3"]})}
-        if not use_human:   # the background at its own training positions: the generalisation gap
+        if not use_person:   # the background at its own training positions: the generalisation gap
             fit = train[fit_rows(len(train))]
             res["fit"] = stats(ssim_images(minmax(model.render(data, fit, batch=batch)), data.pas(fit)))
         if noisy is not None:   # the floors a lookup in the same noisy training data reaches
             fn = floor_cache.cached(
                 floors_cache, {"floors_noisy_training": part, "dataset": fp, "snr_db": float(noise_snr_db),
                                "noise_seed": int(noise_seed), **picked},
-                lambda: floors(noisy.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **human),
+                lambda: floors(noisy.pas_rows(train), data.antenna_pos[train], gt, data.antenna_pos[test], **person),
                 length=len(test))
             res["floors_noisy_training"] = {k: stats(fn[k]) for k in ("nearest_neighbour", "idw3", "mean_image")}
         if keep:
             res.update({"model_ssim": s_model, "nn_ssim": fl["nearest_neighbour"], "pred": pred, "gt": gt,
                         "nn": data.pas(train)[fl["nearest_index"]]})
         out[part] = res
-        if use_human:
+        if use_person:
             out["affected"] = _affected(data, test, gt, s_model, fl["nearest_neighbour"],
                                         floors_cache=floors_cache, fingerprint=fp)
     out["render_ms_per_pas"] = 1000 * t_render / max(n_render, 1)

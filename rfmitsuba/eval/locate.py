@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError, RunError
-from ..data.samples import SampleData, human_features
+from ..data.samples import SampleData, person_features
 from ..data.views import downsample as block_means
 from ..models.base import Field, Views, load_field, render
 from ..rf.bartlett_ref import normalize as minmax
@@ -126,10 +126,10 @@ class TwoStage:
 
     def features(self, feet: np.ndarray) -> np.ndarray:
         """The person field's extra inputs for feet positions float [N, 3] m: float32 [N, F + 3]
-        (features of :func:`~rfmitsuba.data.samples.human_features` on the training box, then the
+        (features of :func:`~rfmitsuba.data.samples.person_features` on the training box, then the
         position), as :meth:`~rfmitsuba.data.samples.SampleData.features` gives them in training."""
         h = np.asarray(feet, np.float64).reshape(-1, 3)
-        f = human_features(h, self.data.box, octaves=self.person.feature_octaves)
+        f = person_features(h, self.data.box, octaves=self.person.feature_octaves)
         return np.concatenate([f, h.astype(np.float32)], axis=1)
 
 
@@ -161,7 +161,7 @@ def open_two_stage(job: str | Path) -> TwoStage:
     if not dataset.is_dir():
         raise RunError(f"{jd}: its dataset {dataset} does not exist any more")
     data = SampleData.open_samples(dataset, states="all")
-    walk = data.human_pos[np.isin(data.states, np.asarray(data.split.human_train) + 1) & (data.antennas == 0)]
+    walk = data.person_pos[np.isin(data.states, np.asarray(data.split.person_train) + 1) & (data.antennas == 0)]
     if len(walk) == 0:
         raise DatasetError(f"{dataset}: no training walk positions")
     return TwoStage(background=background, person=person, data=data, feet_z=float(np.median(walk[:, 2])),
@@ -549,6 +549,33 @@ def _descend_nelder_mead(query: Query, region: SearchRegion, starts: np.ndarray,
     return np.asarray(best_x), np.asarray(best_l)
 
 
+def refine(query: Query, region: SearchRegion, starts: np.ndarray, *, steps: int = 30, lr_m: float = 0.03,
+           grid_m: float = 0.25, descent: str = "ad") -> tuple[np.ndarray, np.ndarray]:
+    """Descend from each start, hop to the best neighbouring fringe, descend again (the search of
+    :func:`locate` after its grid).
+
+    Args:
+        query: what is compared; region: where the feet may be; starts: float [S, 2] (x, y) [m];
+        steps: descent steps (AD) or a quarter of the losses per start (Nelder-Mead); lr_m: first
+        AD step [m]; grid_m: the grid spacing the starts came from [m] (Nelder-Mead's simplex);
+        descent: "ad" or "nelder_mead".
+
+    Returns:
+        (float64 [S, 2] the best point met from each start, float64 [S] its loss).
+    """
+    hop = wavelength(query.model) / 4
+
+    def descend(x0, n, scale):
+        if descent == "ad":
+            return _descend_ad(query, region, x0, steps=n, lr_m=scale)
+        return _descend_nelder_mead(query, region, x0, steps=n, simplex_m=scale)
+
+    xs, ls = descend(np.asarray(starts, np.float64).reshape(-1, 2), steps, lr_m if descent == "ad" else 0.5 * grid_m)
+    hx, hl = _hop(query, region, xs, ls, spacing=hop)                  # the best neighbouring fringe
+    px, pl = descend(hx, max(1, steps // 3), lr_m / 3 if descent == "ad" else hop / 2)
+    return np.where((pl < hl)[:, None], px, hx), np.minimum(pl, hl)
+
+
 def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: float = 0.25, starts: int = 4,
            steps: int = 30, lr_m: float = 0.03, loss: str = "train", downsample: int = 2, region: str = "walk",
            descent: str = "auto", search: SearchRegion | None = None, empty: np.ndarray | None = None,
@@ -587,20 +614,10 @@ def locate(model: TwoStage, pas: np.ndarray, positions: np.ndarray, *, grid_m: f
     gl = q.losses(grid)
     best = int(np.argmin(gl))
     pick = _spread_starts(grid, gl, starts, 2 * grid_m)
-    hop = wavelength(model) / 4
-
-    def descend(x0, n, scale):
-        if kind == "ad":
-            return _descend_ad(q, reg, x0, steps=n, lr_m=scale)
-        return _descend_nelder_mead(q, reg, x0, steps=n, simplex_m=scale)
-
     if kind == "none":
         xs, ls = grid[pick], gl[pick]
     else:
-        xs, ls = descend(grid[pick], steps, lr_m if kind == "ad" else 0.5 * grid_m)
-        hx, hl = _hop(q, reg, xs, ls, spacing=hop)                     # the best neighbouring fringe
-        px, pl = descend(hx, max(1, steps // 3), lr_m / 3 if kind == "ad" else hop / 2)
-        xs, ls = np.where((pl < hl)[:, None], px, hx), np.minimum(pl, hl)
+        xs, ls = refine(q, reg, grid[pick], steps=steps, lr_m=lr_m, grid_m=grid_m, descent=kind)
     i = int(np.argmin(ls))
     x, lo = (xs[i], float(ls[i])) if ls[i] <= gl[best] else (grid[best], float(gl[best]))
     out = {"position": reg.feet(x)[0], "loss": lo, "grid_position": reg.feet(grid[best])[0],
@@ -639,7 +656,7 @@ def fingerprint(data: SampleData, query_pas: np.ndarray, antennas: np.ndarray, *
         score[i:i + len(part)] = np.asarray(sc.numpy(), np.float64).reshape(len(part))
     j = int(np.argmax(score))
     row = lookup[(int(states[j]), int(antennas[0]))]
-    return {"state": int(states[j]), "position": np.asarray(data.human_pos[row], np.float64), "ssim": float(score[j])}
+    return {"state": int(states[j]), "position": np.asarray(data.person_pos[row], np.float64), "ssim": float(score[j])}
 
 
 # ------------------------------------------------------------------------ where it fails
@@ -743,8 +760,8 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
         raise RunError(f"{run}: its jobs trained on different datasets ({', '.join(sorted(paths))})")
     data = models[0][1].data
     sp = data.split
-    test_states = np.asarray(sp.human_test, np.int64) + 1
-    train_states = np.asarray(sp.human_train, np.int64) + 1
+    test_states = np.asarray(sp.person_test, np.int64) + 1
+    train_states = np.asarray(sp.person_train, np.int64) + 1
     if len(test_states) == 0:
         raise DatasetError(f"{data.path}: no held-out walk positions (person test split) to locate")
     ant = query_antennas(data, antennas=antennas, views=views)
@@ -760,7 +777,7 @@ def evaluate_locate(run: str | Path, *, antennas: str = "all", views: int = 0, r
             rows = np.array([lookup[(int(s), int(a))] for a in ant], np.int64)
             pas = data.pas(rows)
             empty = data.pas(np.array([lookup[(0, int(a))] for a in ant], np.int64)) if reference == "empty" else None
-            feet = np.asarray(data.human_pos[rows[0]], np.float64)
+            feet = np.asarray(data.person_pos[rows[0]], np.float64)
             truth.append(feet)
             fp.append(fingerprint(data, pas, ant, states=train_states)["position"])
             x, y, q = data.positions(rows)

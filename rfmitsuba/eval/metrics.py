@@ -20,35 +20,35 @@ from ..data.views import PAS_CHUNK
 from ..rf.bartlett_ref import normalize as minmax
 
 
-def _joint(pos, human):
+def _joint(pos, person):
     """Positions [N, 3], joined with person positions [N, 3] into 6-D points where given (NaN
     rows, the empty room, count as a person far away)."""
     a = np.asarray(pos, np.float64)
-    if human is None:
+    if person is None:
         return a
-    return np.concatenate([a, np.nan_to_num(np.asarray(human, np.float64), nan=1e3)], 1)
+    return np.concatenate([a, np.nan_to_num(np.asarray(person, np.float64), nan=1e3)], 1)
 
 
-def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: np.ndarray | None = None,
-                  query_human: np.ndarray | None = None) -> np.ndarray:
+def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_person: np.ndarray | None = None,
+                  query_person: np.ndarray | None = None) -> np.ndarray:
     """Index of the nearest training sample for every query.
 
-    Distance: Euclidean over the antenna position (metres), plus the human position
-    where both are given (6-D distance; NaN human rows, i.e. empty room, count as a human
+    Distance: Euclidean over the antenna position (metres), plus the person position
+    where both are given (6-D distance; NaN person rows, i.e. empty room, count as a person
     far away from any real position).
 
     Args:
         train_pos: float [M, 3] metres; query_pos: float [K, 3] metres.
-        train_human / query_human: float [M, 3] / [K, 3] metres or None.
+        train_person / query_person: float [M, 3] / [K, 3] metres or None.
 
     Returns:
         int64 [K] indices into the training rows (ties: the lowest index).
     """
     from scipy.spatial import cKDTree
 
-    both = train_human is not None and query_human is not None
-    a = _joint(train_pos, train_human if both else None)
-    q = _joint(query_pos, query_human if both else None)
+    both = train_person is not None and query_person is not None
+    a = _joint(train_pos, train_person if both else None)
+    q = _joint(query_pos, query_person if both else None)
     if len(a) == 0:
         raise ValueError("nearest_index: no training samples")
     _, idx = cKDTree(a).query(q, k=1)
@@ -56,12 +56,12 @@ def nearest_index(train_pos: np.ndarray, query_pos: np.ndarray, *, train_human: 
 
 
 def neighbour_weights(train_pos: np.ndarray, query_pos: np.ndarray, *, k: int,
-                      train_human: np.ndarray | None = None, query_human: np.ndarray | None = None) -> tuple:
+                      train_person: np.ndarray | None = None, query_person: np.ndarray | None = None) -> tuple:
     """The ``k`` nearest training samples of every query and their inverse-distance weights.
 
     Args:
-        train_pos: float [M, 3] metres; query_pos: float [K, 3] metres; train_human /
-        query_human: optional [M, 3] / [K, 3] metres (6-D distance as :func:`nearest_index`).
+        train_pos: float [M, 3] metres; query_pos: float [K, 3] metres; train_person /
+        query_person: optional [M, 3] / [K, 3] metres (6-D distance as :func:`nearest_index`).
         k: neighbours (at most M). Weights are 1 / distance, normalised; a query on a training
         position takes that sample alone.
 
@@ -70,9 +70,9 @@ def neighbour_weights(train_pos: np.ndarray, query_pos: np.ndarray, *, k: int,
     """
     from scipy.spatial import cKDTree
 
-    both = train_human is not None and query_human is not None
-    a = _joint(train_pos, train_human if both else None)
-    q = _joint(query_pos, query_human if both else None)
+    both = train_person is not None and query_person is not None
+    a = _joint(train_pos, train_person if both else None)
+    q = _joint(query_pos, query_person if both else None)
     if len(a) == 0:
         raise ValueError("neighbour_weights: no training samples")
     k = min(int(k), len(a))
@@ -85,18 +85,18 @@ def neighbour_weights(train_pos: np.ndarray, query_pos: np.ndarray, *, k: int,
 
 
 def idw_predict(train_pas: np.ndarray, train_pos: np.ndarray, query_pos: np.ndarray, *, k: int = 3,
-                train_human: np.ndarray | None = None, query_human: np.ndarray | None = None) -> np.ndarray:
+                train_person: np.ndarray | None = None, query_person: np.ndarray | None = None) -> np.ndarray:
     """Inverse-distance-weighted mean of the ``k`` nearest training PAS (:func:`neighbour_weights`),
     min-max normalised.
 
     Args:
         train_pas: float [M, H, W] normalised training PAS; train_pos: float [M, 3] metres;
-        query_pos: float [K, 3] metres; train_human / query_human: as :func:`neighbour_weights`.
+        query_pos: float [K, 3] metres; train_person / query_person: as :func:`neighbour_weights`.
 
     Returns:
         float32 [K, H, W] in [0, 1].
     """
-    idx, w = neighbour_weights(train_pos, query_pos, k=k, train_human=train_human, query_human=query_human)
+    idx, w = neighbour_weights(train_pos, query_pos, k=k, train_person=train_person, query_person=query_person)
     return _idw_images(train_pas, idx, w)
 
 
@@ -139,7 +139,7 @@ def mean_training_image(train_pas) -> np.ndarray:
 
 
 def floors(train_pas, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.ndarray, *,
-           train_human=None, test_human=None) -> dict:
+           train_person=None, test_person=None) -> dict:
     """Model-free baselines on one split.
 
     Args:
@@ -149,14 +149,14 @@ def floors(train_pas, train_pos: np.ndarray, test_pas: np.ndarray, test_pos: np.
             for the mean image.
         train_pos: float [M, 3] metres.
         test_pas: float [K, H, W] normalised test PAS; test_pos: float [K, 3] metres.
-        train_human / test_human: optional human positions [M, 3] / [K, 3].
+        train_person / test_person: optional person positions [M, 3] / [K, 3].
 
     Returns:
         {"nearest_neighbour": float64 [K] SSIM, "nearest_index": int64 [K],
          "idw3": float64 [K] SSIM of :func:`idw_predict` (k = 3), "mean_image": float64 [K] SSIM}.
     """
-    idx = nearest_index(train_pos, test_pos, train_human=train_human, query_human=test_human)
-    idw_idx, idw_w = neighbour_weights(train_pos, test_pos, k=3, train_human=train_human, query_human=test_human)
+    idx = nearest_index(train_pos, test_pos, train_person=train_person, query_person=test_person)
+    idw_idx, idw_w = neighbour_weights(train_pos, test_pos, k=3, train_person=train_person, query_person=test_person)
     # the nearest neighbour is one of the three: their rows are read once for both floors
     rows, inverse = np.unique(np.concatenate([idx, idw_idx.ravel()]), return_inverse=True)
     near = np.asarray(train_pas[rows])[inverse]

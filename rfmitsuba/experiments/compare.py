@@ -3,7 +3,7 @@
 :func:`compare` is what ``rfmitsuba compare DATASET --out DIR`` runs. For every seed it trains
 the requested methods of :mod:`rfmitsuba.experiments.methods` (Ours reuses that seed's Baseline as its
 Stage 1, so Baseline and Ours share one background), evaluates each by both protocols
-(dynamic: unseen antenna x unseen human positions; static: the background alone) with the
+(dynamic: unseen antenna x unseen person positions; static: the background alone) with the
 nearest-neighbour, IDW-3 and mean-image floors, and writes
 
     DIR/compare.toml        the configuration (a folder of other training sizes is refused; seeds
@@ -22,6 +22,7 @@ import json
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from ..core.atomic import write_json, write_text
 from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import ConfigError, RunError
 from ..core.folder_lock import folder_lock, holds_work
+from ..core.legacy_names import current_name, folder_written_before
 from ..data.views import TrainData
 from ..eval.metrics import mean_std
 from ..train.config import config_diff
@@ -47,6 +49,9 @@ class CompareConfig:
     3000 Stage-1 and 1500 Stage-2 steps)."""
 
     methods: list[str] = dc_field(default_factory=lambda: ["baseline", "end_to_end", "ours"])
+
+    #: method names that changed (a comparison folder written before still resumes; rfmitsuba.core.config)
+    renamed_values: ClassVar[dict] = {"methods": {"baseline_human": "baseline_person"}}
     seeds: list[int] = dc_field(default_factory=lambda: [0, 1, 2])
     train: TrainSize = dc_field(default_factory=TrainSize)
 
@@ -63,7 +68,7 @@ def _check_folder(out: Path, cfg: CompareConfig, dataset: Path) -> None:
     f = out / "compare.toml"
     if f.is_file():
         # more seeds or methods may be added to a comparison; the training sizes must not change
-        diff = config_diff(C.to_dict(C.load(CompareConfig, f).train), C.to_dict(cfg.train), "train.")
+        diff = config_diff(C.to_dict(C.load(CompareConfig, f, saved=True).train), C.to_dict(cfg.train), "train.")
         if diff:
             raise RunError(f"output folder {out} holds another comparison: {'; '.join(diff)}. Use another --out "
                            "(nothing was changed)")
@@ -83,10 +88,16 @@ def compare_job(method: str, seed: int, dataset: Path, out: Path, mcfg: MethodCo
     prior = get_method(method).builds_on
     if prior:
         compare_job(prior, seed, dataset, out, mcfg, quiet=quiet)
-    return run_job(method, dataset, out / f"seed{seed}" / method, mcfg=mcfg, seed=seed,
+    return run_job(method, dataset, job_folder(out, method, seed), mcfg=mcfg, seed=seed,
                    record={"method": method, "seed": seed}, reevaluate=reevaluate, quiet=quiet,
                    floors_cache=out / FLOORS_FOLDER,
-                   **prior_kwargs(method, out / f"seed{seed}" / prior if prior else None))
+                   **prior_kwargs(method, job_folder(out, prior, seed) if prior else None))
+
+
+def job_folder(out: Path, method: str, seed: int) -> Path:
+    """The folder of a (method, seed) job, ``out/seed<S>/<method>`` (or where a comparison written
+    before the method's name changed keeps it: :func:`rfmitsuba.core.legacy_names.folder_written_before`)."""
+    return folder_written_before(Path(out) / f"seed{seed}" / method)
 
 
 def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None = None, quiet: bool = True,
@@ -101,7 +112,7 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
     Raises:
         RunError: ``out`` holds another configuration or dataset, or another process is running a
         comparison into it (:mod:`rfmitsuba.core.folder_lock`); DatasetError: a dataset
-        without human-present states (the methods need them); JobsFailed (a RunError): on a
+        without person-present states (the methods need them); JobsFailed (a RunError): on a
         cluster, jobs failed (each named; the others are done and kept).
     """
 
@@ -116,16 +127,17 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 def _compare(dataset: Path, out: Path, cfg: CompareConfig, *, quiet: bool, progress: bool, reevaluate: bool,
              cluster: ClusterConfig) -> Path:
     """:func:`compare` once its folder is checked and locked."""
+    # the methods' configuration first: a bad override or dataset leaves the folder as it was
+    mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     C.save(cfg, out / "compare.toml")
     write_json(out / "dataset.json", {"dataset": str(dataset.resolve())})
 
-    mcfg = method_config(cfg.train, scene_known=TrainData.open(dataset).scene_xml is not None)
     order = sorted(cfg.methods, key=lambda m: (_depth(m), m))     # each after what it builds on
     jobs = [(m, seed) for seed in cfg.seeds for m in order]
     # jobs of earlier seeds / methods of the same comparison stay in the results
     earlier = []
     for p in sorted(out.glob("seed*/*/DONE")):  # out/seed<S>/<method>/DONE
-        method, seed = p.parent.name, int(p.parent.parent.name[len("seed"):])
+        method, seed = current_name(p.parent.name), int(p.parent.parent.name[len("seed"):])
         if (method, seed) not in jobs:
             earlier.append((method, seed))
     # workers elsewhere resolve relative paths against their own folder

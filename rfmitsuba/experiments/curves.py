@@ -9,7 +9,7 @@ starts where its Stage 1 (the Baseline of the same seed) starts.
 
 What the SSIM is: the trainer's validation SSIM (metric protocol, at 90 x 360 whatever the training resolution)
 on held-out views of the *training* split of the data the stage trains on, not the test set:
-empty-room views for Baseline and Stage 1, human-present views for Stage 2 and the human-data
+empty-room views for Baseline and Stage 1, person-present views for Stage 2 and the person-data
 methods. The dynamic test SSIM is known only at the end of a job (a star in the figure).
 
 :func:`on_grid` and :func:`time_to_within` are the pure NumPy parts (seeds on a common time
@@ -184,8 +184,8 @@ def speed_accuracy(path: Path, groups: dict[str, list[tuple[str, int, dict]]]) -
     L = [f"![validation SSIM against cumulative training time]({path.name})", "",
          "SSIM against training wall time, sampled during training (every `val_every` steps). The SSIM is the "
          "trainer's **validation SSIM on held-out views of the training split** (metric protocol, at 90x360 "
-         "whatever the training resolution), not the test set: empty-room views for Baseline and Stage 1, human-present views for "
-         "Stage 2 and the methods trained on human-present data. Thin lines: seeds; thick line: their mean on a "
+         "whatever the training resolution), not the test set: empty-room views for Baseline and Stage 1, person-present views for "
+         "Stage 2 and the methods trained on person-present data. Thin lines: seeds; thick line: their mean on a "
          "common time grid, stage by stage, from when every seed has a sample (a seed that finished holds its "
          "final value); band: min-max over seeds. The time axis is **cumulative** training time: the curve of a "
          "method that builds on Baseline (Ours, Continued) is its Stage 1 (the Baseline of the same seed) and then "

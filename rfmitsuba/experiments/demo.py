@@ -1,6 +1,6 @@
 """The README's main job on the built-in bedroom: data, Baseline, Ours, End-to-End, report.
 
-:func:`run_demo` generates a small but real bedroom moving-RX dataset with a walk of human
+:func:`run_demo` generates a small but real bedroom moving-RX dataset with a walk of person
 positions (Sionna RT; skipped when present), trains Baseline (= Stage 1), Ours (Stage 2 on top)
 and End-to-End with equal budgets, evaluates dynamic and static SSIM with both floors and writes
 ``OUT/report.md`` with ``OUT/dynamic_grid.png`` and ``OUT/ssim_cdf.png``. Every step resumes.
@@ -39,8 +39,8 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
 
     cfg = cfg or size_config("demo")
     d, seed, scene = cfg.data, cfg.seeds[0], cfg.rooms[0]
-    if d.positions < 10 or d.human_positions < 2:
-        raise ConfigError("the demo needs data.positions >= 10 and data.human_positions >= 2")
+    if d.positions < 10 or d.person_positions < 2:
+        raise ConfigError("the demo needs data.positions >= 10 and data.person_positions >= 2")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -49,7 +49,7 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
         from ..sim.simulate import SolverConfig
 
         dataset = out / "data"
-        g = gen.GenerateConfig(scene=scene, task="rx", positions=d.positions, human_positions=d.human_positions,
+        g = gen.GenerateConfig(scene=scene, task="rx", positions=d.positions, person_positions=d.person_positions,
                                seed=seed, solver=SolverConfig(samples_per_src=d.samples_per_src))
         gen.generate(dataset, g, quiet=quiet)
     t_data = time.perf_counter() - t0
@@ -72,7 +72,7 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
              *([f"The dataset names no scene, so the {model} model is used instead of {cfg.train.model}.", ""]
                if model != cfg.train.model else []),
              f"Dataset `{dataset}` ({scene}, moving RX, {d.positions} antenna positions x (1 + "
-             f"{d.human_positions}) states; data step {t_data:.0f} s). Budgets: Baseline {train.stage1_iterations} "
+             f"{d.person_positions}) states; data step {t_data:.0f} s). Budgets: Baseline {train.stage1_iterations} "
              f"steps; Ours = Baseline + {train.stage2_iterations} Stage-2 steps; End-to-End "
              f"{train.stage1_iterations + train.stage2_iterations} steps.", "",
              "| method | dynamic mean | dynamic median | static mean | static median | train s | render ms/PAS |",
@@ -86,7 +86,7 @@ def run_demo(out: str | Path, *, cfg: ExperimentConfig | None = None, quiet: boo
                  f"{s['nearest_neighbour']['mean']:.3f} | {s['nearest_neighbour']['median']:.3f} | | |")
     lines.append(f"| mean image | {d['mean_image']['mean']:.3f} | {d['mean_image']['median']:.3f} | "
                  f"{s['mean_image']['mean']:.3f} | {s['mean_image']['median']:.3f} | | |")
-    lines += ["", "Dynamic: unseen antenna x unseen human positions (human-present ground truth); static: the "
+    lines += ["", "Dynamic: unseen antenna x unseen person positions (person-present ground truth); static: the "
               "background alone at unseen antenna positions (empty room).", ""]
     for m, r in res.items():
         for part in ("dynamic", "static"):

@@ -8,6 +8,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..core.legacy_names import folder_written_before
 from .methods import get_method
 from .sizes import DatasetSpec
 
@@ -46,7 +47,9 @@ class Job:
         return k
 
     def folder(self, out: Path) -> Path:
-        return Path(out) / "jobs" / self.dataset.key / self.key
+        """``out/jobs/<dataset>/<key>`` (or where a folder written before a name changed keeps it:
+        :func:`rfmitsuba.core.legacy_names.folder_written_before`)."""
+        return folder_written_before(Path(out) / "jobs" / self.dataset.key / self.key)
 
     def prior_job(self) -> "Job | None":
         """The job this one starts from (its method's ``builds_on``: Ours' Baseline, Stage 3's

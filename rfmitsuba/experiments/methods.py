@@ -11,28 +11,36 @@ continued           Baseline's field trained n2 steps more on the same empty-roo
                     data, at Stage 1's final learning rates (the paper's "continue
                     training the baseline")
 duplicated          one field on the empty-room data repeated (1 + H_train) times      n1 + n2
-baseline_human      one field on empty + human-present data, no human position        n1 + n2
-end_to_end          one field on empty + human-present data, human position as input  n1 + n2
+baseline_person     one field on empty + person-present data, no person position      n1 + n2
+end_to_end          one field on empty + person-present data, person position as input n1 + n2
                     (coherent Gaussian family: background + person field trained together,
                     :mod:`rfmitsuba.models.coherent_gaussians_joint`)
-ours                Stage 1 = baseline (n1), then Stage 2: frozen background + human   n1 + n2
-                    Gaussians (:mod:`rfmitsuba.models.splat_person`) on the human-present data
+ours                Stage 1 = baseline (n1), then Stage 2: frozen background + person  n1 + n2
+                    Gaussians (:mod:`rfmitsuba.models.splat_person`) on the person-present data
+ours_untracked      Ours without the walk's positions: R rounds of a search for the   n1 + R n2
+                    walk from frame order alone (grid, walk within a walking speed,
+                    descent; :mod:`rfmitsuba.experiments.walk_search`) and Stage 2 on
+                    it (coherent Gaussian family only)
+ours_people         Ours with one person field for every person of the walk (each     n1 + n2
+                    person's feet an input; same body, own scatterers, blockages
+                    multiplied; coherent Gaussian family only): on a walk of several
+                    people, against Ours whose field sees person 1 alone
 refined             Ours, then Stage 3: background and person field trained together    n1 + 2 n2
-                    on empty + human-present data at Stage 1's final learning rates
+                    on empty + person-present data at Stage 1's final learning rates
                     (coherent Gaussian family only; does the walk improve the background?)
 ==================  ================================================================  ===========
 
 So every method of the ablations has the same step budget as Ours; Baseline is Ours' first
 stage and Continued's start (before 2026-11-27 Continued trained n1 + n2 steps from scratch on one
-schedule). The end-to-end and human-data baselines see the same samples as Ours (empty room +
-human-present data at training antenna and training human positions).
+schedule). The end-to-end and person-data baselines see the same samples as Ours (empty room +
+person-present data at training antenna and training person positions).
 
 Evaluations (:func:`evaluate`), both by the metric protocol (docs/conventions.md) with both floors:
 
-* **dynamic** - unseen antenna positions x unseen human positions, against the human-present
-  ground truth; nearest neighbour over (antenna, human) position among the human-present
-  training samples. Methods without a human input render the same image for every human.
-* **static** - the background alone (human Gaussians off; end-to-end with "no human" input)
+* **dynamic** - unseen antenna positions x unseen person positions, against the person-present
+  ground truth; nearest neighbour over (antenna, person) position among the person-present
+  training samples. Methods without a person input render the same image for every person.
+* **static** - the background alone (person Gaussians off; end-to-end with "no person" input)
   at unseen antenna positions, against the empty-room ground truth; nearest neighbour over
   the antenna position among empty-room training samples.
 """
@@ -50,7 +58,8 @@ import numpy as np
 from ..core import config as C
 from ..core.atomic import write_json_with_numpy
 from ..core.errors import ConfigError, RunError
-from ..data.samples import SampleData, num_human_features
+from ..core.legacy_names import current_keys, current_name
+from ..data.samples import SampleData, num_person_features
 from ..data.store import open_dataset
 from ..eval.dynamic_static import evaluate
 from ..models.base import FieldSet, field_class, load_field
@@ -59,6 +68,7 @@ from ..models.coherent_person import CoherentPersonConfig
 from ..models.splat_person import SplatPersonConfig
 from ..train.config import OptimConfig, TrainConfig
 from ..train.trainer import Trainer
+from .walk_search import WalkSearchConfig
 
 
 @dataclass(frozen=True)
@@ -69,7 +79,7 @@ class Method:
     label: str
     description: str
     states: str
-    human_input: bool = False
+    person_input: bool = False
     two_stage: bool = False
     duplicate: bool = False
     long_budget: bool = True
@@ -82,19 +92,25 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("continued", "Continued baseline", "baseline trained longer on empty-room data", "empty",
            builds_on="baseline"),
     Method("duplicated", "Baseline (duplicated)", "trained on duplicated empty-room data", "empty", duplicate=True),
-    Method("baseline_human", "Baseline (human)", "trained on human-present data, no human position", "all"),
-    Method("end_to_end", "End-to-End", "one model on human-present data with the human position as input", "all",
-           human_input=True),
-    Method("ours", "Ours (two-stage)", "frozen background + human Gaussians", "human", human_input=True,
+    Method("baseline_person", "Baseline (person)", "trained on person-present data, no person position", "all"),
+    Method("end_to_end", "End-to-End", "one model on person-present data with the person position as input", "all",
+           person_input=True),
+    Method("ours", "Ours (two-stage)", "frozen background + person Gaussians", "person", person_input=True,
            two_stage=True, builds_on="baseline"),
+    Method("ours_untracked", "Ours (no tracker)", "Ours with the walk's positions estimated from frame order alone",
+           "person", person_input=True, two_stage=True, builds_on="baseline"),
+    Method("ours_people", "Ours (every person)", "Ours with one person field drawing every person of the walk",
+           "person", person_input=True, two_stage=True, builds_on="baseline"),
     Method("refined", "Ours + Stage 3", "Ours, then background and person trained together on empty + walk data",
-           "all", human_input=True, builds_on="ours"),
+           "all", person_input=True, builds_on="ours"),
 ]}
 
 
 def get_method(name: str) -> Method:
     """The registered method ``name`` (ConfigError listing the known ones)."""
     if name not in METHODS:
+        if current_name(name) in METHODS:
+            raise ConfigError(f"method {name!r} is called {current_name(name)!r} now (see the changelog)")
         raise ConfigError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
     return METHODS[name]
 
@@ -105,21 +121,23 @@ class MethodConfig:
 
     stage1: the background training configuration (its ``iterations`` is n1; its ``model``,
     "splat" or "coherent", is the model family of every method); stage2_iterations: n2;
-    human: the Stage-2 human Gaussians (model "splat"); coherent_human: the Stage-2 human
-    scatterers (model "coherent"); coherent_gaussians_human: the Stage-2 person field of the coherent
+    person: the Stage-2 person Gaussians (model "splat"); coherent_person: the Stage-2 person
+    scatterers (model "coherent"); coherent_gaussians_person: the Stage-2 person field of the coherent
     Gaussian family (body scatterers + blockage, model "coherent_gaussians"); stage2_optim:
-    Stage-2 learning rates. ``human.human_octaves`` are the encoding octaves of the human position
-    for the end-to-end model.
+    Stage-2 learning rates; walk_search: how Ours (no tracker) estimates the walk
+    (:class:`~rfmitsuba.experiments.walk_search.WalkSearchConfig`). ``person.person_octaves`` are
+    the encoding octaves of the person position for the end-to-end model.
     """
 
     stage1: TrainConfig = dc_field(default_factory=TrainConfig)
     stage2_iterations: int = 1000
-    human: SplatPersonConfig = dc_field(default_factory=SplatPersonConfig)
-    coherent_human: CoherentPersonConfig = dc_field(default_factory=CoherentPersonConfig)
-    coherent_gaussians_human: CoherentGaussianPersonConfig = dc_field(default_factory=CoherentGaussianPersonConfig)
+    person: SplatPersonConfig = dc_field(default_factory=SplatPersonConfig)
+    coherent_person: CoherentPersonConfig = dc_field(default_factory=CoherentPersonConfig)
+    coherent_gaussians_person: CoherentGaussianPersonConfig = dc_field(default_factory=CoherentGaussianPersonConfig)
     stage2_optim: OptimConfig = dc_field(default_factory=lambda: OptimConfig(
         lr_means=1e-2, lr_means_final=5e-4, lr_log_scales=1e-2, lr_rotations=2e-3, lr_opacity=2e-2,
         lr_net=1e-2, lr_net_final=1e-3))
+    walk_search: WalkSearchConfig = dc_field(default_factory=WalkSearchConfig)
 
     def __post_init__(self) -> None:
         if self.stage2_iterations < 1:
@@ -148,7 +166,7 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
     dup = 1
     if method.duplicate:
 
-        dup = 1 + len(open_dataset(dataset).split.human_train)
+        dup = 1 + len(open_dataset(dataset).split.person_train)
     return SampleData.open_samples(dataset, states=method.states, duplicate=dup, noise_snr_db=noise_snr_db,
                                    noise_seed=seed, train_antennas=train_antennas, subset_seed=0, layout=layout,
                                    walk_frames=walk_frames)
@@ -157,32 +175,32 @@ def open_data(dataset: str | Path, method: Method, *, noise_snr_db: float | None
 def joint_field(mcfg: MethodConfig):
     """End-to-End in the coherent Gaussian family: (field factory for the Trainer, extra-input
     width, features(data, idx)) of :class:`~rfmitsuba.models.coherent_gaussians_joint.CoherentGaussianJointField`,
-    the background and Ours' Stage-2 person field (``mcfg.coherent_gaussians_human``) trained together."""
+    the background and Ours' Stage-2 person field (``mcfg.coherent_gaussians_person``) trained together."""
     from ..models.coherent_gaussians_joint import CoherentGaussianJointField
 
-    pcfg = mcfg.coherent_gaussians_human
-    width = num_human_features(pcfg.human_octaves) + 3
+    pcfg = mcfg.coherent_gaussians_person
+    width = num_person_features(pcfg.person_octaves) + 3
 
     def factory(tr, rng):
         return CoherentGaussianJointField.for_training(tr.cfg, tr.data, scene_xml=tr.scene_xml(), rng=rng,
                                                        extra_inputs=width, name=tr.name, person=pcfg)
 
-    return factory, width, lambda data, idx: data.features(idx, octaves=pcfg.human_octaves, raw=True)
+    return factory, width, lambda data, idx: data.features(idx, octaves=pcfg.person_octaves, raw=True)
 
 
 def person_field(mcfg: MethodConfig, bg) -> tuple[str, object]:
     """Stage 2's person field on background ``bg``: (registered kind, its configuration).
 
-    On a splat background ("splat_person", ``mcfg.human``); on a coherent Gaussian one
-    ("coherent_gaussians_person", ``mcfg.coherent_gaussians_human``); on a coherent one
-    ("coherent_perturb" or "coherent_person", by ``mcfg.coherent_human.kind`` "perturb" or
-    "scatter", with ``mcfg.coherent_human``)."""
+    On a splat background ("splat_person", ``mcfg.person``); on a coherent Gaussian one
+    ("coherent_gaussians_person", ``mcfg.coherent_gaussians_person``); on a coherent one
+    ("coherent_perturb" or "coherent_person", by ``mcfg.coherent_person.kind`` "perturb" or
+    "scatter", with ``mcfg.coherent_person``)."""
     if bg.family == "splat":
-        return "splat_person", mcfg.human
+        return "splat_person", mcfg.person
     if bg.family == "coherent_gaussians":
-        return "coherent_gaussians_person", mcfg.coherent_gaussians_human
-    kind = "coherent_perturb" if mcfg.coherent_human.kind == "perturb" else "coherent_person"
-    return kind, mcfg.coherent_human
+        return "coherent_gaussians_person", mcfg.coherent_gaussians_person
+    kind = "coherent_perturb" if mcfg.coherent_person.kind == "perturb" else "coherent_person"
+    return kind, mcfg.coherent_person
 
 
 def stage3_config(mcfg: MethodConfig, *, seed: int) -> TrainConfig:
@@ -320,12 +338,12 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
                          layout=layout, walk_frames=walk_frames, seed=seed)
         cfg = stage1_config(mcfg, m, seed=seed)
         kw = {}
-        if m.human_input and cfg.model == "coherent_gaussians":
+        if m.person_input and cfg.model == "coherent_gaussians":
             factory, width, feats = joint_field(mcfg)
             kw = {"extra": lambda idx: feats(data, idx), "extra_inputs": width, "field_factory": factory}
-        elif m.human_input:
-            nf = num_human_features(mcfg.human.human_octaves)
-            kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.human.human_octaves), "extra_inputs": nf}
+        elif m.person_input:
+            nf = num_person_features(mcfg.person.person_octaves)
+            kw = {"extra": lambda idx: data.features(idx, octaves=mcfg.person.person_octaves), "extra_inputs": nf}
         s = Trainer(cfg, data, out / "train", quiet=quiet, **kw).run()
         return {"train_time_s": s["train_time_s"], "steps": s["steps"], "val_ssim": s["val_ssim"],
                 "runs": [str(out / "train")]}
@@ -338,21 +356,78 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
                      layout=layout, walk_frames=walk_frames, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
     kind, pcfg = person_field(mcfg, bg)
-    oct_ = pcfg.human_octaves
+    oct_ = pcfg.person_octaves
     person_cls = field_class(kind)
-    walk = np.unique(data.human_pos[data.train], axis=0)
+    walk = np.unique(data.person_pos[data.train], axis=0)
 
     def factory(tr, rng):
-        return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="human")
+        return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")
 
-    tr = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="human",
-                 extra=lambda idx: data.features(idx, octaves=oct_, raw=True),
-                 extra_inputs=num_human_features(oct_) + 3, field_factory=factory)
     write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
-    s2 = tr.run()
+    people = 1
+    if name == "ours_people":
+        people = int(np.asarray(data.people_pos).shape[1]) if data.people_pos is not None else 1
+        if kind != "coherent_gaussians_person":
+            raise ConfigError(f"Ours (every person) needs the coherent Gaussian family (stage1.model = "
+                              f"'coherent_gaussians'), got the {kind!r} person field")
+        pcfg = dataclasses.replace(pcfg, people=people)
+    if name == "ours_untracked":
+        s2 = _train_untracked(data, bg, out, mcfg=mcfg, cfg2=cfg2, person_cls=person_cls, pcfg=pcfg, seed=seed,
+                              quiet=quiet)
+    else:
+        s2 = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="person",
+                     extra=lambda idx: data.features(idx, octaves=oct_, raw=True, people=people),
+                     extra_inputs=num_person_features(oct_) + 3 * people, field_factory=factory).run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
-            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")]}
+            "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")],
+            **{k: s2[k] for k in ("walk", "walk_rounds", "walk_search_s") if k in s2}}
+
+
+def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg2: TrainConfig, person_cls,
+                     pcfg, seed: int, quiet: bool) -> dict:
+    """Stage 2 of Ours (no tracker): rounds of walk search and Stage-2 training
+    (:mod:`rfmitsuba.experiments.walk_search`); the last round's field is ``out/stage2``, the walks
+    ``out/walk.json``. Returns the last Stage-2 summary, its training time the rounds' and the
+    searches' sum (``walk_search_s`` the searches'), with
+    ``walk``: the last walk's error against the dataset's person positions [cm] (a report only)."""
+    from ..eval.locate import TwoStage
+    from . import walk_search as W
+
+    wcfg = mcfg.walk_search
+    if bg.family != "coherent_gaussians" or person_cls.kind != "coherent_gaussians_person":
+        raise ConfigError(f"Ours (no tracker) needs the coherent Gaussian family (stage1.model = "
+                          f"'coherent_gaussians'), got {bg.family!r}")
+    frames = W.training_frames(data)
+    region = W.search_region(data)
+    interval = W.frame_interval_s(data)
+    oct_ = pcfg.person_octaves
+    centre = region.feet(0.5 * (region.lo + region.hi)[None])
+    walk_data = W.with_walk(data, frames, np.repeat(centre, len(frames), axis=0))
+    person = person_cls.for_background(bg, cfg=dataclasses.replace(pcfg, init_strength=wcfg.search_strength,
+                                                                    init_gain=0.0), seed=seed, name="person")
+    person.freeze()
+    rounds, total_s, search_s, s2 = [], 0.0, 0.0, None
+    for r in range(wcfg.rounds):
+        model = TwoStage(background=bg, person=person, data=walk_data, feet_z=region.z, walk=centre, job=out)
+        t0 = time.perf_counter()
+        found = W.search_walk(model, frames, wcfg, interval_s=interval, region=region, quiet=quiet)
+        search_s += time.perf_counter() - t0
+        walk_data = W.with_walk(data, frames, found["positions"])
+        rounds.append({**found, "error": W.walk_error(data, frames, found["positions"])})
+        W.write_walk(out / "walk.json", rounds, frames)
+        folder = out / ("stage2" if r == wcfg.rounds - 1 else f"stage2_round{r}")
+        d, walk = walk_data, found["positions"]
+        s2 = Trainer(cfg2, d, folder, frozen=[bg], quiet=quiet, name="person",
+                     extra=lambda idx, d=d: d.features(idx, octaves=oct_, raw=True),
+                     extra_inputs=num_person_features(oct_) + 3,
+                     field_factory=lambda tr, rng, walk=walk: person_cls.for_background(
+                         bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")).run()
+        total_s += s2["train_time_s"]
+        person = load_field(folder / "final" / "field.npz")
+        person.freeze()
+    return {**s2, "train_time_s": total_s + search_s, "walk_search_s": search_s, "walk": rounds[-1]["error"],
+            "walk_rounds": [x["error"] for x in rounds]}
 
 
 def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:
@@ -412,9 +487,10 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     chosen = ({} if eval_dataset is not None else
               {"train_antennas": train_antennas, "layout": layout, "walk_frames": walk_frames})
     if (jd / "DONE").is_file():
-        metrics = json.loads((jd / "metrics.json").read_text())
+        # a job finished before a name changed reads under today's names (rfmitsuba.core.legacy_names)
+        metrics = {**current_keys(json.loads((jd / "metrics.json").read_text())), **record}
         if reevaluate:
-            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
+            metrics["eval"] = evaluate(load_model(name, jd, octaves=mcfg.person.person_octaves), eval_dataset or dataset,
                                        noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache,
                                        **chosen)
             write_json_with_numpy(jd / "metrics.json", metrics)
@@ -423,7 +499,7 @@ def run_job(name: str, dataset: str | Path, job_dir: str | Path, *, mcfg: Method
     tr = train_method(name, dataset, jd, mcfg=mcfg, seed=seed, noise_snr_db=noise_snr_db,
                       train_antennas=train_antennas,
                       layout=layout, walk_frames=walk_frames, stage1_dir=stage1_dir, ours_dir=ours_dir, quiet=quiet)
-    ev = evaluate(load_model(name, jd, octaves=mcfg.human.human_octaves), eval_dataset or dataset,
+    ev = evaluate(load_model(name, jd, octaves=mcfg.person.person_octaves), eval_dataset or dataset,
                   noise_snr_db=noise_snr_db, noise_seed=seed, floors_cache=floors_cache, **chosen)
     metrics = {**record, "train": tr, "eval": ev, "wall_s": time.perf_counter() - t0}
     write_json_with_numpy(jd / "metrics.json", metrics)

@@ -25,7 +25,7 @@ MAIN = {
 TWO_STAGE = {"end_to_end": 0.858, "continued": 0.844, "ours": 0.927}
 
 #: tab:ablation_info - method -> mean SSIM (bedroom, moving RX).
-PERTURBATION = {"baseline": 0.844, "duplicated": 0.761, "baseline_human": 0.895, "ours": 0.927}
+PERTURBATION = {"baseline": 0.844, "duplicated": 0.761, "baseline_person": 0.895, "ours": 0.927}
 
 #: tab:material_properties - perturber material -> (mean, median) of Ours (bedroom, moving RX).
 MATERIAL = {"metal": (0.915, 0.958), "concrete": (0.935, 0.972), "tissue": (0.927, 0.967)}
@@ -39,13 +39,13 @@ POSITIONS = {900: (0.844, 0.886), 1500: (0.859, 0.904), 3600: (0.911, 0.947), 60
              10000: (0.929, 0.952)}
 
 #: tab:style_adapted_comparison - (model, data, room) -> (mean, median); "wrfgsplus_mod" is
-#: the paper's Baseline, human-present = our "baseline_human".
+#: the paper's Baseline, person-present = our "baseline_person".
 DATA_AUGMENTATION = {
-    ("wrfgsplus_mod", "empty", "bedroom"): (0.844, 0.886), ("wrfgsplus_mod", "human", "bedroom"): (0.895, 0.937),
+    ("wrfgsplus_mod", "empty", "bedroom"): (0.844, 0.886), ("wrfgsplus_mod", "person", "bedroom"): (0.895, 0.937),
     ("wrfgsplus_mod", "empty", "living_room"): (0.847, 0.897),
-    ("wrfgsplus_mod", "human", "living_room"): (0.918, 0.954),
+    ("wrfgsplus_mod", "person", "living_room"): (0.918, 0.954),
     ("wrfgsplus_mod", "empty", "dining_room"): (0.830, 0.891),
-    ("wrfgsplus_mod", "human", "dining_room"): (0.852, 0.924),
+    ("wrfgsplus_mod", "person", "dining_room"): (0.852, 0.924),
 }
 
 #: Room labels of the paper.

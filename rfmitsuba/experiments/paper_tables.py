@@ -72,12 +72,12 @@ class Table:
 
 class MainTable(Table):
     """Every room x task: Baseline, End-to-End and Ours (the paper's columns), then the
-    ablations' Continued, Duplicated and Baseline (human) in every cell too, with the floors
+    ablations' Continued, Duplicated and Baseline (person) in every cell too, with the floors
     (paper Table `tab:generalization_combined_concise`)."""
 
     key = "main"
     #: the ablations' methods, trained for Ours' steps: judged against Ours in every cell
-    equal_steps = ("continued", "duplicated", "baseline_human")
+    equal_steps = ("continued", "duplicated", "baseline_person")
     methods = ("baseline", "end_to_end", "ours") + equal_steps
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
@@ -224,10 +224,10 @@ class TwoStageTable(Table):
 
 
 class PerturbationTable(Table):
-    """Role of perturbation data: Baseline, Duplicated, Baseline (human), Ours (paper Table `tab:ablation_info`)."""
+    """Role of perturbation data: Baseline, Duplicated, Baseline (person), Ours (paper Table `tab:ablation_info`)."""
 
     key = "perturbation"
-    methods = ("baseline", "duplicated", "baseline_human", "ours")
+    methods = ("baseline", "duplicated", "baseline_person", "ours")
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
         return [Job(_ref(cfg), m, seed) for m in self.methods]
@@ -247,11 +247,11 @@ class PerturbationTable(Table):
             claims.add("Duplicating the empty data collapses the baseline", "0.844 -> 0.761",
                        f"static {mean(b, STAT):.3f} -> {mean(du, STAT):.3f}", mean(du, STAT) < mean(b, STAT) - 0.02)
         if b and h:
-            claims.paired("Human-present data (no position) improves the background model (static)",
-                          "0.844 -> 0.895", h, b, STAT, names=("Baseline (human)", "Baseline"))
+            claims.paired("Person-present data (no position) improves the background model (static)",
+                          "0.844 -> 0.895", h, b, STAT, names=("Baseline (person)", "Baseline"))
         if h and o:
-            claims.paired("Ours beats Baseline (human) (dynamic)", "0.927 vs 0.895", o, h, DYN,
-                          names=("Ours", "Baseline (human)"))
+            claims.paired("Ours beats Baseline (person) (dynamic)", "0.927 vs 0.895", o, h, DYN,
+                          names=("Ours", "Baseline (person)"))
         return L
 
 
@@ -537,7 +537,7 @@ class RxCountTable(Table):
              f"Baseline trained on {own} positions (the main dataset's training split) and on "
              f"{', '.join(str(n) for n in sorted(cfg.rx_counts))} positions of an extra empty-room dataset of the "
              f"same room ({static_positions_for(max(cfg.rx_counts))} positions, another position seed); Ours on the "
-             f"{own} positions plus the walk ({cfg.data.human_positions} positions). All are tested on the main "
+             f"{own} positions plus the walk ({cfg.data.person_positions} positions). All are tested on the main "
              "dataset's test positions; the floors are the main dataset's (from its training split).", "",
              "| scene | task | method | training positions | static mean | dynamic mean | where the person matters |",
              "|---|---|---|---|---|---|---|"]
@@ -612,10 +612,10 @@ class DataScarceTable(Table):
     """Where one walk pays: static training positions laid out on a coarse grid over the free
     floor (``cfg.scarce_positions``) against walks of ``cfg.walk_lengths`` positions (the first N
     of one long walk at its own pace), Baseline and Continued without the walk, Ours, Ours +
-    Stage 3 and Baseline (human) with it; the first two rooms, every task. Every cell is tested
+    Stage 3 and Baseline (person) with it; the first two rooms, every task. Every cell is tested
     on the same positions: the long-walk dataset's test antennas, and its test walk positions
     spread over the whole walk. The walk can only change the static scene through Stage 3
-    (coherent Gaussian family; with another family Baseline (human) stands in)."""
+    (coherent Gaussian family; with another family Baseline (person) stands in)."""
 
     key = "data_scarce"
     static_methods = ("baseline", "continued")
@@ -624,12 +624,12 @@ class DataScarceTable(Table):
     def walk_methods(cfg: ExperimentConfig) -> tuple[str, ...]:
         """The methods trained with the walk (Stage 3 in the coherent Gaussian family only)."""
         both = cfg.train.model == "coherent_gaussians"
-        return ("ours", "refined", "baseline_human") if both else ("ours", "baseline_human")
+        return ("ours", "refined", "baseline_person") if both else ("ours", "baseline_person")
 
     @classmethod
     def static_method(cls, cfg: ExperimentConfig) -> str:
-        """The method whose static scene the walk changes: Stage 3, else Baseline (human)."""
-        return "refined" if "refined" in cls.walk_methods(cfg) else "baseline_human"
+        """The method whose static scene the walk changes: Stage 3, else Baseline (person)."""
+        return "refined" if "refined" in cls.walk_methods(cfg) else "baseline_person"
 
     @staticmethod
     def datasets(cfg: ExperimentConfig) -> list[DatasetSpec]:
@@ -650,7 +650,7 @@ class DataScarceTable(Table):
         """The walk the break-even is read for: the size's walk (35 positions at the full size)
         where it is one of the walk lengths, else the shortest."""
         walks = cls.walks(cfg)
-        return cfg.data.human_positions if cfg.data.human_positions in walks else walks[0]
+        return cfg.data.person_positions if cfg.data.person_positions in walks else walks[0]
 
     def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
         out = []
@@ -705,7 +705,7 @@ class DataScarceTable(Table):
              f"Baseline's (frozen); the walk changes it only through {LABEL[sm]}.", ""]
         if sm != "refined":
             L += [f"Stage 3 needs the coherent Gaussian family; this experiment trains {cfg.train.model!r}, so "
-                  "Baseline (human) carries the walk's static figures.", ""]
+                  "Baseline (person) carries the walk's static figures.", ""]
         never, cells = True, 0
         verdicts = []
         for ds in self.datasets(cfg):

@@ -42,7 +42,7 @@ def _model_line(cfg) -> str:
     if t.model == "coherent":
         return ("Coherent model (image sources of the room read out by Bartlett, `rfmitsuba.models.coherent`): "
                 "training images 90x360, one source per image of each room, Stage 2 of kind "
-                f"`{method_config(cfg.train, scene_known=cfg.source == 'sionna').coherent_human.kind}`")
+                f"`{method_config(cfg.train, scene_known=cfg.source == 'sionna').coherent_person.kind}`")
     if t.model == "coherent_gaussians":
         m = method_config(cfg.train, scene_known=cfg.source == "sionna")
         d = training_downsample(m.stage1)
@@ -50,10 +50,10 @@ def _model_line(cfg) -> str:
                 "with ray-cast visibility where the room is known, else found by the data scan, plus scatterers, "
                 f"read out by Bartlett): training images {90 // d}x{360 // d} (block means), validation at 90x360; "
                 "Stage 2 the person field "
-                f"(`coherent_gaussians_person`, {m.coherent_gaussians_human.num_points} body scatterers + blockage); "
+                f"(`coherent_gaussians_person`, {m.coherent_gaussians_person.num_points} body scatterers + blockage); "
                 "End-to-End the joint field (`coherent_gaussians_joint`)")
     return (f"Splat model: training images {90 // t.downsample}x{360 // t.downsample}, {t.num_gaussians} initial "
-            f"background Gaussians, {t.human_gaussians} human Gaussians")
+            f"background Gaussians, {t.person_gaussians} person Gaussians")
 
 
 def table_wall_times(cfg, results: dict) -> list[str]:
@@ -124,7 +124,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
     t = cfg.train
     L += ["# rfmitsuba reproduction of *One Walk is All You Need*", "",
           f"Size **{cfg.size}** (data source {cfg.source}: {cfg.data.positions} antenna positions x "
-          f"(1 + {cfg.data.human_positions}) states per dataset{_ray_samples(cfg)}), seeds {seeds}; every figure "
+          f"(1 + {cfg.data.person_positions}) states per dataset{_ray_samples(cfg)}), seeds {seeds}; every figure "
           "of ours is mean ± sample std over the seeds. Written "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
           + (f"this run took {wall_s:.0f} s wall time (jobs finished earlier and skipped are not included)"
@@ -135,14 +135,14 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
           + f" on {platform.machine()} with "
           f"{__import__('os').cpu_count()} cores, load average {load} at the end (the cores are shared).", "",
           "Training budgets (optimizer steps): Baseline = Stage 1 = "
-          f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (human), "
+          f"{t.stage1_iterations}; Stage 2 = {t.stage2_iterations}; Ours, End-to-End, Baseline (person), "
           f"Baseline (duplicated) and Continued baseline = {t.stage1_iterations + t.stage2_iterations} "
           f"(equal budgets; Ours and Continued go on from the Baseline of their seed: Stage 2, or "
           f"{t.stage2_iterations} more steps on the empty room at Stage 1's final learning rates). "
           f"{_model_line(cfg)}, {t.batch_views} views per step. Evaluation at full 90x360 by the metric "
           "protocol.", "",
-          "Two evaluations: **dynamic** = unseen antenna x unseen human positions against the human-present "
-          "ground truth (floors: nearest neighbour over antenna + human position, mean image); **static** = "
+          "Two evaluations: **dynamic** = unseen antenna x unseen person positions against the person-present "
+          "ground truth (floors: nearest neighbour over antenna + person position, mean image); **static** = "
           "the background alone at unseen antenna positions against the empty room (floors over the antenna "
           "position). By construction Ours' static result equals its Stage 1 = Baseline (the background is "
           "frozen), so the paper's gains can only appear in the dynamic evaluation.", ""]

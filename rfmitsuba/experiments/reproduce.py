@@ -43,6 +43,7 @@ from ..core.cluster import ClusterConfig, Task, run_tasks
 from ..core.errors import ConfigError, PlacementError, RfmError, RunError
 from ..core.folder_lock import folder_lock
 from ..core.interrupt import sigterm_interrupts
+from ..core.legacy_names import current_keys, current_name
 from ..data.store import resolve_scene
 from ..train.config import config_diff
 from .job import Job
@@ -58,7 +59,7 @@ def dataset_shape(spec: DatasetSpec, cfg: ExperimentConfig) -> tuple[int, int]:
     d = cfg.data
     if spec.static_positions:
         return spec.static_positions, 0
-    return d.positions, spec.walk_positions or d.human_positions
+    return d.positions, spec.walk_positions or d.person_positions
 
 
 #: the walk's own pace: positions per minute (the paper's 35 positions in a minute)
@@ -95,16 +96,16 @@ def ensure_dataset(spec: DatasetSpec, cfg: ExperimentConfig, data_dir: Path, *, 
             # the seed draws the synthetic scene first, so the static dataset keeps it and differs
             # in its antenna positions by their count (and in the 2 walk states, which it ignores)
             seed = {"tissue": 0, "metal": 1, "concrete": 2}.get(spec.material, 3) + (10 if spec.task == "tx" else 0)
-            synthetic.make_dataset(path, antennas=positions, humans=max(walk, 2), seed=seed, task=spec.task)
+            synthetic.make_dataset(path, antennas=positions, people=max(walk, 2), seed=seed, task=spec.task)
         return path
     from ..sim import generate as gen
 
     solver = solver_config(spec.scene, d)
     duration = walk_duration_s(spec, cfg)
     # an empty-room dataset (the Rx-count table's extra positions) is seeded by the size's walk
-    seed = (data_seed(spec.scene, walk if spec.walk_positions else d.human_positions, duration_s=duration)
+    seed = (data_seed(spec.scene, walk if spec.walk_positions else d.person_positions, duration_s=duration)
             + (STATIC_SEED_OFFSET if spec.static_positions else 0))
-    gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=positions, human_positions=walk,
+    gcfg = gen.GenerateConfig(scene=spec.scene, task=spec.task, positions=positions, person_positions=walk,
                               material=spec.material, seed=seed, solver=solver, walk_duration_s=duration)
     gen.generate(path, gcfg, quiet=quiet)
     return path
@@ -147,27 +148,27 @@ def ensure_truth(scene: str, task: str, cfg: ExperimentConfig, out: Path, *, qui
     return truth_uncertainty(truth_folder(out, scene, task), tc, quiet=quiet)["stats"]["ssim"]
 
 
-def data_seed(scene: str, human_positions: int, *, tries: int = 8, duration_s: float = 60.0) -> int:
+def data_seed(scene: str, person_positions: int, *, tries: int = 8, duration_s: float = 60.0) -> int:
     """The first seed in 0..tries-1 for which :func:`rfmitsuba.sim.person.walk` finds a clear walk of
-    ``human_positions`` steps over ``duration_s`` seconds in ``scene`` (the walk sampler gives up
+    ``person_positions`` steps over ``duration_s`` seconds in ``scene`` (the walk sampler gives up
     on some seeds in small rooms).
 
     Raises:
         PlacementError: no seed works.
     """
-    from ..sim import person as human
+    from ..sim import person as person
     from ..sim.geometry import RoomGeometry
 
-    if human_positions < 1:
+    if person_positions < 1:
         return 0
     geom = RoomGeometry.from_xml(resolve_scene(scene))
     for s in range(tries):
         try:
-            human.walk(geom, n=human_positions, duration_s=duration_s, seed=s)
+            person.walk(geom, n=person_positions, duration_s=duration_s, seed=s)
             return s
         except RfmError:
             continue
-    raise PlacementError(f"no clear walk of {human_positions} positions in {scene} for seeds 0..{tries - 1}")
+    raise PlacementError(f"no clear walk of {person_positions} positions in {scene} for seeds 0..{tries - 1}")
 
 
 #: what every job's content depends on; the other keys of an ExperimentConfig only choose jobs, so
@@ -181,7 +182,7 @@ def check_experiment(out: Path, cfg: ExperimentConfig) -> None:
 
     f = out / "experiment.toml"
     if f.is_file():
-        have = C.to_dict(C.load(ExperimentConfig, f))
+        have = C.to_dict(C.load(ExperimentConfig, f, saved=True))
         want = C.to_dict(cfg)
         diff = config_diff({k: have.get(k) for k in SHARED_KEYS}, {k: want[k] for k in SHARED_KEYS})
         if diff:
@@ -195,6 +196,9 @@ def _saved_job(record: dict) -> dict:
     """A stored ``job.json`` with its method configuration read as a saved file (options removed
     or renamed since it was written load as the code now names them, :mod:`rfmitsuba.core.config`),
     so an unfinished job of an older folder resumes; left as stored where it does not read."""
+    job = record.get("job")
+    if isinstance(job, dict) and isinstance(job.get("method"), str):
+        record = {**record, "job": {**job, "method": current_name(job["method"])}}
     mc = record.get("method_config")
     if isinstance(mc, dict):
         try:
@@ -257,7 +261,8 @@ def report_finished(out: str | Path, cfg: ExperimentConfig) -> tuple[Path, int, 
     for j in jobs:
         jd = j.folder(out)
         if (jd / "DONE").is_file() and (jd / "metrics.json").is_file():
-            results[f"{j.dataset.key}/{j.key}"] = json.loads((jd / "metrics.json").read_text())
+            results[f"{j.dataset.key}/{j.key}"] = {**current_keys(json.loads((jd / "metrics.json").read_text())),
+                                                   "job": j.record()}
     path = write_report(out, cfg, results, wall_s=None, jobs_total=len(jobs))
     return path, len(results), len(jobs)
 
@@ -355,6 +360,7 @@ def reproduce(out: str | Path, cfg: ExperimentConfig, *, data_dir: str | Path | 
 def _reproduce(out: Path, cfg: ExperimentConfig, *, data_dir, stop_after, reevaluate: bool, quiet: bool,
                cluster: ClusterConfig) -> Path:
     """:func:`reproduce` once its folder is checked and locked."""
+    method_config(cfg.train, scene_known=cfg.source == "sionna")   # a bad override stops here, before any write
     C.save(cfg, out / "experiment.toml")        # the latest selection of jobs (the shared keys are checked)
     data_dir = Path(data_dir) if data_dir else out / "data"
     # workers elsewhere resolve relative paths against their own folder

@@ -34,7 +34,7 @@ DEFAULT_TABLES = tuple(t for t in TABLES if t != "data_scarce")
 
 @dataclass
 class DataSize:
-    """Dataset sizes: antenna positions, walk (human) positions, ray samples per source.
+    """Dataset sizes: antenna positions, walk (person) positions, ray samples per source.
 
     samples_per_src: Sionna's ray samples per source; 0 = ``samples_scale`` times the room's
         default (:func:`rfmitsuba.sim.generate.default_solver`: 1e5, 3e5 over 50 m^2 of floor).
@@ -47,14 +47,14 @@ class DataSize:
     """
 
     positions: int = 900
-    human_positions: int = 35
+    person_positions: int = 35
     samples_per_src: int = 0
     samples_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.positions < 1 or self.human_positions < 0 or self.samples_per_src < 0:
-            raise ConfigError(f"DataSize: positions must be >= 1, human_positions and samples_per_src >= 0, got "
-                              f"{self.positions}, {self.human_positions}, {self.samples_per_src}")
+        if self.positions < 1 or self.person_positions < 0 or self.samples_per_src < 0:
+            raise ConfigError(f"DataSize: positions must be >= 1, person_positions and samples_per_src >= 0, got "
+                              f"{self.positions}, {self.person_positions}, {self.samples_per_src}")
         if not 0.0 < self.samples_scale <= 1.0:
             raise ConfigError(f"DataSize.samples_scale must be in (0, 1], got {self.samples_scale}")
 
@@ -74,13 +74,13 @@ class TrainSize:
     (Gaussian splatting, WRF-GS+ style).
     stage1_iterations / stage2_iterations: n1 / n2 optimizer steps; batch_views: PAS per step;
     downsample: training image reduction (splat); num_gaussians / max_gaussians: splat Gaussians
-    at the start / at most (density control ``density``); human_gaussians: Stage-2 person Gaussians
+    at the start / at most (density control ``density``); person_gaussians: Stage-2 person Gaussians
     (splat); val_every: validation and checkpoint cadence [steps]; room_order / furniture_order:
     image-source orders of the coherent model (model "coherent"; "coherent_gaussians" keeps its own,
     set them with ``overrides``: ``"stage1.coherent_gaussians.room_order=3"``).
     overrides: ``KEY=VALUE`` settings of the resulting
     :class:`~rfmitsuba.experiments.methods.MethodConfig` applied last (e.g.
-    ``"stage1.optim.lr_amp=0.02"``, ``"coherent_human.num_points=8"``): every finer setting
+    ``"stage1.optim.lr_amp=0.02"``, ``"coherent_person.num_points=8"``): every finer setting
     without a size of its own.
     """
 
@@ -91,7 +91,7 @@ class TrainSize:
     batch_views: int = 8
     num_gaussians: int = 3000
     max_gaussians: int = 20000
-    human_gaussians: int = 300
+    person_gaussians: int = 300
     val_every: int = 500
     density: bool = True
     room_order: int = 3
@@ -101,7 +101,7 @@ class TrainSize:
     def __post_init__(self) -> None:
         if self.model not in ("splat", "coherent", "coherent_gaussians"):
             raise ConfigError(f"TrainSize.model must be 'splat', 'coherent' or 'coherent_gaussians', got {self.model!r}")
-        for k in ("stage1_iterations", "stage2_iterations", "batch_views", "num_gaussians", "human_gaussians",
+        for k in ("stage1_iterations", "stage2_iterations", "batch_views", "num_gaussians", "person_gaussians",
                   "val_every"):
             if getattr(self, k) < 1:
                 raise ConfigError(f"TrainSize.{k} must be >= 1, got {getattr(self, k)}")
@@ -177,23 +177,23 @@ PAPER_SIZES = ("tiny", "quick", "medium", "full")
 
 SIZES = {
     "tiny": ExperimentConfig(
-        size="tiny", source="synthetic", seeds=[0, 1, 2], data=DataSize(positions=25, human_positions=6),
+        size="tiny", source="synthetic", seeds=[0, 1, 2], data=DataSize(positions=25, person_positions=6),
         train=TrainSize(model="splat", stage1_iterations=30, stage2_iterations=30, downsample=10, batch_views=4,
-                        num_gaussians=120, max_gaussians=400, human_gaussians=24, val_every=30, density=False),
+                        num_gaussians=120, max_gaussians=400, person_gaussians=24, val_every=30, density=False),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", snr_db=[10.0],
         position_counts=[10], rx_counts=[30], scarce_positions=[4, 8, 20], walk_lengths=[0, 4, 8],
         tables=["main", "two_stage", "perturbation", "positions", "noise", "rx_count"]),
     "quick": ExperimentConfig(
-        size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, human_positions=6, samples_per_src=20000),
+        size="quick", seeds=[0, 1, 2], data=DataSize(positions=36, person_positions=6, samples_per_src=20000),
         train=TrainSize(stage1_iterations=100, stage2_iterations=100, downsample=6, batch_views=4,
-                        num_gaussians=400, max_gaussians=1000, human_gaussians=48, val_every=50, density=False),
+                        num_gaussians=400, max_gaussians=1000, person_gaussians=48, val_every=50, density=False),
         snr_db=[10.0], position_counts=[12], rx_counts=[60], scarce_positions=[4, 9, 29], walk_lengths=[0, 6, 12],
         truth_positions=6),
     # between quick and full, for the data-scarce table on 2 cores: the full size's scarce
     # static positions up to its 240 training positions, walks of 35 and 70 positions (the full
     # size's 35-position walk and its double), a fifth of the full size's steps
     "medium": ExperimentConfig(
-        size="medium", data=DataSize(positions=300, human_positions=35, samples_per_src=20000),
+        size="medium", data=DataSize(positions=300, person_positions=35, samples_per_src=20000),
         train=TrainSize(stage1_iterations=600, stage2_iterations=300, val_every=300, density=False),
         snr_db=[10.0], position_counts=[90], rx_counts=[600], scarce_positions=[20, 45, 90, 180, 240],
         walk_lengths=[0, 35, 70], truth_positions=12),
@@ -201,14 +201,14 @@ SIZES = {
     "full": ExperimentConfig(data=DataSize(samples_scale=0.25)),
     # the README's main job (rfmitsuba demo): one bedroom moving-RX dataset, one seed
     "demo": ExperimentConfig(
-        size="demo", seeds=[0], data=DataSize(positions=300, human_positions=8, samples_per_src=20000),
+        size="demo", seeds=[0], data=DataSize(positions=300, person_positions=8, samples_per_src=20000),
         train=TrainSize(stage1_iterations=600, stage2_iterations=300, downsample=3, num_gaussians=1500,
-                        max_gaussians=4500, human_gaussians=96, val_every=100, room_order=2, furniture_order=1),
+                        max_gaussians=4500, person_gaussians=96, val_every=100, room_order=2, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[], truth_positions=0),
     "demo_tiny": ExperimentConfig(
-        size="demo_tiny", seeds=[0], data=DataSize(positions=30, human_positions=5, samples_per_src=20000),
+        size="demo_tiny", seeds=[0], data=DataSize(positions=30, person_positions=5, samples_per_src=20000),
         train=TrainSize(stage1_iterations=40, stage2_iterations=30, downsample=10, num_gaussians=200,
-                        max_gaussians=600, human_gaussians=24, val_every=100, room_order=1, furniture_order=1),
+                        max_gaussians=600, person_gaussians=24, val_every=100, room_order=1, furniture_order=1),
         rooms=["bedroom"], tasks=["rx"], materials=["tissue"], large_room="", tables=[], truth_positions=0),
 }
 
@@ -267,7 +267,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
                                            start=max(1, t.stage1_iterations // 4),
                                            every=max(1, t.stage1_iterations // 8)))
     mcfg = MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
-                        human=SplatPersonConfig(num_gaussians=t.human_gaussians))
+                        person=SplatPersonConfig(num_gaussians=t.person_gaussians))
     if t.model == "coherent":
         # the learning rates of the bedroom figures of docs/lab-notes/measurements.md (network 3e-3 -> 3e-4; Stage 2 slower)
         s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4

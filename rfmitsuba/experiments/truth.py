@@ -61,7 +61,7 @@ class TruthConfig:
     task: str = "rx"
     positions: int = 48
     #: person positions along the walk (0: the empty room only)
-    human_positions: int = 0
+    person_positions: int = 0
     seed: int = 0
     #: ray samples per source (None: the room's default, as ``generate``)
     samples: int | None = None
@@ -123,7 +123,7 @@ def truth_uncertainty(out: str | Path, cfg: TruthConfig | None = None, *, quiet:
     made = {}
     for name, (array, sc) in runs.items():
         g = gen.GenerateConfig(scene=cfg.scene, task=cfg.task, positions=cfg.positions,
-                               human_positions=cfg.human_positions, seed=cfg.seed, array=array, solver=sc)
+                               person_positions=cfg.person_positions, seed=cfg.seed, array=array, solver=sc)
         made[name] = gen.generate(out / name, g, quiet=quiet)
     syn, ex = made["synthetic"], made["exact"]
     for d in made.values():
@@ -162,14 +162,14 @@ def write_report(out: str | Path, summary: dict) -> Path:
     names = {"ssim": "PAS SSIM (metric protocol)", "correlation": "channel correlation",
              "power_db": "power difference, exact - synthetic [dB]"}
     cmd = (f"rfmitsuba experiment truth --scene {c['scene']} --task {c['task']} --positions {c['positions']}"
-           + (f" --human-positions {c['human_positions']}" if c["human_positions"] else "")
+           + (f" --person-positions {c['person_positions']}" if c["person_positions"] else "")
            + (f" --samples {c['samples']}" if c.get("samples") else "") + f" --seed {c['seed']}"
            + ("" if c.get("repeat", True) else " --no-repeat") + " --out DIR")
     samples = (summary.get("solver") or {}).get("samples_per_src")
     title = f"# Truth uncertainty: synthetic array against exact per-element tracing ({c['scene']}, moving " \
             f"{c['task'].upper()})"
     lines = [title, "",
-             f"{summary['count']} PAS: {c['positions']} antenna positions x {1 + c['human_positions']} state(s), "
+             f"{summary['count']} PAS: {c['positions']} antenna positions x {1 + c['person_positions']} state(s), "
              f"seed {c['seed']}" + (f", {samples:.0f} ray samples per source" if samples else "") + ". "
              "Synthetic: one trace per array position, element phases by the plane-wave rule (how every "
              "dataset is made). Exact: each of the 16 elements traced as its own antenna. SSIM is the "

@@ -20,7 +20,7 @@ member                      meaning
 ``position_input`` (class)  a field that is not a person field but takes the same extra inputs
                             (person features, then the feet position in metres), e.g. the
                             coherent Gaussian End-to-End model; it is rendered for every sample
-``name``                    optimizer key prefix (``"bg"``, ``"human"``)
+``name``                    optimizer key prefix (``"bg"``, ``"person"``)
 ``extra_inputs``            number of per-view extra network inputs (0 = none)
 ``feature_octaves``         octaves of the person-position features it was trained with, or None
 ``frozen``                  True after :meth:`Field.freeze`
@@ -53,6 +53,7 @@ import numpy as np
 
 from ..core.atomic import write_npz
 from ..core.errors import ConfigError, RunError
+from ..core.legacy_names import current_name
 
 #: registry name -> field class
 FIELD_CLASSES: dict[str, type] = {}
@@ -108,7 +109,7 @@ def load_field(path: str | Path) -> "Field":
     if "meta" not in state:
         raise RunError(f"{path}: field file has no 'meta' entry")
     try:
-        fmt = json.loads(str(state["meta"])).get("format")
+        fmt = current_name(json.loads(str(state["meta"])).get("format"))
     except (json.JSONDecodeError, AttributeError):
         raise RunError(f"{path}: the field's 'meta' entry is not a JSON object") from None
     _discover()
@@ -412,6 +413,9 @@ class FieldSet:
         def inputs(field: Field):
             raw = field.person or field.position_input
             octaves = field.feature_octaves if raw else self.octaves
+            people = getattr(field, "people", 1)
+            if people > 1:
+                return data.features(k, octaves=octaves, raw=raw, people=people)
             return data.features(k, octaves=octaves, raw=raw)
 
         return inputs

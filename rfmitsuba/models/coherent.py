@@ -44,6 +44,7 @@ from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError, RunError
+from ..core.legacy_names import current_name
 from ..rf import array as antenna
 from ..rf.bartlett import bartlett
 from ..rf.images import ImageMaps, scene_image_maps
@@ -112,7 +113,7 @@ def _extra_array(extra, nb: int, n: int) -> np.ndarray:
     if n == 0:
         return np.zeros((nb, 0), np.float32)
     if extra is None:
-        raise ConfigError(f"this field needs {n} extra inputs per view (human-position features), got none")
+        raise ConfigError(f"this field needs {n} extra inputs per view (person-position features), got none")
     e = np.asarray(extra, np.float32).reshape(nb, -1)
     if e.shape[1] < n or not np.isfinite(e[:, :n]).all():
         raise ConfigError(f"extra inputs must be finite [B, >= {n}], got shape {e.shape}")
@@ -220,7 +221,7 @@ class CoherentFamily(Field):
         """Rebuild a field written by :meth:`state_dict` (RunError naming what is missing or wrong)."""
         try:
             meta = json.loads(str(state["meta"]))
-            if meta.get("format") != cls.format:
+            if current_name(meta.get("format")) != cls.format:
                 raise RunError(f"not a {cls.__name__} state (format {meta.get('format')!r})")
             n = len(cls._geometry_prefix)
             f = cls._from_state({k[n:]: state[k] for k in state if k.startswith(cls._geometry_prefix)}, state, meta)
@@ -349,7 +350,7 @@ class CoherentField(CoherentFamily):
             x: float [B, 3] array centres; y: float [B, 3] transmitters; q: float [B, 3] the
                 moving device (x or y); all metres.
             extra: float [B, extra_inputs] more inputs of the gain network (the End-to-End
-                model's human-position features), or None for a field without them.
+                model's person-position features), or None for a field without them.
             rx_to_world: float [3, 3], the array frame's axes in the world (a NeRF2 gateway's
                 orientation), or None for the project's horizontal array (identity).
         """
@@ -440,6 +441,6 @@ class CoherentField(CoherentFamily):
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentField":
 
-        return cls(ImageMaps.from_arrays(geometry), box=state["box"], cfg=from_dict(CoherentConfig, meta["config"]),
+        return cls(ImageMaps.from_arrays(geometry), box=state["box"], cfg=from_dict(CoherentConfig, meta["config"], saved=True),
                    frequency_hz=meta["frequency_hz"], seed=meta["seed"], name=meta.get("name", "bg"), params=state,
                    extra_inputs=meta.get("extra_inputs", 0))

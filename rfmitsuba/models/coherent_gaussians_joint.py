@@ -1,8 +1,8 @@
 """The End-to-End model of the coherent Gaussian family: one field, background and person trained
 together in a single stage on person-present data, the person's position as its input.
 
-It is the paper's End-to-End comparison (a single-stage model trained on human-present data with
-the human location as a direct input) built from the same two parts as Ours, so that the
+It is the paper's End-to-End comparison (a single-stage model trained on person-present data with
+the person location as a direct input) built from the same two parts as Ours, so that the
 comparison isolates the training strategy and nothing else:
 
 * the background, a :class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField`
@@ -18,7 +18,7 @@ plus, where a person is present, the person field's change::
     h = h_bg + present * (h_bg,blocked - h_bg + h_scatterers)
 
 ``present`` is the presence flag of the person features (1 with a person, 0 in the empty room,
-:func:`rfmitsuba.data.samples.human_features`), so an empty-room view renders the background alone.
+:func:`rfmitsuba.data.samples.person_features`), so an empty-room view renders the background alone.
 It is computed in one pass over the background's sources, each term weighted ``1 + present *
 (blockage - 1)`` (:meth:`CoherentGaussianPersonField.channels` with ``with_background``), not as
 two renders of them.
@@ -30,7 +30,7 @@ Parameters: the background's, named ``room.<name>``, and the person field's, nam
 tests/models/test_coherent_gaussians_joint.py checks both parts against finite differences.
 
 Per-view input ``extra``: float [B, F + 3], the person features (F =
-``num_human_features(human_octaves)``, presence flag last) followed by the feet position [m],
+``num_person_features(person_octaves)``, presence flag last) followed by the feet position [m],
 as for the person field (:attr:`Field.position_input`).
 """
 from __future__ import annotations
@@ -92,7 +92,7 @@ class CoherentGaussianJointField(Field):
         pf = CoherentGaussianPersonField.for_background(bg, cfg=person, seed=cfg.seed)
         if extra_inputs and extra_inputs != pf.extra_inputs:
             raise ConfigError(f"joint coherent Gaussian field: {extra_inputs} extra inputs given, its person field "
-                              f"takes {pf.extra_inputs} (features with {pf.cfg.human_octaves} octaves + position)")
+                              f"takes {pf.extra_inputs} (features with {pf.cfg.person_octaves} octaves + position)")
         return cls(bg, pf, name=name)
 
     @classmethod
@@ -107,7 +107,7 @@ class CoherentGaussianJointField(Field):
     # ---- parameters ------------------------------------------------------------------------
     @property
     def feature_octaves(self) -> int:
-        return self.person_field.cfg.human_octaves
+        return self.person_field.cfg.person_octaves
 
     @property
     def num_primitives(self) -> int:
@@ -176,9 +176,9 @@ class CoherentGaussianJointField(Field):
                                                         if k.startswith(ROOM)})
             pst = {k[len(PERSON):]: v for k, v in state.items() if k.startswith(PERSON)}
             pmeta = json.loads(str(pst["meta"]))
-            pf = CoherentGaussianPersonField(bg, cfg=from_dict(CoherentGaussianPersonConfig, pmeta["config"]),
+            pf = CoherentGaussianPersonField(bg, cfg=from_dict(CoherentGaussianPersonConfig, pmeta["config"], saved=True),
                                              reference_amplitude=pmeta["reference_amplitude"], seed=pmeta["seed"],
-                                             name=pmeta.get("name", "human"), params=pst)
+                                             name=pmeta.get("name", "person"), params=pst)
         except KeyError as e:
             raise RunError(f"CoherentGaussianJointField state lacks {e}") from None
         f = cls(bg, pf, name=meta.get("name", "bg"))

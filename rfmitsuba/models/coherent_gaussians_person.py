@@ -53,7 +53,7 @@ import numpy as np
 from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.errors import ConfigError, RunError
-from ..data.samples import num_human_features
+from ..data.samples import num_person_features
 from .base import FlatParameterField, Views, register
 from ._points import columns32, write_points_ply
 from .coherent_gaussians import CoherentGaussianField
@@ -79,8 +79,10 @@ class CoherentGaussianPersonConfig:
     init_block_radius: initial blockage radius ``r`` [m]; strength_per_source /
     radius_per_source: one ``a`` / ``r`` per background source instead of one for all;
     first_leg: block the first leg of reflected images too (not only the last);
-    human_octaves: octaves of the person features the framework passes before the position
-    (only the position is read).
+    person_octaves: octaves of the person features the framework passes before the position
+    (only the position is read); people: people drawn at once, each with the same body (its own
+    scatterers, its own blockage: the blockages multiply), their feet positions the last
+    ``3 * people`` extra inputs.
     """
 
     num_points: int = 8
@@ -94,12 +96,15 @@ class CoherentGaussianPersonConfig:
     strength_per_source: bool = False
     radius_per_source: bool = False
     first_leg: bool = True
-    human_octaves: int = 3
+    person_octaves: int = 3
+    people: int = 1
 
     def __post_init__(self) -> None:
         self.init_height = tuple(float(v) for v in self.init_height)
-        if self.num_points < 0 or self.human_octaves < 0:
-            raise ConfigError("CoherentGaussianPersonConfig: num_points and human_octaves must be >= 0")
+        if self.num_points < 0 or self.person_octaves < 0:
+            raise ConfigError("CoherentGaussianPersonConfig: num_points and person_octaves must be >= 0")
+        if self.people < 1:
+            raise ConfigError(f"CoherentGaussianPersonConfig.people must be >= 1, got {self.people}")
         if not (self.max_offset > 0 and self.body_height > 0 and self.init_block_radius > 0):
             raise ConfigError("CoherentGaussianPersonConfig: max_offset, body_height and init_block_radius must be > 0")
         if not 0 <= self.init_radius < self.max_offset:
@@ -144,7 +149,7 @@ class CoherentGaussianPersonField(FlatParameterField):
             as the other fields; params: stored parameters instead of the initial ones.
 
     Per-view input ``extra``: float [B, F + 3], the person features (F =
-    ``num_human_features(human_octaves)``) followed by the feet position in metres.
+    ``num_person_features(person_octaves)``) followed by the feet position in metres.
     """
 
     LR_GROUPS = LR_GROUPS
@@ -154,7 +159,7 @@ class CoherentGaussianPersonField(FlatParameterField):
     person = True
 
     def __init__(self, bg: CoherentGaussianField, *, cfg: CoherentGaussianPersonConfig | None = None,
-                 reference_amplitude: float = 1.0, seed: int = 0, name: str = "human", params: dict | None = None):
+                 reference_amplitude: float = 1.0, seed: int = 0, name: str = "person", params: dict | None = None):
         if not isinstance(bg, CoherentGaussianField):
             raise ConfigError(f"the coherent Gaussian person field needs a coherent_gaussians background, got "
                               f"{type(bg).__name__}")
@@ -164,7 +169,7 @@ class CoherentGaussianPersonField(FlatParameterField):
         self.readout, self.frequency_hz = bg.readout, bg.frequency_hz
         self.reference_amplitude = float(reference_amplitude)
         self.seed, self.name = int(seed), name
-        self.extra_inputs = num_human_features(c.human_octaves) + 3
+        self.extra_inputs = num_person_features(c.person_octaves) + 3 * c.people
         self.frozen = False
         #: 1 for a reflected image (two legs to block), 0 for the direct path; scatterers always two
         self._two_legs = B.Float(np.asarray(bg.order > 0, np.float32))
@@ -186,7 +191,7 @@ class CoherentGaussianPersonField(FlatParameterField):
 
     @classmethod
     def for_background(cls, bg: CoherentGaussianField, *, cfg: CoherentGaussianPersonConfig | None = None,
-                       seed: int = 0, name: str = "human", walk: np.ndarray | None = None,
+                       seed: int = 0, name: str = "person", walk: np.ndarray | None = None,
                        rng: np.random.Generator | None = None) -> "CoherentGaussianPersonField":
         """A fresh person field on a trained background: scatterer gains start at ``init_gain``
         of its direct path's gain times its scatterer scale (``walk`` and ``rng`` are not needed)."""
@@ -208,7 +213,7 @@ class CoherentGaussianPersonField(FlatParameterField):
 
     @property
     def feature_octaves(self) -> int:
-        return self.cfg.human_octaves
+        return self.cfg.person_octaves
 
     @property
     def num_primitives(self) -> int:
@@ -232,9 +237,9 @@ class CoherentGaussianPersonField(FlatParameterField):
                 raise RunError(f"not a CoherentGaussianPersonField state (format {meta.get('format')!r})")
             bg = CoherentGaussianField.from_state_dict({k[3:]: v for k, v in state.items() if k.startswith("bg.")})
             bg.freeze()
-            f = cls(bg, cfg=from_dict(CoherentGaussianPersonConfig, meta["config"]),
+            f = cls(bg, cfg=from_dict(CoherentGaussianPersonConfig, meta["config"], saved=True),
                     reference_amplitude=meta["reference_amplitude"], seed=meta["seed"],
-                    name=meta.get("name", "human"), params=state)
+                    name=meta.get("name", "person"), params=state)
         except KeyError as e:
             raise RunError(f"CoherentGaussianPersonField state lacks {e}") from None
         if meta.get("frozen"):
@@ -242,9 +247,15 @@ class CoherentGaussianPersonField(FlatParameterField):
         return f
 
     # ---- evaluation --------------------------------------------------------------------------
+    @property
+    def people(self) -> int:
+        """People drawn at once (:attr:`CoherentGaussianPersonConfig.people`)."""
+        return self.cfg.people
+
     def person_position(self, views: Views) -> np.ndarray:
-        """The feet position of every view from its extra inputs: float64 [B, 3] m (ConfigError
-        naming a missing, misshapen or non-finite input)."""
+        """Every person's feet position for every view from its extra inputs: float64 [B, 3 *
+        people] m (x, y, z of person 1, then of person 2, ...; ConfigError naming a missing,
+        misshapen or non-finite input)."""
         e = views.extra(self)
         nb = views.count
         if e is None:
@@ -253,8 +264,9 @@ class CoherentGaussianPersonField(FlatParameterField):
         e = np.asarray(e, np.float64)
         if e.ndim != 2 or e.shape != (nb, self.extra_inputs):
             raise ConfigError(f"coherent Gaussian person field: extra inputs must be [B, {self.extra_inputs}] "
-                              f"(features, then the feet position in metres) for B = {nb} views, got {e.shape}")
-        h = e[:, -3:]
+                              f"(features, then the feet position in metres of each of {self.people} people) for "
+                              f"B = {nb} views, got {e.shape}")
+        h = e[:, -3 * self.people:]
         if not np.isfinite(h).all():
             raise ConfigError(f"coherent Gaussian person field: person position must be finite, got "
                               f"{h[~np.isfinite(h).all(axis=1)][0].tolist()}")
@@ -341,7 +353,16 @@ class CoherentGaussianPersonField(FlatParameterField):
         bg, c = self.bg, self.cfg
         hc = prep["h"]
         prep, pres = prep["bg"], prep.get("pres")
-        weight = self._blockage(hc)
+        bodies = [hc[3 * j:3 * j + 3] for j in range(len(hc) // 3)]       # each person's (x, y, z) columns
+        each = [self._blockage(b) for b in bodies]
+
+        def product(group, ln, s):                   # the blockages multiply: prod_j (1 + w_j) - 1
+            total = 1.0
+            for w in each:
+                total = total * (1.0 + w(group, ln, s))
+            return total - 1.0
+
+        weight = each[0] if len(each) == 1 else product
         if pres is not None:
             change = weight
 
@@ -355,14 +376,15 @@ class CoherentGaussianPersonField(FlatParameterField):
             o = self.params["sc_offset"]
             ext = (c.max_offset, c.max_offset, 0.5 * c.body_height)
             mid = (0.0, 0.0, 0.5 * c.body_height)
-            s = [dr.gather(B.Float, hc[i], ln["b"]) + mid[i] + ext[i] * dr.tanh(dr.gather(B.Float, o, 3 * k + i))
-                 for i in range(3)]
-            lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
             amp = self.params["sc_amp"]
             on = 1.0 if pres is None else dr.gather(B.Float, pres, ln["b"])
-            cr, ci = bg._propagate(prep, ln, s, lead, lead, dr.gather(B.Float, amp, 2 * k),
-                                   dr.gather(B.Float, amp, 2 * k + 1), on)
-            hr, hi = hr + cr, hi + ci
+            for body in bodies:                      # every person carries the same scatterers
+                s = [dr.gather(B.Float, body[i], ln["b"]) + mid[i] + ext[i] * dr.tanh(dr.gather(B.Float, o, 3 * k + i))
+                     for i in range(3)]
+                lead = dr.sqrt(sum((yb[i] - s[i]) ** 2 for i in range(3)) + 1e-12)
+                cr, ci = bg._propagate(prep, ln, s, lead, lead, dr.gather(B.Float, amp, 2 * k),
+                                       dr.gather(B.Float, amp, 2 * k + 1), on)
+                hr, hi = hr + cr, hi + ci
         return bg._calibrate(prep, hr, hi)
 
     @classmethod

@@ -26,7 +26,7 @@ from ..core import backend as B
 from ..core.config import from_dict, to_dict
 from ..core.encoding import sin_encoding
 from ..core.errors import ConfigError
-from ..data.samples import num_human_features
+from ..data.samples import num_person_features
 from ..rf import array as antenna
 from ..rf.images import ImageMaps
 from .base import Views, register
@@ -40,16 +40,16 @@ from .coherent import (
 from ._points import columns32, write_points_ply
 from .nn import MLP
 
-HUMAN_FORMAT = "rfmitsuba-coherent-human-field/1"
+PERSON_FORMAT = "rfmitsuba-coherent-person-field/1"
 
 
 @dataclass
 class CoherentPersonConfig:
-    """The Stage-2 human scatterers of a coherent model (:class:`CoherentPersonField`).
+    """The Stage-2 person scatterers of a coherent model (:class:`CoherentPersonField`).
 
     num_points: scattering points that move with the person; init_radius / init_height: their
     initial horizontal radius and (lo, hi) height, metres, around the feet position;
-    human_octaves: octaves of the human-position features (:func:`rfmitsuba.data.samples.human_features`);
+    person_octaves: octaves of the person-position features (:func:`rfmitsuba.data.samples.person_features`);
     octaves: octaves of the moving device's position encoding; width / layers: the gain
     network's hidden width and layers; embed: size of each point's learned embedding;
     max_offset: bound of the deformation network's position offset, metres;
@@ -59,13 +59,13 @@ class CoherentPersonConfig:
     scatter_furniture: also paths that meet a furniture face before or after the person.
     kind: "scatter" (:class:`CoherentPersonField`, scattering points that move with the person)
     or "perturb" (:class:`CoherentPerturbField`, the person changes the background's own paths;
-    uses human_octaves, width, layers, embed, modulation; the position encoding is the background's).
+    uses person_octaves, width, layers, embed, modulation; the position encoding is the background's).
     """
 
     num_points: int = 24
     init_radius: float = 0.2
     init_height: tuple[float, float] = (0.2, 1.6)
-    human_octaves: int = 3
+    person_octaves: int = 3
     octaves: int = 3
     width: int = 32
     layers: int = 2
@@ -78,7 +78,7 @@ class CoherentPersonConfig:
     kind: str = "perturb"
 
     def __post_init__(self) -> None:
-        if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.human_octaves, self.layers) < 0:
+        if min(self.num_points, self.width, self.embed) < 1 or min(self.octaves, self.person_octaves, self.layers) < 0:
             raise ConfigError("CoherentPersonConfig: num_points, width, embed >= 1 and octaves, layers >= 0 required")
         if self.kind not in ("scatter", "perturb"):
             raise ConfigError(f"CoherentPersonConfig.kind must be 'scatter' or 'perturb', got {self.kind!r}")
@@ -116,7 +116,7 @@ class CoherentPersonField(CoherentFamily):
     """Stage 2 of the coherent model: scattering points that move with the person.
 
     Each of K points sits at ``s = h + o_k + D(h)_k`` (feet position ``h``, learned offset
-    ``o_k``, deformation network ``D`` conditioned on the human position, bounded by
+    ``o_k``, deformation network ``D`` conditioned on the person position, bounded by
     ``max_offset``) and adds, for every path family ``c`` of :func:`scatter_paths`, a term
 
         g_kc(q, h) * exp(-j k (L1 + L2)) / (L1 L2) * exp(+j k r_m . u)
@@ -134,14 +134,14 @@ class CoherentPersonField(CoherentFamily):
         the background's direct path (scales the initial amplitudes); seed; name;
         params: stored parameters instead of the initial ones.
 
-    Per-view input ``extra``: float [B, F + 3], the human features (F =
-    ``num_human_features(human_octaves)``) followed by the feet position in metres, as
+    Per-view input ``extra``: float [B, F + 3], the person features (F =
+    ``num_person_features(person_octaves)``) followed by the feet position in metres, as
     :meth:`rfmitsuba.data.samples.SampleData.features` with ``raw=True`` gives them.
     """
 
     def __init__(self, paths: dict, *, box: np.ndarray, cfg: CoherentPersonConfig | None = None,
                  frequency_hz: float = 2.4e9, reference_amplitude: float = 1.0, seed: int = 0,
-                 name: str = "human", params: dict | None = None):
+                 name: str = "person", params: dict | None = None):
 
         B.ensure()
         self.cfg = cfg or CoherentPersonConfig(kind="scatter")
@@ -151,7 +151,7 @@ class CoherentPersonField(CoherentFamily):
         self.reference_amplitude = float(reference_amplitude)
         self.seed, self.name = int(seed), name
         c = self.cfg
-        self.num_features = num_human_features(c.human_octaves)
+        self.num_features = num_person_features(c.person_octaves)
         self.extra_inputs = self.num_features + 3
         n_gain = 3 * (1 + 2 * c.octaves) + self.num_features + c.embed + 3
         self.gain = MLP(n_gain, 2, width=c.width, layers=c.layers, seed=seed + 21, out_bias=[0.0, 0.0])
@@ -190,21 +190,21 @@ class CoherentPersonField(CoherentFamily):
 
         Args:
             x, y, q: float [B, 3] metres: array centres, transmitters, moving device.
-            extra: float [B, F + 3]: human features, then the feet position in metres.
+            extra: float [B, F + 3]: person features, then the feet position in metres.
             rx_to_world: must be None or the identity (Stage 2 runs on the project's horizontal array).
         """
         if rx_to_world is not None and not np.allclose(rx_to_world, np.eye(3)):
-            raise ConfigError("the coherent human field supports the horizontal array only (rx_to_world = I)")
+            raise ConfigError("the coherent person field supports the horizontal array only (rx_to_world = I)")
         import drjit as dr
 
         x = np.asarray(x, np.float64).reshape(-1, 3)
         y = np.asarray(y, np.float64).reshape(-1, 3)
         nb, K, C, E, F = len(x), self.cfg.num_points, self.num_paths, self.cfg.embed, self.num_features
         if extra is None:
-            raise ConfigError("the human field needs the human features and position of every view (extra)")
+            raise ConfigError("the person field needs the person features and position of every view (extra)")
         e = np.asarray(extra, np.float64).reshape(nb, -1)
         if e.shape[1] != F + 3 or not np.isfinite(e).all():
-            raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
+            raise ConfigError(f"person field extra inputs must be finite [B, {F + 3}], got {e.shape}")
         feats, hpos = e[:, :F], e[:, F:]
         k = 2.0 * np.pi / antenna.wavelength(self.frequency_hz)
         # per (view, point): position s = h + o_k + D(f(h), e_k)
@@ -256,12 +256,12 @@ class CoherentPersonField(CoherentFamily):
         return write_points_ply(path, off, np.hypot(a[..., 0], a[..., 1]).mean(axis=1))
 
     kind = "coherent_person"
-    format = HUMAN_FORMAT
+    format = PERSON_FORMAT
     person = True
 
     @property
     def feature_octaves(self) -> int:
-        return self.cfg.human_octaves
+        return self.cfg.person_octaves
 
     def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
         """``sources.ply`` in ``folder``: the scattering points (:meth:`write_ply`)."""
@@ -274,20 +274,20 @@ class CoherentPersonField(CoherentFamily):
 
     def _meta(self) -> dict:
 
-        return {"format": HUMAN_FORMAT, "config": to_dict(self.cfg), "reference_amplitude": self.reference_amplitude}
+        return {"format": PERSON_FORMAT, "config": to_dict(self.cfg), "reference_amplitude": self.reference_amplitude}
 
     @classmethod
     def _from_state(cls, geometry: dict, state: dict, meta: dict) -> "CoherentPersonField":
 
-        return cls(geometry, box=state["box"], cfg=from_dict(CoherentPersonConfig, meta["config"]),
+        return cls(geometry, box=state["box"], cfg=from_dict(CoherentPersonConfig, meta["config"], saved=True),
                    frequency_hz=meta["frequency_hz"], reference_amplitude=meta["reference_amplitude"],
-                   seed=meta["seed"], name=meta.get("name", "human"), params=state)
+                   seed=meta["seed"], name=meta.get("name", "person"), params=state)
 
     @classmethod
     def for_background(cls, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
-                       name: str = "human", walk: np.ndarray | None = None,
+                       name: str = "person", walk: np.ndarray | None = None,
                        rng: np.random.Generator | None = None) -> "CoherentPersonField":
-        """A fresh human field on a trained background: its image maps, box and frequency, and
+        """A fresh person field on a trained background: its image maps, box and frequency, and
         initial amplitudes relative to its direct path (``walk`` and ``rng`` are not needed)."""
         cfg = cfg or CoherentPersonConfig(kind="scatter")
         a = np.asarray(bg.params["amp"].numpy(), np.float64).reshape(-1, 2)
@@ -345,7 +345,7 @@ class CoherentPerturbField(CoherentFamily):
     add to the background's (linear superposition); the background stays frozen, and its state is
     stored with this field (``bg.*``) so the file is self-contained.
 
-    Per-view input ``extra``: float [B, F + 3] (human features, then the feet position in metres).
+    Per-view input ``extra``: float [B, F + 3] (person features, then the feet position in metres).
     """
 
     kind = "coherent_perturb"
@@ -354,7 +354,7 @@ class CoherentPerturbField(CoherentFamily):
 
     @property
     def feature_octaves(self) -> int:
-        return self.cfg.human_octaves
+        return self.cfg.person_octaves
 
     def export_ply(self, folder: str | Path, *, views: Views) -> list[Path]:
         """Nothing: this field has no points of its own."""
@@ -362,14 +362,14 @@ class CoherentPerturbField(CoherentFamily):
     _geometry_prefix = "bg."
 
     def __init__(self, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
-                 name: str = "human", params: dict | None = None):
+                 name: str = "person", params: dict | None = None):
 
         self.bg = bg
         self.cfg = cfg or CoherentPersonConfig()
         self.box, self.frequency_hz = bg.box, bg.frequency_hz
         self.seed, self.name = int(seed), name
         c = self.cfg
-        self.num_features = num_human_features(c.human_octaves)
+        self.num_features = num_person_features(c.person_octaves)
         self.extra_inputs = self.num_features + 3
         n_in = 3 * (1 + 2 * bg.cfg.octaves) + self.num_features + c.embed + 3 + 4
         self.net = MLP(n_in, 2, width=c.width, layers=c.layers, seed=seed + 31, out_bias=[0.0, 0.0], zero_output=True)
@@ -385,7 +385,7 @@ class CoherentPerturbField(CoherentFamily):
 
     @classmethod
     def for_background(cls, bg: CoherentField, *, cfg: CoherentPersonConfig | None = None, seed: int = 0,
-                       name: str = "human", walk: np.ndarray | None = None,
+                       name: str = "person", walk: np.ndarray | None = None,
                        rng: np.random.Generator | None = None) -> "CoherentPerturbField":
         """A fresh (zero) perturbation of a trained background's paths (``walk`` and ``rng`` are
         not needed)."""
@@ -405,10 +405,10 @@ class CoherentPerturbField(CoherentFamily):
         y = np.asarray(y, np.float64).reshape(-1, 3)
         nb, S, F = len(x), self.bg.num_sources, self.num_features
         if extra is None:
-            raise ConfigError("the human field needs the human features and position of every view (extra)")
+            raise ConfigError("the person field needs the person features and position of every view (extra)")
         e = np.asarray(extra, np.float64).reshape(nb, -1)
         if e.shape[1] != F + 3 or not np.isfinite(e).all():
-            raise ConfigError(f"human field extra inputs must be finite [B, {F + 3}], got {e.shape}")
+            raise ConfigError(f"person field extra inputs must be finite [B, {F + 3}], got {e.shape}")
         gr, gi, pr, pi, u = self.bg._terms(x, y, q, rx_to_world=rx_to_world)
         gr, gi = dr.detach(gr), dr.detach(gi)
         view = np.concatenate([self.bg._enc(q), e[:, :F]], axis=1)
@@ -430,5 +430,5 @@ class CoherentPerturbField(CoherentFamily):
 
         bg = CoherentField.from_state_dict(geometry)
         bg.freeze()
-        return cls(bg, cfg=from_dict(CoherentPersonConfig, meta["config"]), seed=meta["seed"],
-                   name=meta.get("name", "human"), params=state)
+        return cls(bg, cfg=from_dict(CoherentPersonConfig, meta["config"], saved=True), seed=meta["seed"],
+                   name=meta.get("name", "person"), params=state)

@@ -9,7 +9,7 @@ there adds weight gradients atomically (a Stage-1 splat step at batch 4 and 10 0
 steps are fused loops (:mod:`rfmitsuba.models.host_loops`).
 
 The EM-feature network of a Gaussian field maps (Gaussian position, antenna
-position[, extra inputs such as a human position]) to each Gaussian's signal and
+position[, extra inputs such as a person position]) to each Gaussian's signal and
 attenuation *per view*. It is factorised so that the cost of the wide layers is
 paid once per Gaussian and once per view, and only a small head runs on the
 B*N (view, Gaussian) pairs::
@@ -729,7 +729,7 @@ class EMNetwork:
 
     Args:
         cfg: architecture.
-        extra_inputs: number of extra per-view inputs (0 for the background; 3 for a human
+        extra_inputs: number of extra per-view inputs (0 for the background; 3 for a person
             position in Stage 2), given to :meth:`__call__` already normalised to about [0, 1].
         seed: weight initialisation seed.
 

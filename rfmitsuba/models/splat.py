@@ -14,7 +14,7 @@ A :class:`SplatField` owns
 a :class:`Splats` bundle in the argument layout of :func:`rfmitsuba.splat.render`:
 geometry of size N (shared by all views) and signal/opacity of size B*N (per view,
 view-major index ``b*N + i``). :meth:`Splats.concat` joins several sets (e.g. a frozen
-background and a trainable human set of Stage 2) into one render call.
+background and a trainable person set of Stage 2) into one render call.
 
 State is plain numpy (``state_dict`` / ``load_state_dict`` / ``save`` / ``load``, npz without
 pickle); :meth:`freeze` excludes every parameter from training.
@@ -245,9 +245,9 @@ class SplatField(Field):
         params: per-Gaussian arrays (numpy float32, shapes [N, 3], [N, 3], [N, 4], [N]).
         box: float [2, 3] metres, the normalisation box (lo, hi).
         cfg: field configuration (its ``net`` gives the network architecture).
-        extra_inputs: number of extra per-view network inputs (e.g. 3 for a human position).
+        extra_inputs: number of extra per-view network inputs (e.g. 3 for a person position).
         seed: network initialisation seed.
-        name: prefix of this field's keys in an optimizer (e.g. "bg", "human").
+        name: prefix of this field's keys in an optimizer (e.g. "bg", "person").
     """
 
     kind = "splat"
@@ -545,7 +545,7 @@ class SplatField(Field):
         if "meta" not in state:
             raise RunError("field state has no 'meta' entry")
         meta = json.loads(str(state["meta"]))
-        cfg = from_dict(SplatConfig, meta["config"])
+        cfg = from_dict(SplatConfig, meta["config"], saved=True)
         g = {k: state[k] for k in GAUSSIAN_KEYS if k in state}
         if len(g) != len(GAUSSIAN_KEYS):
             _missing(state)

@@ -36,7 +36,7 @@ from ..data.store import (
 )
 from ..rf import bartlett_ref as _pas
 from ..rf.grid import PAS_SHAPE
-from . import person as human
+from . import person as person
 from .geometry import RoomGeometry
 from .simulate import ARRAYS, Simulator, SolverConfig, versions
 
@@ -51,7 +51,7 @@ class GenerateConfig:
     scene: str = "bedroom"
     task: str = "rx"
     positions: int = 900
-    human_positions: int = 35
+    person_positions: int = 35
     material: str = "tissue"
     seed: int = 0
     frequency_hz: float = 2.4e9
@@ -59,10 +59,13 @@ class GenerateConfig:
     #: distance of antenna positions to walls and furniture, metres
     clearance: float = 0.15
     #: extra horizontal distance of antenna positions (below head height) to every walk position, metres
-    human_margin: float = 0.15
+    person_margin: float = 0.15
     corner_inset: float = 0.3
     corner_height: float = 2.0
     walk_duration_s: float = 60.0
+    #: people walking through the room at once: person 1 walks the ``person_positions`` walk, each
+    #: other one a walk of its own, never within :data:`PEOPLE_GAP_M` of another at the same frame
+    people: int = 1
     #: material scattering coefficient set after loading when diffuse reflection is on
     scattering_coefficient: float = 0.3
     #: "synthetic" (one trace per array position, plane-wave element phases) or "exact" (each of
@@ -71,18 +74,58 @@ class GenerateConfig:
     solver: "Any" = None  # simulate.SolverConfig; None -> defaults for the room size
 
 
+#: closest two people's bodies come at one frame, beyond their footprints' radii [m]
+PEOPLE_GAP_M = 0.1
+#: walks drawn for each further person before :func:`other_walks` gives up (each steers clear of the others)
+WALK_ATTEMPTS = 50
+
+
+def other_walks(geom: RoomGeometry, first: np.ndarray, *, people: int, n: int, duration_s: float,
+                seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Walks of people 2..P, each clear of every earlier one at every frame.
+
+    Args:
+        geom: the room; first: float [n, 3] person 1's feet positions [m]; people: P; n: frames;
+        duration_s: the walk's duration [s]; seed: the dataset's seed (person j's k-th draw uses
+        ``[seed, j, k]``).
+
+    Returns:
+        (float64 [n, P - 1, 3] feet positions [m], float64 [n, P - 1] headings [rad]).
+
+    Raises:
+        PlacementError: no clear walk for a person in :data:`WALK_ATTEMPTS` draws.
+    """
+    from ..core.errors import PlacementError
+
+    gap = 2.0 * person.radius() + PEOPLE_GAP_M
+    walks, heads = [np.asarray(first, np.float64)], []
+    for j in range(1, people):
+        try:
+            w = person.walk(geom, n=n, duration_s=duration_s, seed=int(np.random.SeedSequence([seed, j])
+                                                                        .generate_state(1)[0]),
+                            max_attempts=WALK_ATTEMPTS, avoid=np.stack(walks), gap_m=gap)
+        except PlacementError:
+            raise PlacementError(f"no walk for person {j + 1} in {WALK_ATTEMPTS} draws keeps {gap:.2f} m from the "
+                                 f"others at every moment in {geom.path}; ask for fewer people") from None
+        walks.append(np.asarray(w.positions))
+        heads.append(np.asarray(w.headings))
+    if people < 2:
+        return np.zeros((n, 0, 3)), np.zeros((n, 0))
+    return np.stack(walks[1:], axis=1), np.stack(heads, axis=1)
+
+
 #: most antenna positions ``array="exact"`` accepts: it traces 16 antennas per position
 EXACT_MAX_POSITIONS = 200
 
-QUICK = {"positions": 36, "human_positions": 4, "samples_per_src": 20_000}
+QUICK = {"positions": 36, "person_positions": 4, "samples_per_src": 20_000}
 
 
 def quick_config(scene: str = "bedroom", **overrides) -> GenerateConfig:
     """The ``--quick`` configuration: 36 positions x (1 + 4) states at 2e4 samples per source."""
 
     # the walk keeps the full walk's step (60 s / 35 positions), so its straight steps stay short
-    kw = {"scene": scene, "positions": QUICK["positions"], "human_positions": QUICK["human_positions"],
-          "walk_duration_s": 60.0 * QUICK["human_positions"] / 35,
+    kw = {"scene": scene, "positions": QUICK["positions"], "person_positions": QUICK["person_positions"],
+          "walk_duration_s": 60.0 * QUICK["person_positions"] / 35,
           "solver": SolverConfig(samples_per_src=QUICK["samples_per_src"])}
     kw.update(overrides)
     return GenerateConfig(**kw)
@@ -94,7 +137,7 @@ def place_antennas(geometry, n: int, *, rng: np.random.Generator, z_range: tuple
     """``n`` antenna positions in the free volume, float64 [n, 3], metres.
 
     Never inside furniture (``clearance`` from walls and furniture), never inside the
-    human at any walk position (horizontal distance > ``body_radius`` unless above
+    person at any walk position (horizontal distance > ``body_radius`` unless above
     ``body_height``), and at least 0.3 m from ``avoid`` (the fixed device, float [3]).
     """
     out: list[np.ndarray] = []
@@ -171,10 +214,12 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
 
     if cfg.task not in ("rx", "tx"):
         raise ConfigError(f"task must be 'rx' or 'tx', got {cfg.task!r}")
-    if cfg.positions < 1 or cfg.human_positions < 0:
-        raise ConfigError(f"need positions >= 1 and human_positions >= 0, got {cfg.positions}, {cfg.human_positions}")
-    if cfg.material not in human.PERTURBER_MATERIALS:
-        raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(human.PERTURBER_MATERIALS)}")
+    if cfg.positions < 1 or cfg.person_positions < 0:
+        raise ConfigError(f"need positions >= 1 and person_positions >= 0, got {cfg.positions}, {cfg.person_positions}")
+    if cfg.people < 1:
+        raise ConfigError(f"people must be >= 1, got {cfg.people}")
+    if cfg.material not in person.PERTURBER_MATERIALS:
+        raise ConfigError(f"unknown material {cfg.material!r}; known: {', '.join(person.PERTURBER_MATERIALS)}")
     if cfg.array not in ARRAYS:
         raise ConfigError(f"array must be one of {', '.join(ARRAYS)}, got {cfg.array!r}")
     if cfg.array == "exact" and cfg.positions > EXACT_MAX_POSITIONS:
@@ -189,29 +234,37 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         solver = _config.from_dict(SolverConfig, solver)
     solver.check()
     fixed = geom.corner(inset=cfg.corner_inset, height=cfg.corner_height)
-    if cfg.human_positions:
-        walk = human.walk(geom, n=cfg.human_positions, duration_s=cfg.walk_duration_s, seed=cfg.seed)
+    if cfg.person_positions:
+        walk = person.walk(geom, n=cfg.person_positions, duration_s=cfg.walk_duration_s, seed=cfg.seed)
         walk_pos, walk_head = np.asarray(walk.positions), np.asarray(walk.headings)
     else:
         walk_pos, walk_head = np.zeros((0, 3)), np.zeros(0)
-    body_r = human.radius() + cfg.human_margin
+    others_pos, others_head = other_walks(geom, walk_pos, people=cfg.people, n=len(walk_pos),
+                                          duration_s=cfg.walk_duration_s, seed=cfg.seed)
+    body_r = person.radius() + cfg.person_margin
     ant = place_antennas(geom, cfg.positions, rng=np.random.default_rng([cfg.seed, 1]), z_range=cfg.z_range,
-                         clearance=cfg.clearance, walk_positions=walk_pos, body_radius=body_r,
-                         body_height=human.HEIGHT + 0.1, avoid=fixed)
+                         clearance=cfg.clearance, walk_positions=np.concatenate([walk_pos, others_pos.reshape(-1, 3)]),
+                         body_radius=body_r,
+                         body_height=person.HEIGHT + 0.1, avoid=fixed)
     geom.check_points(ant, what="antenna")
     ant32 = ant.astype(np.float32)
-    plugin, params = human.PERTURBER_MATERIALS[cfg.material]
+    plugin, params = person.PERTURBER_MATERIALS[cfg.material]
     record = {k: v for k, v in _config.to_dict(_replace(cfg, solver=None)).items() if k != "solver"}
     if cfg.array == "synthetic":  # the default, and what every dataset made before the option holds
         del record["array"]
+    if cfg.people == 1:           # the same: one person, as every dataset made before the option
+        del record["people"]
     extra = {
         "scene": _scene_record(xml),
         "generate": record,
         "solver": _config.to_dict(solver),
         "seeds": {"antenna_positions": [cfg.seed, 1], "walk": cfg.seed, "split": cfg.seed, "solver": solver.seed},
-        "human": {"headings_rad": walk_head.tolist(), "height_m": human.HEIGHT, "width_m": human.WIDTH,
+        "person": {"headings_rad": walk_head.tolist(), "height_m": person.HEIGHT, "width_m": person.WIDTH,
                   "material": cfg.material, "material_plugin": plugin, "material_params": params,
-                  "placement": "feet at human_positions, facing headings_rad (about +z)"},
+                  "placement": "feet at person_positions, facing headings_rad (about +z)"},
+        **({"other_people": {"positions": others_pos.tolist(), "headings_rad": others_head.tolist(),
+                             "placement": "frame-major: [frame][person 2..P] feet positions [m] and headings"}}
+           if cfg.people > 1 else {}),
         "fixed_device": "isotropic TX" if cfg.task == "rx" else "4x4 array",
         "moving_device": "4x4 array" if cfg.task == "rx" else "isotropic TX",
         "reciprocity": "one solve: TX at fixed_pos, isotropic RX at each antenna position; "
@@ -224,11 +277,11 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         "versions": versions(),
     }
     meta = base_meta(task=cfg.task, frequency_hz=cfg.frequency_hz, num_antennas=cfg.positions,
-                     human_positions=walk_pos, fixed_pos=fixed, extra=extra)
-    split = make_split(cfg.positions, cfg.human_positions, seed=cfg.seed)
+                     person_positions=walk_pos, fixed_pos=fixed, extra=extra)
+    split = make_split(cfg.positions, cfg.person_positions, seed=cfg.seed)
     root = prepare_folder(out, meta, antenna_pos=ant32, split=split)
     remove_stale_tmp(root)
-    S = 1 + cfg.human_positions
+    S = 1 + cfg.person_positions
     todo = []
     for s in range(S):
         if not (root / "chunks" / chunk_name(s)).exists():
@@ -244,7 +297,8 @@ def _generate_locked(out: Path, cfg: GenerateConfig, *, repair: bool, quiet: boo
         todo = todo[:stop_after]
     job = StatesJob(root=root, xml=xml, task=cfg.task, frequency_hz=cfg.frequency_hz, material=cfg.material,
                     scattering_coefficient=cfg.scattering_coefficient, solver=solver, fixed_pos=fixed,
-                    antenna_pos=ant32, walk_positions=walk_pos, walk_headings=walk_head, array=cfg.array)
+                    antenna_pos=ant32, walk_positions=walk_pos, walk_headings=walk_head, array=cfg.array,
+                    other_positions=others_pos, other_headings=others_head)
     cluster = cluster or ClusterConfig()
     if cluster.serial or not todo:
         timing = simulate_states(job, todo, quiet=quiet)
@@ -281,6 +335,21 @@ class StatesJob:
     walk_headings: np.ndarray
     #: how the element channels are traced (:data:`rfmitsuba.sim.simulate.ARRAYS`)
     array: str = "synthetic"
+    #: float64 [H, P - 1, 3] / [H, P - 1]: the other people's feet [m] and headings [rad] (none: one person)
+    other_positions: np.ndarray | None = None
+    other_headings: np.ndarray | None = None
+
+    def bodies(self, s: int):
+        """The mesh of every person at state ``s`` >= 1, as one mesh (trimesh)."""
+        meshes = [person.person_mesh(self.walk_positions[s - 1], float(self.walk_headings[s - 1]))]
+        if self.other_positions is not None:
+            for p, h in zip(self.other_positions[s - 1], self.other_headings[s - 1]):
+                meshes.append(person.person_mesh(p, float(h)))
+        if len(meshes) == 1:
+            return meshes[0]
+        import trimesh
+
+        return trimesh.util.concatenate(meshes)
 
 
 #: images per Bartlett block of a state's PAS (:func:`simulate_states`): 33 MB, which the write
@@ -303,7 +372,6 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
     t_start = time.perf_counter()
     timing = {"states": len(states), "solver_s": 0.0, "pas_s": 0.0, "write_s": 0.0}
     if states:
-        walk_pos, walk_head = job.walk_positions, job.walk_headings
         sim = Simulator(job.xml, fixed_pos=job.fixed_pos, frequency_hz=job.frequency_hz, solver=job.solver)
         if job.solver.diffuse_reflection:
             sim.set_scattering(job.scattering_coefficient)
@@ -327,15 +395,15 @@ def simulate_states(job: StatesJob, states: list[int], *, quiet: bool = True) ->
         with progress.bar(len(states), desc=f"{job.xml.stem} {job.task}", unit="state", quiet=quiet) as pb:
             for s in states:
                 if s == 0:
-                    sim.set_human(None)
+                    sim.set_person(None)
                 else:
-                    mesh = human.human_mesh(walk_pos[s - 1], float(walk_head[s - 1]))
+                    mesh = job.bodies(s)
                     if faces is None:
-                        faces = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).faces)
-                        first = np.asarray(human.human_mesh(walk_pos[0], float(walk_head[0])).vertices)
-                        sim.set_human(first, faces, material=human.radio_material(job.material,
-                                                                                  name=f"rfm-human-{job.material}"))
-                    sim.set_human(np.asarray(mesh.vertices))
+                        faces = np.asarray(job.bodies(1).faces)
+                        first = np.asarray(job.bodies(1).vertices)
+                        sim.set_person(first, faces, material=person.radio_material(job.material,
+                                                                                  name=f"rfm-person-{job.material}"))
+                    sim.set_person(np.asarray(mesh.vertices))
                 t0 = sim.timing.solver_s
                 h = sim.channels(job.task, array=job.array)
                 timing["solver_s"] += sim.timing.solver_s - t0

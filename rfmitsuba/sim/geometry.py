@@ -1,6 +1,6 @@
 """Room geometry read from a Mitsuba scene XML: bounds, free space, placement checks.
 
-:class:`RoomGeometry` answers the questions antenna sampling and human walks
+:class:`RoomGeometry` answers the questions antenna sampling and person walks
 ask -- is this point inside the room, inside a piece of furniture, is the
 straight line between two points clear -- with NumPy only (no JIT, no Sionna).
 

@@ -587,7 +587,7 @@ def make_nerf2like(out: str | Path, *, num_tags: int = 200, snr_db: float = 20.0
             tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
             shutil.rmtree(tmp, ignore_errors=True)
             source = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=stated, fixed_pos=gateway, split=split,
-                                     human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
+                                     person_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f_hz, num_states=1,
                                      path=f"sionna-rt:{xml.stem}")
             try:
                 nerf2.write(source, tmp)

@@ -1,6 +1,6 @@
 """A walking person: body mesh, seeded casual walks, and the Sionna object that carries them.
 
-The body (:func:`human_mesh`) is made of closed pieces -- two legs, a torso,
+The body (:func:`person_mesh`) is made of closed pieces -- two legs, a torso,
 two arms, a neck and a head -- about 1.7 m tall and 0.45 m wide at the
 shoulders, standing with its feet at ``position`` and facing ``heading``
 (radians, counter-clockwise from +x). The pieces do not touch each other (a
@@ -21,13 +21,13 @@ fewer positions are instants of the same finer walk.
 
 Adding the person to a Sionna scene::
 
-    from rfmitsuba import human, plugins
+    from rfmitsuba import person, plugins
     plugins.register()
     scene = sionna.rt.load_scene(xml, merge_shapes=False)
-    obj = human.scene_object(folder, kind="tissue")       # writes folder/human.ply
+    obj = person.scene_object(folder, kind="tissue")       # writes folder/person.ply
     scene.edit(add=obj)
-    for p, h in zip(*human.walk(geometry, seed=0)[:2]):
-        human.place(obj, p, h)                             # ~ms per move, no recompile
+    for p, h in zip(*person.walk(geometry, seed=0)[:2]):
+        person.place(obj, p, h)                             # ~ms per move, no recompile
         ...solve...
 """
 from __future__ import annotations
@@ -42,7 +42,7 @@ import trimesh
 from .. import plugins
 from ..core import backend
 from ..core.errors import PlacementError
-from ..plugins.human_tissue import HumanTissueMaterial
+from ..plugins.body_tissue import BodyTissueMaterial
 from .geometry import RoomGeometry
 
 HEIGHT = 1.7        # m
@@ -52,7 +52,7 @@ DEPTH = 0.26        # m, front to back
 #: Perturber kinds -> (Mitsuba BSDF plugin, its parameters). ``tissue`` is the person;
 #: ``metal`` and ``concrete`` are controls of the same shape (a metal or concrete "statue").
 PERTURBER_MATERIALS: dict[str, tuple[str, dict]] = {
-    "tissue": ("human-tissue", {"relative_permittivity": 40.0, "conductivity": 1.7, "thickness": 0.2}),
+    "tissue": ("body-tissue", {"relative_permittivity": 40.0, "conductivity": 1.7, "thickness": 0.2}),
     "metal": ("itu-radio-material", {"type": "metal", "thickness": 0.01}),
     "concrete": ("itu-radio-material", {"type": "concrete", "thickness": 0.2}),
 }
@@ -87,7 +87,7 @@ def _body_parts(height: float, width: float) -> list[trimesh.Trimesh]:
     return parts
 
 
-def human_mesh(position=(0.0, 0.0, 0.0), heading_rad: float = 0.0, *, height: float = HEIGHT,
+def person_mesh(position=(0.0, 0.0, 0.0), heading_rad: float = 0.0, *, height: float = HEIGHT,
                width: float = WIDTH) -> trimesh.Trimesh:
     """The body mesh with its feet at ``position`` (float [3], metres) facing ``heading_rad`` (radians).
 
@@ -96,9 +96,9 @@ def human_mesh(position=(0.0, 0.0, 0.0), heading_rad: float = 0.0, *, height: fl
     """
     position = np.asarray(position, dtype=np.float64).reshape(3)
     if not (np.all(np.isfinite(position)) and math.isfinite(heading_rad)):
-        raise PlacementError(f"human position {position} / heading {heading_rad} must be finite")
+        raise PlacementError(f"person position {position} / heading {heading_rad} must be finite")
     if not (height > 0 and width > 0):
-        raise PlacementError(f"human height and width must be positive, got {height}, {width}")
+        raise PlacementError(f"person height and width must be positive, got {height}, {width}")
     mesh = trimesh.util.concatenate(_body_parts(height, width))
     m = trimesh.transformations.rotation_matrix(heading_rad, [0, 0, 1])
     m[:3, 3] = position
@@ -111,18 +111,18 @@ def radius(*, width: float = WIDTH) -> float:
     return 0.5 * math.hypot(width, DEPTH * width / WIDTH)
 
 
-def write_human_ply(path: str | Path, *, height: float = HEIGHT, width: float = WIDTH) -> Path:
+def write_person_ply(path: str | Path, *, height: float = HEIGHT, width: float = WIDTH) -> Path:
     """Write the body mesh (feet at the origin, facing +x) as binary PLY; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = trimesh.exchange.ply.export_ply(human_mesh(height=height, width=width), encoding="binary")
+    data = trimesh.exchange.ply.export_ply(person_mesh(height=height, width=width), encoding="binary")
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(data)
     tmp.replace(path)
     return path
 
 
-def xml_snippet(*, mesh: str = "meshes/human.ply", kind: str = "tissue", shape_id: str = "human",
+def xml_snippet(*, mesh: str = "meshes/person.ply", kind: str = "tissue", shape_id: str = "person",
                 material_id: str | None = None) -> str:
     """Mitsuba XML for a person (material + shape) to paste into a scene file.
 
@@ -153,16 +153,16 @@ def _perturber(kind: str) -> tuple[str, dict]:
 def radio_material(kind: str = "tissue", *, name: str | None = None):
     """A Sionna radio material for perturber ``kind`` (``tissue`` | ``metal`` | ``concrete``)."""
     plugin, params = _perturber(kind)
-    name = name or f"human_{kind}"
-    if plugin == "human-tissue":
+    name = name or f"person_{kind}"
+    if plugin == "body-tissue":
 
-        return HumanTissueMaterial(name=name, **params)
+        return BodyTissueMaterial(name=name, **params)
     from sionna.rt import ITURadioMaterial
 
     return ITURadioMaterial(name=name, itu_type=params["type"], thickness=params["thickness"])
 
 
-def scene_object(folder: str | Path, *, kind: str = "tissue", name: str = "human",
+def scene_object(folder: str | Path, *, kind: str = "tissue", name: str = "person",
                  position=None, heading_rad: float = 0.0, height: float = HEIGHT, width: float = WIDTH):
     """A :class:`sionna.rt.SceneObject` of the body for ``scene.edit(add=obj)``.
 
@@ -175,7 +175,7 @@ def scene_object(folder: str | Path, *, kind: str = "tissue", name: str = "human
     plugins.register()
     from sionna.rt import SceneObject
 
-    ply = write_human_ply(Path(folder) / f"{name}.ply", height=height, width=width)
+    ply = write_person_ply(Path(folder) / f"{name}.ply", height=height, width=width)
     obj = SceneObject(fname=str(ply), name=name, radio_material=radio_material(kind, name=f"{name}_{kind}"))
     obj._rfm_height = height  # noqa: SLF001 - remembered for place()
     if position is not None:
@@ -190,7 +190,7 @@ def place(obj, position, heading_rad: float = 0.0, *, height: float | None = Non
 
     p = np.asarray(position, dtype=np.float64).reshape(3)
     if not (np.all(np.isfinite(p)) and math.isfinite(heading_rad)):
-        raise PlacementError(f"human position {p} / heading {heading_rad} must be finite")
+        raise PlacementError(f"person position {p} / heading {heading_rad} must be finite")
     h = height if height is not None else getattr(obj, "_rfm_height", HEIGHT)
     obj.orientation = mi.Point3f(float(heading_rad), 0.0, 0.0)
     obj.position = mi.Point3f(float(p[0]), float(p[1]), float(p[2] + 0.5 * h))
@@ -209,7 +209,7 @@ class Walk(NamedTuple):
 
 def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed: int = 0,
          clearance: float = 0.25, height: float = HEIGHT, speed: tuple[float, float] = (0.5, 1.0),
-         max_attempts: int = 50) -> Walk:
+         max_attempts: int = 50, avoid: np.ndarray | None = None, gap_m: float = 0.0) -> Walk:
     """A seeded casual walk through the free floor (see the module docstring).
 
     geometry: the room. n: number of sampled positions, evenly spaced in time over
@@ -222,6 +222,9 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     positions over 60 s are exactly such steps); when fewer positions are asked for, they are
     taken at evenly spaced times of that finer walk, so a short sample of a walk is a real walk,
     not a few metre-long jumps across the room.
+    avoid: None, or float [M, n, 3] other people's feet at the same ``n`` times [m]: every step
+    of this walk keeps at least ``gap_m`` [m] horizontally from each of them at that time (their
+    positions between two of the times taken on the straight line).
     Returns a :class:`Walk` (positions float64 [n, 3], headings [n], times [n]); unpack as
     ``positions, headings, times = walk(...)``. Raises :class:`PlacementError` if no clear walk
     is found (room too cluttered for the clearance).
@@ -232,9 +235,14 @@ def walk(geometry: RoomGeometry, *, n: int = 35, duration_s: float = 60.0, seed:
     n_fine = max(n, math.ceil(duration_s / MAX_STEP_S - 1e-9) + 1)
     pick = np.round(np.linspace(0, n_fine - 1, n)).astype(int)
     ss = np.random.SeedSequence(seed)
+    others = None
+    if avoid is not None:                        # the others at every simulated time
+        a = np.asarray(avoid, np.float64).reshape(-1, n, 3)
+        fine, at = np.linspace(0.0, duration_s, n_fine), np.linspace(0.0, duration_s, n_fine)[pick]
+        others = np.stack([np.stack([np.interp(fine, at, w[:, c]) for c in range(3)], 1) for w in a])
     for child in ss.spawn(max_attempts):
         w = _simulate(geometry, np.random.default_rng(child), n=n_fine, duration_s=duration_s,
-                      clearance=clearance, height=height, speed=speed)
+                      clearance=clearance, height=height, speed=speed, others=others, gap_m=gap_m)
         if w is not None:
             return Walk(w.positions[pick], w.headings[pick], w.times[pick])
     raise PlacementError(f"no clear walk found in {max_attempts} attempts (clearance {clearance} m); "
@@ -247,15 +255,22 @@ MAX_STEP_S = 60.0 / 34
 _OFFSETS = np.deg2rad(np.r_[0, np.repeat(np.arange(15, 181, 15), 2) * np.tile([1, -1], 12)])
 
 
-def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed):
+def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clearance, height, speed,
+              others=None, gap_m=0.0):
     z = g.floor_z
 
-    def free_spot():
+    def apart(q, i):
+        """``q`` keeps ``gap_m`` from every other person at step ``i``."""
+        return others is None or bool(np.all(np.hypot(others[:, i, 0] - q[0], others[:, i, 1] - q[1]) >= gap_m))
+
+    def free_spot(i=None):
         c = np.c_[g.lo[:2] + (g.hi[:2] - g.lo[:2]) * rng.random((256, 2)), np.full(256, z)]
         ok = np.flatnonzero(g.free_mask(c, clearance=clearance, body_height=height))
+        if i is not None:
+            ok = [k for k in ok if apart(c[k], i)]
         return c[ok[0]] if len(ok) else None
 
-    start = free_spot()
+    start = free_spot(0)
     if start is None:
         return None
     t = np.linspace(0.0, duration_s, n)
@@ -271,7 +286,7 @@ def _simulate(g: RoomGeometry, rng: np.random.Generator, *, n, duration_s, clear
 
     def clear(p, hh, length):
         q = p + length * np.array([math.cos(hh), math.sin(hh), 0.0])
-        return g.segment_clear(p, q, clearance=clearance, body_height=height), q
+        return g.segment_clear(p, q, clearance=clearance, body_height=height) and apart(q, i + 1), q
 
     for i in range(n - 1):
         if goal is None or goal_age > 8 or np.hypot(*(goal - pos[i])[:2]) < 1.0:
@@ -330,9 +345,9 @@ def check_walk(geometry: RoomGeometry, positions, *, clearance: float = 0.0, hei
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise PlacementError(f"walk positions must have shape [n, 3], got {p.shape}")
-    geometry.check_points(p, what="human", clearance=clearance, body_height=height)
+    geometry.check_points(p, what="person", clearance=clearance, body_height=height)
     for i in range(len(p) - 1):
         blocker = geometry.segment_blocker(p[i], p[i + 1], clearance=clearance, body_height=height)
         if blocker is not None:
-            raise PlacementError(f"human step {i} -> {i + 1} from ({p[i][0]:.3f}, {p[i][1]:.3f}) to "
+            raise PlacementError(f"person step {i} -> {i + 1} from ({p[i][0]:.3f}, {p[i][1]:.3f}) to "
                                  f"({p[i + 1][0]:.3f}, {p[i + 1][1]:.3f}) passes through {blocker}")

@@ -46,7 +46,7 @@ stripped on reading). Structure shapes are named by prefix:
 
 Materials are ``<bsdf type="itu-radio-material">`` with an ITU type
 (``concrete``, ``brick``, ``plasterboard``, ``wood``, ``glass``, ``metal``, ...)
-or ``<bsdf type="human-tissue">`` (:mod:`rfmitsuba.plugins.human_tissue`).
+or ``<bsdf type="body-tissue">`` (:mod:`rfmitsuba.plugins.body_tissue`).
 Material ids and shape ids share Sionna's namespace and must differ; the
 builder checks it. A material's ``thickness`` is the slab thickness of Sionna's
 single-layer slab model, applied at every face a ray meets: a closed box is
@@ -77,7 +77,7 @@ ITU_TYPES = (
     "wet_ground",
 )
 #: Material types besides the ITU ones (plugins of :mod:`rfmitsuba.plugins`).
-PLUGIN_TYPES = ("human-tissue",)
+PLUGIN_TYPES = ("body-tissue",)
 #: Shape-id prefixes of structure (not furniture), see the module docstring.
 STRUCTURE_PREFIXES = ("wall", "floor", "ceiling", "door", "window")
 #: Separator between object id and material id in multi-material furniture shape ids.
@@ -92,7 +92,7 @@ class Material:
     """A radio material.
 
     id: unique name in the scene (letters, digits, ``_``; not a shape id).
-    type: an ITU type from :data:`ITU_TYPES` or ``"human-tissue"``.
+    type: an ITU type from :data:`ITU_TYPES` or ``"body-tissue"``.
     thickness: slab thickness, metres (> 0).
     """
 
@@ -514,8 +514,8 @@ def scene_xml(desc: RoomDescription, *, mesh_dir: str = "meshes") -> str:
                            f" z up; written by rfmitsuba.sim.scene_builder "))
     used = [m for m in desc.materials if any(mat == m.id for _, mat, _ in meshes)]
     for m in used:
-        if m.type == "human-tissue":
-            b = ET.SubElement(root, "bsdf", {"type": "human-tissue", "id": m.id})
+        if m.type == "body-tissue":
+            b = ET.SubElement(root, "bsdf", {"type": "body-tissue", "id": m.id})
         else:
             b = ET.SubElement(root, "bsdf", {"type": "itu-radio-material", "id": m.id})
             ET.SubElement(b, "string", {"name": "type", "value": m.type})

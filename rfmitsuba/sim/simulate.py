@@ -21,7 +21,7 @@ device through its 16 element positions (16 solves). Paths are put in a canonica
 (delay, then coefficient) before summing in float64, so the channel does not
 depend on the order in which the ray tracer's threads emit paths.
 
-A human (or any perturber mesh) is added once with ``scene.edit(add=...)`` and
+A person (or any perturber mesh) is added once with ``scene.edit(add=...)`` and
 then moved by writing its vertex positions (absolute, not incremental), so a
 state's geometry does not depend on the states simulated before it: a resumed
 generation is bit-identical to an uninterrupted one.
@@ -40,7 +40,7 @@ from ..core.errors import ConfigError, PlacementError, SceneError
 from ..rf import array as antenna
 
 #: Name of the perturber object inside the Sionna scene.
-HUMAN_ID = "rfm-human"
+PERSON_ID = "rfm-person"
 #: Name of the fixed device inside the Sionna scene.
 FIXED_ID = "rfm-fixed"
 #: How the 16 element channels are obtained: Sionna's plane-wave rule about the array centre
@@ -170,8 +170,8 @@ class Simulator:
         self.scene.add(Transmitter(FIXED_ID, position=mi.Point3f(*[float(x) for x in self.fixed_pos])))
         self._solver = PathSolver()
         self._receivers: list[str] = []
-        self._human_faces: np.ndarray | None = None
-        self._tmp = tempfile.TemporaryDirectory(prefix="rfm-human-")
+        self._person_faces: np.ndarray | None = None
+        self._tmp = tempfile.TemporaryDirectory(prefix="rfm-person-")
         self.timing = Timing()
 
     def set_scattering(self, coefficient: float) -> None:
@@ -203,7 +203,7 @@ class Simulator:
         self.positions = p
 
     # ------------------------------------------------------------------ the perturber
-    def set_human(self, vertices: np.ndarray | None, faces: np.ndarray | None = None, *,
+    def set_person(self, vertices: np.ndarray | None, faces: np.ndarray | None = None, *,
                   material=None) -> None:
         """Put the perturber mesh into the scene, move it, or remove it (``vertices=None``).
 
@@ -217,27 +217,27 @@ class Simulator:
         from sionna.rt import SceneObject
 
         if vertices is None:
-            if self._human_faces is not None:
-                self.scene.edit(remove=[HUMAN_ID])
-                self._human_faces = None
+            if self._person_faces is not None:
+                self.scene.edit(remove=[PERSON_ID])
+                self._person_faces = None
             return
         v = np.asarray(vertices, np.float64)
         if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
-            raise PlacementError(f"human vertices must be finite [V, 3], got shape {v.shape}")
-        if self._human_faces is None:
+            raise PlacementError(f"person vertices must be finite [V, 3], got shape {v.shape}")
+        if self._person_faces is None:
             if faces is None or material is None:
-                raise ConfigError("the first set_human call needs faces and a material")
+                raise ConfigError("the first set_person call needs faces and a material")
             f = np.asarray(faces, np.int64)
-            ply = Path(self._tmp.name) / "human.ply"
+            ply = Path(self._tmp.name) / "person.ply"
             _write_ply(ply, v, f)
-            obj = SceneObject(fname=str(ply), name=HUMAN_ID, radio_material=material)
+            obj = SceneObject(fname=str(ply), name=PERSON_ID, radio_material=material)
             self.scene.edit(add=[obj])
-            self._human_faces = f
-            self._human_nv = v.shape[0]
-        if v.shape[0] != self._human_nv:
-            raise PlacementError(f"human mesh has {v.shape[0]} vertices, the placed one {self._human_nv}")
+            self._person_faces = f
+            self._person_nv = v.shape[0]
+        if v.shape[0] != self._person_nv:
+            raise PlacementError(f"person mesh has {v.shape[0]} vertices, the placed one {self._person_nv}")
         params = self.scene.mi_scene_params
-        key = self.scene.get(HUMAN_ID).mi_mesh.id() + ".vertex_positions"
+        key = self.scene.get(PERSON_ID).mi_mesh.id() + ".vertex_positions"
         params[key] = dr.ravel(mi.Point3f(*[mi.Float(np.ascontiguousarray(v[:, i], np.float32))
                                             for i in range(3)]))
         params.update()

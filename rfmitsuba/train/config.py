@@ -16,6 +16,7 @@ from dataclasses import field as dc_field
 from typing import ClassVar, Literal
 
 from ..core import config as C
+from ..core.config import differences
 from ..core.errors import ConfigError
 from ..models.base import field_class
 from ..models.coherent import CoherentConfig
@@ -175,17 +176,6 @@ def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
     return C.override(cfg, ["iterations=300", "downsample=2", "val_every=100", "checkpoint_every=100",
                             "splat.num_gaussians=600", "density.start=100", "density.every=50",
                             "density.max_gaussians=2000", "density.reset_every=0"])
-
-
-def differences(a: dict, b: dict, prefix: str = ""):
-    """(dotted key, value in ``a``, value in ``b``) for every option where two (nested) config
-    dicts differ, in key order; "<missing>" where one lacks the key."""
-    for k in sorted(set(a) | set(b)):
-        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
-        if isinstance(va, dict) and isinstance(vb, dict):
-            yield from differences(va, vb, f"{prefix}{k}.")
-        elif va != vb:
-            yield f"{prefix}{k}", va, vb
 
 
 def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:

@@ -104,12 +104,12 @@ class Trainer:
         frozen: already trained fields rendered together with the trained one (their
             parameters are not optimised), e.g. a frozen background in Stage 2.
         extra: callable (antenna indices int64 [K]) -> float [K, E] of extra network inputs
-            of the trained field (Stage 2: the human position, scaled to about [0, 1]), or None.
+            of the trained field (Stage 2: the person position, scaled to about [0, 1]), or None.
         extra_inputs: E, the number of those inputs (the trained field's network takes them).
         quiet: no progress bar.
         name: the trained field's name (its optimizer keys are ``name + "." + key``).
         field_factory: callable (trainer, rng) -> the field to train (default
-            :meth:`init_field`: Stage-1 initialisation from the scene), e.g. Stage 2's human field.
+            :meth:`init_field`: Stage-1 initialisation from the scene), e.g. Stage 2's person field.
 
     Keys of a field's parameters that contain a dot (``net.<module>``, ``deform.<module>``) are
     network weights and get the network learning rate.

@@ -8,7 +8,7 @@ TINY = ["--set", "iterations=40", "--set", "downsample=5", "--set", "val_every=1
         "--set", "splat.init='random'", "--set", "splat.num_gaussians=100", "--model", "splat", "--quiet"]
 TINY_COMPARE = ["--methods", "baseline,ours", "--seeds", "0", "--set", "train.stage1_iterations=8",
                 "--set", "train.val_every=8", "--set", "train.stage2_iterations=6",
-                "--set", "train.overrides=['coherent_human.num_points=4']"]
+                "--set", "train.overrides=['coherent_person.num_points=4']"]
 
 
 def test_export_one_walk_then_train_eval_and_compare(synthetic_ds, tmp_path, capsys):
@@ -23,7 +23,7 @@ def test_export_one_walk_then_train_eval_and_compare(synthetic_ds, tmp_path, cap
     rec = json.loads((out / "dynamic" / "rfmitsuba.json").read_text())
     assert rec["task"] == "rx" and rec["static"] == "../static" and rec["format"] == "rfmitsuba-one-walk/1"
     src, back = open_dataset(synthetic_ds), open_dataset(out)
-    assert back.num_states == src.num_states and np.array_equal(back.split.human_test, src.split.human_test)
+    assert back.num_states == src.num_states and np.array_equal(back.split.person_test, src.split.person_test)
     # the static folder is a Stage-1 dataset: train and eval read it as it is
     assert main(["train", str(out / "static"), "--out", str(tmp_path / "run")] + TINY) == 0
     assert main(["eval", str(tmp_path / "run")]) == 0

@@ -55,3 +55,15 @@ def test_override():
     assert cfg.inner.lr == 0.5 and cfg.name == "abc" and cfg.seeds == [4, 5]
     with pytest.raises(ConfigError, match="unknown option 'nope'"):
         config.override(Outer(), ["inner.nope=1"])
+
+
+def test_differences_walks_nested_dicts_first_keys_first_and_lists_when_asked():
+    from rfmitsuba.core.config import differences
+
+    a = {"z": 1, "a": {"x": [1, 2], "y": 0}, "task": "rx"}
+    b = {"z": 2, "a": {"x": [1, 3]}, "task": "tx"}
+    assert list(differences(a, b)) == [("a.x", [1, 2], [1, 3]), ("a.y", 0, "<missing>"), ("task", "rx", "tx"),
+                                       ("z", 1, 2)]
+    assert list(differences(a, b, first=("task",), into_lists=True))[:2] == [("task", "rx", "tx"), ("a.x[1]", 2, 3)]
+    assert list(differences(a, a)) == []
+    assert list(differences([1, 2], [1, 2, 3], into_lists=True)) == [("<root>", [1, 2], [1, 2, 3])]

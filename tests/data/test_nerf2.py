@@ -14,7 +14,7 @@ def small(tmp_path):
     hp = np.full((S, 3), np.nan)
     hp[1] = [1.0, 2.0, 0.0]
     pas = rng.random((S, A, 90, 360)).astype(np.float32) * 3 + 1
-    return D.write_dataset(tmp_path / "ds", pas=pas, antenna_pos=rng.random((A, 3)) * 4, human_pos=hp,
+    return D.write_dataset(tmp_path / "ds", pas=pas, antenna_pos=rng.random((A, 3)) * 4, person_pos=hp,
                            meta={"task": "tx", "fixed_pos": [0.3, 0.3, 2.0]})
 
 
@@ -35,7 +35,7 @@ def test_write_read_round_trip(small, tmp_path):
     assert np.allclose(back.antenna_pos, small.antenna_pos, atol=1e-6)
     assert np.allclose(back.fixed_pos, [0.3, 0.3, 2.0]) and np.allclose(back.rx_to_world, np.eye(3))
     assert np.array_equal(back.split.antenna_test, small.split.antenna_test)
-    assert np.allclose(back.human_pos[0], [1.0, 2.0, 0.0])
+    assert np.allclose(back.person_pos[0], [1.0, 2.0, 0.0])
     # open_dataset recognises the folder too
     assert D.open_dataset(out).num_antennas == 12
 

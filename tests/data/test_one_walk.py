@@ -46,9 +46,9 @@ def test_round_trip_positions_splits_and_pas(exported, where):
         assert np.abs(p - normalize(src.pas(s))).max() <= Q8
     assert np.array_equal(back.pas(0)[[3, 1]], np.asarray(back.pas(0))[[3, 1]])
     if S > 1:
-        assert np.allclose(back.human_pos[1:], src.human_pos[1:], atol=1e-6) and np.isnan(back.human_pos[0]).all()
-        assert np.array_equal(back.split.human_train, src.split.human_train)
-        assert np.array_equal(back.split.human_test, src.split.human_test)
+        assert np.allclose(back.person_pos[1:], src.person_pos[1:], atol=1e-6) and np.isnan(back.person_pos[0]).all()
+        assert np.array_equal(back.split.person_train, src.split.person_train)
+        assert np.array_equal(back.split.person_test, src.split.person_test)
         assert np.array_equal(back.frame_idx, np.arange(S - 1))
 
 
@@ -63,7 +63,7 @@ def test_exported_folders_train_and_sample_like_the_source(exported):
     a, b = SampleData.open_samples(src.path, states="all"), SampleData.open_samples(out / "dynamic", states="all")
     assert np.array_equal(a.train, b.train) and np.array_equal(a.test, b.test)
     assert np.abs(b.pas(b.test) - a.pas(a.test)).max() <= Q8 + 1e-6
-    assert np.allclose(a.human_pos[a.test], b.human_pos[b.test], atol=1e-6, equal_nan=True)
+    assert np.allclose(a.person_pos[a.test], b.person_pos[b.test], atol=1e-6, equal_nan=True)
 
 
 def test_the_layout_is_what_the_one_walk_loader_reads(exported):
@@ -89,8 +89,8 @@ def test_the_layout_is_what_the_one_walk_loader_reads(exported):
     split = {k: (dy / f"{k}_index.txt").read_text().split() for k in ("train", "val", "test")}
     assert sorted(sum(split.values(), [])) == [f"{n:05d}" for n in range(1, H * A + 1)]
     sp = src.split
-    for k, want in (("train", lambda a, h: a in sp.antenna_train and h in sp.human_train),
-                    ("test", lambda a, h: a in sp.antenna_test and h in sp.human_test)):
+    for k, want in (("train", lambda a, h: a in sp.antenna_train and h in sp.person_train),
+                    ("test", lambda a, h: a in sp.antenna_test and h in sp.person_test)):
         for name in split[k]:
             r = rows[int(name) - 1]
             assert want((int(name) - 1) % A, int(r[11])) and (dy / "spectrums" / f"{name}.png").is_file()
@@ -123,11 +123,11 @@ def _pair(root, *, seed=0):
     pas = rng.random((1 + H, A, 90, 360)).astype(np.float32)
     from rfmitsuba.data.split import Split
 
-    sp = Split(antenna_train=np.array([0, 1, 2]), antenna_test=np.array([3]), human_train=np.array([0, 1]),
-               human_test=np.array([2]))
-    src = D.write_dataset(root / "src", pas=pas, antenna_pos=rng.random((A, 3)) * 4, human_pos=hp, split=sp,
+    sp = Split(antenna_train=np.array([0, 1, 2]), antenna_test=np.array([3]), person_train=np.array([0, 1]),
+               person_test=np.array([2]))
+    src = D.write_dataset(root / "src", pas=pas, antenna_pos=rng.random((A, 3)) * 4, person_pos=hp, split=sp,
                           meta={"task": "rx", "fixed_pos": [0.5, 0.5, 2.0],
-                                "human": {"headings_rad": [0.0, 1.0, 2.0]}})
+                                "person": {"headings_rad": [0.0, 1.0, 2.0]}})
     return src, ow.write(src, root / "ow")
 
 
@@ -149,7 +149,7 @@ def test_folder_as_published_takes_the_documented_defaults(pair):
     assert back.measured and back.task == "rx" and back.readout == "amplitude"
     assert back.frequency_hz == ow.DEFAULT_FREQUENCY_HZ and np.allclose(back.rx_to_world, np.eye(3))
     assert np.allclose(back.fixed_pos, [0.5, 0.5, 2.0])   # gateway_info.yml
-    assert np.allclose(back.meta["human"]["headings_rad"], [0.0, 1.0, 2.0], atol=1e-6)
+    assert np.allclose(back.meta["person"]["headings_rad"], [0.0, 1.0, 2.0], atol=1e-6)
     cfg = ow.OneWalkConfig(frequency_hz=5e9, array_orientation=(0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)),
                            fixed_pos=(1, 2, 3))
     back = ow.read(out, config=cfg)
@@ -192,9 +192,9 @@ def test_without_frame_idx_or_orientation_frames_are_the_poses(pair):
     rows = [ln.split(",") for ln in f.read_text().splitlines()]
     f.write_text("\n".join(",".join(r[:7]) for r in rows) + "\n")
     back = ow.read(out)
-    assert back.num_states == 1 + H and np.allclose(back.human_pos[1:], src.human_pos[1:], atol=1e-6)
-    assert np.allclose(back.human_orientation[1:], [0, 0, 0, 1])
-    assert np.array_equal(back.split.human_test, [2])
+    assert back.num_states == 1 + H and np.allclose(back.person_pos[1:], src.person_pos[1:], atol=1e-6)
+    assert np.allclose(back.person_orientation[1:], [0, 0, 0, 1])
+    assert np.array_equal(back.split.person_test, [2])
 
 
 def test_frames_follow_frame_idx_not_row_order(pair):
@@ -207,9 +207,9 @@ def test_frames_follow_frame_idx_not_row_order(pair):
     f.write_text("\n".join([head] + [",".join(r) for r in reversed(rows)]) + "\n")
     back = ow.read(out)
     assert np.array_equal(back.frame_idx, [0, 10, 20])
-    assert np.allclose(back.human_pos[1:], src.human_pos[1:][::-1], atol=1e-6)
+    assert np.allclose(back.person_pos[1:], src.person_pos[1:][::-1], atol=1e-6)
     assert np.abs(np.asarray(back.pas(1)) - normalize(src.pas(3))).max() <= Q8
-    assert np.array_equal(back.split.human_test, [0])
+    assert np.array_equal(back.split.person_test, [0])
 
 
 def test_index_files_that_disagree_with_the_static_split_warn(pair):
@@ -315,11 +315,11 @@ def _check(out):
         return
     S = ds.num_states
     assert ds.antenna_pos.shape == (A, 3) and np.isfinite(ds.antenna_pos).all() and np.isfinite(ds.fixed_pos).all()
-    assert ds.human_pos.shape == (S, 3) and np.isfinite(ds.human_pos[1:]).all()
+    assert ds.person_pos.shape == (S, 3) and np.isfinite(ds.person_pos[1:]).all()
     assert np.isfinite(ds.frequency_hz) and np.allclose(ds.rx_to_world @ ds.rx_to_world.T, np.eye(3), atol=1e-6)
     sp = ds.split
     assert not np.intersect1d(sp.antenna_train, sp.antenna_test).size
-    assert not np.intersect1d(sp.human_train, sp.human_test).size
+    assert not np.intersect1d(sp.person_train, sp.person_test).size
     assert np.asarray(ds.pas(S - 1)).shape == (A, 90, 360)
 
 

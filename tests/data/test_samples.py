@@ -1,4 +1,4 @@
-"""Flat (state, antenna) sample views: splits keep test antennas and humans out, noise, features."""
+"""Flat (state, antenna) sample views: splits keep test antennas and people out, noise, features."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,19 +7,19 @@ import pytest
 from rfmitsuba.core.errors import ConfigError
 
 
-def test_splits_hold_out_test_antennas_and_humans(synthetic_ds):
+def test_splits_hold_out_test_antennas_and_persons(synthetic_ds):
     from rfmitsuba.data.samples import SampleData
 
     d = SampleData.open_samples(synthetic_ds, states="all")
     sp = d.split
     tr_a, tr_s = d.antennas[d.train], d.states[d.train]
     assert not np.isin(tr_a, sp.antenna_test).any()
-    assert not np.isin(tr_s, np.asarray(sp.human_test) + 1).any()
+    assert not np.isin(tr_s, np.asarray(sp.person_test) + 1).any()
     assert (tr_s == 0).any() and (tr_s > 0).any()
     te = d.test
-    assert np.isin(d.antennas[te], sp.antenna_test).all() and np.isin(d.states[te], np.asarray(sp.human_test) + 1).all()
-    # SPEC: ~19% of the human positions held out
-    assert len(sp.human_test) == 1 and len(sp.human_train) == 5
+    assert np.isin(d.antennas[te], sp.antenna_test).all() and np.isin(d.states[te], np.asarray(sp.person_test) + 1).all()
+    # SPEC: ~19% of the person positions held out
+    assert len(sp.person_test) == 1 and len(sp.person_train) == 5
 
 
 def test_state_sets_duplicate_and_subset(synthetic_ds):
@@ -97,12 +97,12 @@ def test_noise_level():
     assert abs(np.mean(np.abs(n) ** 2) - 0.1) < 0.005  # 10 dB below unit power
 
 
-def test_human_features():
-    from rfmitsuba.data.samples import human_features, num_human_features
+def test_person_features():
+    from rfmitsuba.data.samples import person_features, num_person_features
 
     box = np.array([[0, 0, 0], [4, 4, 4]], float)
-    f = human_features(np.array([[np.nan] * 3, [2.0, 2.0, 0.0]]), box, octaves=2)
-    assert f.shape == (2, num_human_features(2))
+    f = person_features(np.array([[np.nan] * 3, [2.0, 2.0, 0.0]]), box, octaves=2)
+    assert f.shape == (2, num_person_features(2))
     assert (f[0] == 0).all() and f[1, -1] == 1.0
     assert np.allclose(f[1, :3], [0.25, 0.25, 0.0])
 
@@ -154,10 +154,10 @@ def test_grid_layout_and_the_first_walk_frames(synthetic_ds):
     chosen = np.unique(grid.antennas[grid.train])
     assert len(chosen) == 8 and np.array_equal(chosen, np.unique(again.antennas[again.train]))
     assert np.array_equal(grid.test, SampleData.open_samples(synthetic_ds, states="empty").test)
-    d = SampleData.open_samples(synthetic_ds, states="human", walk_frames=3)
+    d = SampleData.open_samples(synthetic_ds, states="person", walk_frames=3)
     sp = d.split
-    assert set(d.states[d.train]) == {int(h) + 1 for h in sp.human_train if h < 3}
-    assert np.array_equal(d.test, SampleData.open_samples(synthetic_ds, states="human").test)
+    assert set(d.states[d.train]) == {int(h) + 1 for h in sp.person_train if h < 3}
+    assert np.array_equal(d.test, SampleData.open_samples(synthetic_ds, states="person").test)
     none = SampleData.open_samples(synthetic_ds, states="all", walk_frames=0)
     assert (none.states[none.train] == 0).all()
     with pytest.raises(ConfigError, match="layout"):

@@ -17,7 +17,7 @@ def tiny(path, S=3, A=10, seed=0, **kw):
     hp = np.full((S, 3), np.nan)
     hp[1:] = rng.random((S - 1, 3))
     pas = rng.random((S, A, 90, 360)).astype(np.float32)
-    ds = D.write_dataset(path, pas=pas, antenna_pos=rng.random((A, 3)), human_pos=hp, **kw)
+    ds = D.write_dataset(path, pas=pas, antenna_pos=rng.random((A, 3)), person_pos=hp, **kw)
     return ds, pas, hp
 
 
@@ -34,7 +34,7 @@ def test_write_then_open_round_trip(tmp_path):
     assert (ds.task, ds.frequency_hz, ds.num_antennas, ds.num_states) == ("tx", 5e9, 10, 3)
     assert np.array_equal(ds.pas(1), pas[1]) and ds.pas(1).dtype == np.float32
     assert ds.channel(0).shape == (10, 16) and ds.channel(0).dtype == np.complex64
-    assert np.isnan(ds.human_pos[0]).all() and np.allclose(ds.human_pos[1:], hp[1:])
+    assert np.isnan(ds.person_pos[0]).all() and np.allclose(ds.person_pos[1:], hp[1:])
     assert np.allclose(ds.fixed_pos, [1, 2, 3])
     meta = json.loads((tmp_path / "d" / "meta.json").read_text())
     assert meta["format"] == D.FORMAT and meta["num_states"] == 3 and len(meta["array"]["element_positions_m"]) == 16
@@ -47,14 +47,14 @@ def test_arrays_flat_view_row_order(tmp_path):
     k = 2 * 4 + 3  # state 2, antenna 3
     assert np.array_equal(arr["pas"][k], pas[2, 3])
     assert np.array_equal(arr["antenna_pos"][k], ds.antenna_pos[3])
-    assert np.allclose(arr["human_pos"][k], hp[2]) and np.isnan(arr["human_pos"][:4]).all()
+    assert np.allclose(arr["person_pos"][k], hp[2]) and np.isnan(arr["person_pos"][:4]).all()
     sub = ds.arrays([2])
     assert sub["pas"].shape == (4, 90, 360) and np.array_equal(sub["state"], [2] * 4)
 
 
 def test_split_fractions_disjoint_and_saved(tmp_path):
     sp = splits.make_split(900, 35, seed=3)
-    assert len(sp.antenna_test) == 180 and len(sp.human_test) == 7  # 20 % and ~19 %
+    assert len(sp.antenna_test) == 180 and len(sp.person_test) == 7  # 20 % and ~19 %
     assert not set(sp.antenna_test) & set(sp.antenna_train)
     assert sorted([*sp.antenna_test, *sp.antenna_train]) == list(range(900))
     assert np.array_equal(splits.make_split(900, 35, seed=3).antenna_test, sp.antenna_test)
@@ -68,16 +68,16 @@ def test_write_dataset_bad_inputs(tmp_path):
     hp = np.full((2, 3), np.nan)
     hp[1] = 1
     with pytest.raises(DatasetError, match=r"\[S, A, 90, 360\]"):
-        D.write_dataset(tmp_path / "a", pas=np.zeros((2, 3, 90, 180)), antenna_pos=np.zeros((3, 3)), human_pos=hp)
+        D.write_dataset(tmp_path / "a", pas=np.zeros((2, 3, 90, 180)), antenna_pos=np.zeros((3, 3)), person_pos=hp)
     with pytest.raises(DatasetError, match="antenna_pos"):
         D.write_dataset(tmp_path / "b", pas=np.zeros((2, 3, 90, 360)), antenna_pos=np.full((3, 3), np.nan),
-                        human_pos=hp)
+                        person_pos=hp)
     with pytest.raises(DatasetError, match="row 0 must be NaN"):
         D.write_dataset(tmp_path / "c", pas=np.zeros((2, 3, 90, 360)), antenna_pos=np.zeros((3, 3)),
-                        human_pos=np.ones((2, 3)))
+                        person_pos=np.ones((2, 3)))
     with pytest.raises(DatasetError, match="task"):
         D.write_dataset(tmp_path / "e", pas=np.zeros((2, 3, 90, 360)), antenna_pos=np.zeros((3, 3)),
-                        human_pos=hp, meta={"task": "sideways"})
+                        person_pos=hp, meta={"task": "sideways"})
 
 
 def test_not_a_dataset_and_foreign_folder(tmp_path):
@@ -155,22 +155,22 @@ def test_first_difference_names_the_nested_key_and_both_values():
 
 def test_quick_dataset_contents(quick_dataset):
     ds = quick_dataset
-    from rfmitsuba.sim import person as human
+    from rfmitsuba.sim import person as person
     from rfmitsuba.sim.geometry import RoomGeometry
 
-    assert ds.num_antennas == gen.QUICK["positions"] and ds.num_states == 1 + gen.QUICK["human_positions"]
+    assert ds.num_antennas == gen.QUICK["positions"] and ds.num_states == 1 + gen.QUICK["person_positions"]
     assert ds.meta["scene"]["name"] == "bedroom" and len(ds.meta["scene"]["sha256"]) == 64
-    for key in ("solver", "seeds", "versions", "units", "array", "human"):
+    for key in ("solver", "seeds", "versions", "units", "array", "person"):
         assert key in ds.meta
     g = RoomGeometry.from_xml(ds.meta["scene"]["file"])
     g.check_points(ds.antenna_pos.astype(np.float64))  # never inside furniture
-    hp = ds.human_pos[1:]
+    hp = ds.person_pos[1:]
     d = np.linalg.norm(ds.antenna_pos[:, None, :2] - hp[None, :, :2], axis=-1)
-    below = ds.antenna_pos[:, None, 2] < human.HEIGHT + 0.1
-    assert not np.any((d < human.radius()) & below)  # never inside the human
+    below = ds.antenna_pos[:, None, 2] < person.HEIGHT + 0.1
+    assert not np.any((d < person.radius()) & below)  # never inside the person
     p0 = np.asarray(ds.pas(0))
     assert np.isfinite(p0).all() and p0.max() > 0
-    # the human changes some PAS, not all
+    # the person changes some PAS, not all
     diff = np.abs(np.asarray(ds.pas(1)) - p0).max(axis=(1, 2)) / p0.max(axis=(1, 2))
     assert diff.max() > 0.01 and ds.verify() == []
 
@@ -231,7 +231,7 @@ def test_fingerprint_follows_the_content_not_the_location(tmp_path):
     assert D.open_dataset(tmp_path / "moved").fingerprint() != fp
     _, pas, hp = tiny(tmp_path / "again")
     ap = D.open_dataset(tmp_path / "again").antenna_pos
-    D.write_dataset(tmp_path / "other_split", pas=pas, antenna_pos=ap, human_pos=hp, seed=5)  # same arrays
+    D.write_dataset(tmp_path / "other_split", pas=pas, antenna_pos=ap, person_pos=hp, seed=5)  # same arrays
     assert not np.array_equal(D.open_dataset(tmp_path / "other_split").split.antenna_test, ds.split.antenna_test)
     assert D.open_dataset(tmp_path / "other_split").fingerprint() != fp
     (tmp_path / "d" / "chunks" / "00001" / "chunk.json").unlink()

@@ -29,7 +29,7 @@ def _folder(tmp_path, *, nuisance: float):
     h = h * np.exp(nuisance * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape)))
     pas = bartlett(h, frequency_hz=f, positions=pos)
     src = SimpleNamespace(pas=lambda state=0: pas, antenna_pos=tags, fixed_pos=gateway, split=make_split(60, 0, seed=0),
-                          human_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f, num_states=1, path="test")
+                          person_pos=np.full((1, 3), np.nan), task="tx", frequency_hz=f, num_states=1, path="test")
     return nerf2.write(src, tmp_path / f"n{nuisance}")
 
 

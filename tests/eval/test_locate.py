@@ -29,12 +29,12 @@ def known_model(synthetic_ds, variant):
                                cfg=CoherentGaussianConfig(init_extent=1.5), readout="amplitude", wavefront="spherical",
                                vis_center=np.array([2.0, 1.75, 1.0]), frequency_hz=float(data.frequency_hz), seed=0)
     bg.freeze()
-    pcfg = CoherentGaussianPersonConfig(num_points=3, human_octaves=1, init_gain=0.5, init_strength=0.9,
+    pcfg = CoherentGaussianPersonConfig(num_points=3, person_octaves=1, init_gain=0.5, init_strength=0.9,
                                         init_block_radius=0.3)
     person = CoherentGaussianPersonField.for_background(bg, cfg=pcfg, seed=1)
     person.freeze()
-    train = np.isin(data.states, np.asarray(data.split.human_train) + 1) & (data.antennas == 0)
-    return TwoStage(background=bg, person=person, data=data, feet_z=0.0, walk=data.human_pos[train], job=synthetic_ds)
+    train = np.isin(data.states, np.asarray(data.split.person_train) + 1) & (data.antennas == 0)
+    return TwoStage(background=bg, person=person, data=data, feet_z=0.0, walk=data.person_pos[train], job=synthetic_ds)
 
 
 def _pas_at(model, feet, antenna_pos, *, person=True):

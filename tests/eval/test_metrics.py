@@ -25,17 +25,17 @@ def test_ssim_images_is_skimage_per_image():
         ssim_images(a, b[:1])
 
 
-def test_nearest_index_with_and_without_human():
+def test_nearest_index_with_and_without_person():
     from rfmitsuba.eval.metrics import nearest_index
 
     train = np.array([[0, 0, 0], [1, 0, 0], [5, 5, 1.0]])
     q = np.array([[0.9, 0.1, 0], [4, 4, 1], [0.2, 0, 0]])
     np.testing.assert_array_equal(nearest_index(train, q), [1, 2, 0])
-    # with human positions the nearest sample is the one with the closer human
+    # with person positions the nearest sample is the one with the closer person
     train2 = np.array([[0, 0, 0], [0, 0, 0.0]])
     th = np.array([[3, 3, 0], [1, 1, 0.0]])
-    np.testing.assert_array_equal(nearest_index(train2, np.zeros((1, 3)), train_human=th,
-                                                query_human=np.array([[1.2, 1, 0]])), [1])
+    np.testing.assert_array_equal(nearest_index(train2, np.zeros((1, 3)), train_person=th,
+                                                query_person=np.array([[1.2, 1, 0]])), [1])
 
 
 def test_floors_on_hand_made_cases():
@@ -84,7 +84,7 @@ def test_idw3_weights_by_inverse_distance():
     np.testing.assert_allclose(got, want, atol=1e-6)
     np.testing.assert_allclose(idw_predict(train, pos, pos[1:], k=2)[0], b[0])
     # k larger than the training set is clipped; a person position joins the distance
-    got6 = idw_predict(train, np.zeros((2, 3)), np.zeros((1, 3)), k=3, train_human=pos, query_human=np.zeros((1, 3)))
+    got6 = idw_predict(train, np.zeros((2, 3)), np.zeros((1, 3)), k=3, train_person=pos, query_person=np.zeros((1, 3)))
     np.testing.assert_allclose(got6[0], want, atol=1e-6)
     t4 = minmax(np.stack([_img(i) for i in range(4)]))
     f = floors(t4, np.eye(4, 3), t4[:2], np.eye(4, 3)[:2])
@@ -113,8 +113,8 @@ def test_floors_from_a_row_reader_equal_floors_from_the_array(monkeypatch):
         return train[samples - 100]
 
     monkeypatch.setattr(metrics, "PAS_CHUNK", 8)
-    whole = metrics.floors(train, pos, test, qpos, train_human=hum, test_human=qhum)
-    lazy = metrics.floors(PasRows(rows=rows, read=read), pos, test, qpos, train_human=hum, test_human=qhum)
+    whole = metrics.floors(train, pos, test, qpos, train_person=hum, test_person=qhum)
+    lazy = metrics.floors(PasRows(rows=rows, read=read), pos, test, qpos, train_person=hum, test_person=qhum)
     for key in whole:
         np.testing.assert_array_equal(lazy[key], whole[key])
     np.testing.assert_array_equal(metrics.mean_training_image(train), minmax(train.astype(np.float64).mean(0)[None]))

@@ -127,7 +127,7 @@ def test_anchored_prediction_and_room_check(tmp_path):
     rng = np.random.default_rng(3)
     ap = rng.uniform([1.0, 1.0, 0.8], [3.0, 2.5, 1.6], (30, 3))
     write_dataset(tmp_path / "ds", pas=render_pas(known_field(), ap, ap)[None], antenna_pos=ap,
-                  human_pos=np.full((1, 3), np.nan), meta={"task": "rx", "fixed_pos": [0.3, 0.3, 2.0],
+                  person_pos=np.full((1, 3), np.nan), meta={"task": "rx", "fixed_pos": [0.3, 0.3, 2.0],
                                                            "scene": "bedroom"}, seed=0)
     run = tmp_path / "run"
     Trainer(tiny_cfg(iterations=10), TrainData.open(tmp_path / "ds"), run, quiet=True).run()

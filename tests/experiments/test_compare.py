@@ -16,7 +16,7 @@ def tiny_compare_cfg(**over):
 
     sets = ["methods=['baseline','ours']", "seeds=[0]", "train.stage1_iterations=8", "train.val_every=8",
             "train.stage2_iterations=6", "train.room_order=1", "train.furniture_order=0",
-            "train.overrides=['coherent_human.num_points=4']"]
+            "train.overrides=['coherent_person.num_points=4']"]
     return C.override(CompareConfig(), sets + [f"{k}={v}" for k, v in over.items()])
 
 
@@ -51,6 +51,37 @@ def test_compare_report_resume_and_more_seeds(quick_dataset, tmp_path):
     assert new["train"] == old["train"]
     assert all(p.stat().st_mtime_ns == t for p, t in ckpt.items())
     assert len(json.loads((out / "results.json").read_text())) == 4  # seed 1 kept, re-evaluated too
+
+
+def test_a_comparison_written_with_the_old_method_name_resumes_without_training(quick_dataset, tmp_path):
+    """A folder whose Baseline (person) job is ``seed0/baseline_human`` (the method's name before)
+    resumes: nothing trains again and the results name the method as it is called now."""
+    from rfmitsuba.experiments.compare import compare
+
+    out = tmp_path / "cmp"
+    cfg = tiny_compare_cfg(methods="['baseline_person']")
+    compare(quick_dataset.path, out, cfg=cfg, progress=False)
+    (out / "seed0" / "baseline_person").rename(out / "seed0" / "baseline_human")
+    for f in (out / "compare.toml", out / "seed0" / "baseline_human" / "metrics.json"):
+        f.write_text(f.read_text().replace("baseline_person", "baseline_human"))
+    done = {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")}
+    compare(quick_dataset.path, out, cfg=cfg, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in out.glob("seed*/*/DONE")} == done
+    assert [r["method"] for r in json.loads((out / "results.json").read_text())] == ["baseline_person"]
+    assert not (out / "seed0" / "baseline_person").exists()
+    with pytest.raises(ConfigError, match="'baseline_human': this value is called 'baseline_person' now"):
+        tiny_compare_cfg(methods="['baseline_human']")
+
+
+def test_a_bad_override_leaves_the_folder_as_it_was(quick_dataset, tmp_path):
+    """An unknown option in ``train.overrides`` is refused before the comparison writes anything, so
+    the corrected command runs into the same folder."""
+    from rfmitsuba.experiments.compare import compare
+
+    out = tmp_path / "cmp"
+    with pytest.raises(ConfigError, match="threads"):
+        compare(quick_dataset.path, out, cfg=tiny_compare_cfg(**{"train.overrides": "['threads=1']"}), progress=False)
+    assert not out.exists() or [p.name for p in out.iterdir()] == [".lock"]
 
 
 def test_compare_config_errors():
@@ -128,3 +159,21 @@ def test_compare_on_local_cluster_matches_serial(quick_dataset, one_thread, tmp_
     assert len(done) == 4
     compare(quick_dataset.path, tmp_path / "dask", cfg=cfg, progress=False)
     assert all(p.stat().st_mtime_ns == t for p, t in done.items())
+
+
+def test_ours_every_person_draws_both_people_of_a_two_person_walk(two_people_dataset, tmp_path):
+    """Ours (every person) on a walk of two people: its person field takes both people's feet (F + 6
+    extra inputs) and is evaluated beside Ours, whose field sees person 1 alone."""
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.experiments.compare import compare
+    from rfmitsuba.models.base import load_field
+
+    out = tmp_path / "cmp"
+    compare(two_people_dataset.path, out, cfg=tiny_compare_cfg(methods="['ours', 'ours_people']"), progress=False)
+    f = load_field(out / "seed0" / "ours_people" / "stage2" / "final" / "field.npz")
+    one = load_field(out / "seed0" / "ours" / "stage2" / "final" / "field.npz")
+    assert f.people == 2 and one.people == 1
+    assert f.extra_inputs == num_person_features(f.feature_octaves) + 6
+    res = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
+    assert all(math.isfinite(res[m]["eval"]["dynamic"]["model"]["mean"]) for m in ("ours", "ours_people"))
+    assert "Ours (every person)" in (out / "report.md").read_text()

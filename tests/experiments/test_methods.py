@@ -18,18 +18,19 @@ def _mcfg(stage1, stage2):
     s1 = C.override(TrainConfig(), ['model="splat"', f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
                                     f"checkpoint_every={stage1}", "splat.init='random'", "splat.num_gaussians=200",
                                     "density.enabled=false"])
-    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=60))
+    return MethodConfig(stage1=s1, stage2_iterations=stage2, person=SplatPersonConfig(num_gaussians=60))
 
 
 def test_registry_and_budgets():
     from rfmitsuba.experiments.methods import METHODS, get_method, stage1_config
 
-    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_human", "end_to_end", "ours", "refined"}
-    assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "refined")] == \
-        [None, "baseline", "baseline", "ours"]
+    assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_person", "end_to_end", "ours",
+                            "ours_untracked", "refined"}
+    assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "ours_untracked", "refined")] == \
+        [None, "baseline", "baseline", "baseline", "ours"]
     mc = _mcfg(30, 20)
     assert stage1_config(mc, get_method("baseline"), seed=0).iterations == 30
-    for m in ("duplicated", "baseline_human", "end_to_end"):   # from scratch (Continued: Baseline's n1 + n2)
+    for m in ("duplicated", "baseline_person", "end_to_end"):   # from scratch (Continued: Baseline's n1 + n2)
         assert stage1_config(mc, get_method(m), seed=0).iterations == 50  # = Ours' two stages
     with pytest.raises(ConfigError, match="unknown method 'nerf'"):
         get_method("nerf")
@@ -48,14 +49,14 @@ def trained(synthetic_ds, tmp_path_factory):
 
 
 def test_two_stage_beats_frozen_background(trained, synthetic_ds):
-    """Same frozen background with and without the human Gaussians, on unseen antennas x unseen humans."""
+    """Same frozen background with and without the person Gaussians, on unseen antennas x unseen people."""
     from rfmitsuba.eval import dynamic_static
     from rfmitsuba.experiments import methods
 
     ours = dynamic_static.evaluate(methods.load_model("ours", trained / "ours"), synthetic_ds)
     bg = dynamic_static.evaluate(methods.load_model("baseline", trained / "baseline"), synthetic_ds)
     assert ours["dynamic"]["model"]["mean"] > bg["dynamic"]["model"]["mean"] + 0.03
-    # static: the human Gaussians are off in the empty room -> exactly the background
+    # static: the person Gaussians are off in the empty room -> exactly the background
     assert ours["static"]["model"]["mean"] == bg["static"]["model"]["mean"]
     for part in ("dynamic", "static"):
         assert {"model", "nearest_neighbour", "mean_image"} <= set(ours[part])
@@ -116,7 +117,7 @@ def test_noisy_training_floors(trained, synthetic_ds):
         float(ssim_images(data.pas(train)[fl["nearest_index"]], data.pas(test)).mean()))
 
 
-def test_end_to_end_takes_the_human_position(synthetic_ds, tmp_path):
+def test_end_to_end_takes_the_person_position(synthetic_ds, tmp_path):
     from rfmitsuba.data.samples import SampleData
     from rfmitsuba.experiments import methods
 
@@ -173,14 +174,14 @@ def _coherent_mcfg(stage1, stage2, kind="perturb"):
                                     f"val_every={stage1}", f"checkpoint_every={stage1}", "coherent.room_order=2",
                                     "coherent.furniture_order=1"])
     return C.override(MethodConfig(stage1=s1, stage2_iterations=stage2),
-                      [f"coherent_human.kind='{kind}'", "coherent_human.num_points=8", "stage2_optim.lr_amp=3e-3",
+                      [f"coherent_person.kind='{kind}'", "coherent_person.num_points=8", "stage2_optim.lr_amp=3e-3",
                        "stage2_optim.lr_means=3e-3"])
 
 
 @pytest.mark.parametrize("kind", ["perturb", "scatter"])
 def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path, kind, one_thread):
     """Coherent Ours: Stage 2 adds the person (kind "perturb": it modulates the background's own
-    paths; "scatter": scattering points that move with the person). On the human-present training
+    paths; "scatter": scattering points that move with the person). On the person-present training
     samples the background plus the person fits better than the frozen background alone, and the
     static evaluation renders the background alone (the person off). One Dr.Jit thread: with
     several, the order of the gradient sums varies and the margin of the scatter kind (about
@@ -215,15 +216,15 @@ def test_coherent_two_stage_learns_the_person_and_keeps_the_background(quick_dat
     assert ev["dynamic"]["nearest_neighbour"]["n"] == ev["dynamic"]["model"]["n"] > 0
 
 
-def test_coherent_end_to_end_takes_the_human_features(quick_dataset, tmp_path):
-    from rfmitsuba.data.samples import num_human_features
+def test_coherent_end_to_end_takes_the_person_features(quick_dataset, tmp_path):
+    from rfmitsuba.data.samples import num_person_features
     from rfmitsuba.eval import dynamic_static
     from rfmitsuba.experiments import methods
 
     mc = _coherent_mcfg(20, 10)
     methods.train_method("end_to_end", quick_dataset.path, tmp_path / "e2e", mcfg=mc, seed=0)
     model = methods.load_model("end_to_end", tmp_path / "e2e")
-    assert model.fields[0].extra_inputs == num_human_features(mc.human.human_octaves)
+    assert model.fields[0].extra_inputs == num_person_features(mc.person.person_octaves)
     ev = dynamic_static.evaluate(model, quick_dataset.path)
     assert 0 < ev["dynamic"]["model"]["mean"] <= 1 and ev["render_ms_per_pas"] > 0
 
@@ -242,7 +243,7 @@ def _cg_mcfg(stage1, stage2):
 def test_coherent_gaussians_two_stage_learns_the_person_and_keeps_the_background(quick_dataset, tmp_path,
                                                                                    one_thread):
     """Ours on a coherent Gaussian background: Stage 2 (body scatterers + blockage,
-    coherent_gaussians_person) makes background + person fit the human-present training samples
+    coherent_gaussians_person) makes background + person fit the person-present training samples
     better than the frozen background alone (measured on one thread: 0.759 against 0.757 with the
     known room's default visibility grid, 0.740 against 0.737 without it: the person changes few of
     the quick bedroom's PAS); the static evaluation renders the background alone."""

@@ -32,14 +32,14 @@ def test_main_table_section_and_claims_follow_the_results(ours):
     for seed in cfg.seeds:
         for job in MainTable().jobs(cfg, seed):
             dyn = {"baseline": 0.7, "end_to_end": 0.65, "ours": ours, "continued": 0.701, "duplicated": 0.692,
-                   "baseline_human": 0.703}[job.method] + 0.001 * seed
+                   "baseline_person": 0.703}[job.method] + 0.001 * seed
             results.update([_result(job, dyn, 0.75)])
     claims = Claims()
     text = "\n".join(MainTable().section(cfg, results, claims))
     assert f"{ours + 0.001:.3f} ± 0.001" in text  # mean +- std over the 3 seeds
     # the ablations' methods have a row in every room x task cell
     cells = len(cfg.rooms) * len(cfg.tasks)
-    for m, dyn in (("continued", 0.702), ("duplicated", 0.693), ("baseline_human", 0.704)):
+    for m, dyn in (("continued", 0.702), ("duplicated", 0.693), ("baseline_person", 0.704)):
         assert text.count(f"| {LABEL[m]} | {dyn:.3f} ± 0.001 |") == cells
     verdicts = "\n".join(claims.rows)
     assert "Ours beats Baseline" in verdicts
@@ -183,8 +183,8 @@ def test_data_scarce_table_jobs_share_their_baselines_and_the_test_positions():
     tiny = size_config("tiny")
     jobs = table.jobs(tiny, 0)
     counts, walks = sorted(tiny.scarce_positions), [w for w in sorted(tiny.walk_lengths) if w]
-    # splat: no Stage 3, Baseline (human) carries the walk's static figures
-    assert table.static_method(tiny) == "baseline_human"
+    # splat: no Stage 3, Baseline (person) carries the walk's static figures
+    assert table.static_method(tiny) == "baseline_person"
     assert len(jobs) == len(counts) * (2 + 2 * len(walks))
     assert {j.dataset.walk_positions for j in jobs} == {max(tiny.walk_lengths)} and {j.layout for j in jobs} == {"grid"}
     assert {(j.method, j.walk_frames) for j in jobs if j.walk_frames == 0} == {("baseline", 0), ("continued", 0)}
@@ -219,7 +219,7 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
     for seed in cfg.seeds:
         for job in table.jobs(cfg, seed):
             stat = curve[job.positions] + 0.001 * seed
-            if job.method == "baseline_human" and job.positions == counts[0]:
+            if job.method == "baseline_person" and job.positions == counts[0]:
                 stat += gain
             name, r = _result(job, 0.7, stat)
             r["eval"]["static"]["nearest_neighbour"]["mean"] = 0.65

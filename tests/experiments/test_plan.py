@@ -133,7 +133,7 @@ def test_datasets_to_generate_are_timed_by_those_generated(tmp_path):
     (path / "chunks" / "00000" / "chunk.json").write_text("{}")
     p = P.plan(tmp_path / "out", cfg, data_dir=data)
     d = next(d for d in p.datasets if d.key == spec.key)
-    states = 1 if spec.static_positions else 1 + cfg.data.human_positions
+    states = 1 if spec.static_positions else 1 + cfg.data.person_positions
     positions = spec.static_positions or cfg.data.positions
     assert not d.complete and d.pas_left == (states - 1) * positions
     assert d.estimate_s == pytest.approx(0.1 * d.pas_left) and d.timed_by == f"{spec.scene}/{spec.task}"

@@ -356,6 +356,20 @@ def test_datasets_that_do_not_fit_on_the_disk_are_refused_before_anything_is_wri
     assert not (tmp_path / "out").exists()
 
 
+def test_a_bad_override_is_refused_before_anything_is_written(tmp_path):
+    """An unknown option in ``train.overrides`` stops the run before ``experiment.toml`` or a dataset is
+    written, so the corrected command runs into the same folder."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.experiments import reproduce as R
+    from rfmitsuba.experiments.sizes import size_config
+
+    cfg = C.override(size_config("tiny"), ["train.overrides=['threads=1']"])
+    with pytest.raises(ConfigError, match="threads"):
+        R.reproduce(tmp_path / "out", cfg, quiet=True)
+    assert [p.name for p in (tmp_path / "out").iterdir()] == [".lock"]
+
+
 def test_an_unfinished_job_of_an_older_folder_still_matches_its_configuration():
     """A job.json written before options were removed (members = 1) and before "auto" replaced
     the sentinels (epochs = -1, downsample = 0, starts = 0, jitter = -1) is the same configuration
@@ -377,3 +391,9 @@ def test_an_unfinished_job_of_an_older_folder_still_matches_its_configuration():
     assert config_diff(R._saved_job(old), want) == []
     s1["iterations"] += 1
     assert config_diff(R._saved_job(old), want) != []
+
+
+def test_a_job_record_with_the_old_method_name_reads_as_the_new_one():
+    from rfmitsuba.experiments.reproduce import _saved_job
+
+    assert _saved_job({"job": {"method": "baseline_human", "seed": 0}})["job"] == {"method": "baseline_person", "seed": 0}

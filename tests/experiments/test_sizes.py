@@ -20,10 +20,10 @@ def test_every_named_size_round_trips_and_yields_a_method_config(tmp_path):
 
 
 def test_method_config_maps_sizes_and_applies_overrides_last():
-    t = TrainSize(model="splat", num_gaussians=123, human_gaussians=7, downsample=5, room_order=1,
-                  overrides=["stage1.splat.num_gaussians=99", "coherent_human.num_points=3"])
+    t = TrainSize(model="splat", num_gaussians=123, person_gaussians=7, downsample=5, room_order=1,
+                  overrides=["stage1.splat.num_gaussians=99", "coherent_person.num_points=3"])
     m = method_config(t, scene_known=False)
-    assert m.stage1.splat.num_gaussians == 99 and m.human.num_gaussians == 7 and m.coherent_human.num_points == 3
+    assert m.stage1.splat.num_gaussians == 99 and m.person.num_gaussians == 7 and m.coherent_person.num_points == 3
     assert m.stage1.splat.init == "random" and m.stage1.downsample == 5
     assert TrainSize().model == "coherent_gaussians"
     c = method_config(TrainSize(model="coherent", room_order=1, furniture_order=0))
@@ -42,11 +42,11 @@ def test_coherent_gaussians_size_known_and_unknown_room():
     from rfmitsuba.experiments.compare import CompareConfig
 
     for known in (True, False):
-        m = method_config(TrainSize(model="coherent_gaussians", overrides=["coherent_gaussians_human.num_points=4"]),
+        m = method_config(TrainSize(model="coherent_gaussians", overrides=["coherent_gaussians_person.num_points=4"]),
                           scene_known=known)
         assert m.stage1.model == "coherent_gaussians" and m.stage1.downsample == "auto"
         assert training_downsample(m.stage1) == 2
-        assert m.coherent_gaussians_human.num_points == 4
+        assert m.coherent_gaussians_person.num_points == 4
     assert CompareConfig(train=TrainSize(model="coherent_gaussians")).methods == ["baseline", "end_to_end", "ours"]
     with pytest.raises(ConfigError, match="unknown method 'e2e'"):
         CompareConfig(methods=["e2e"], train=TrainSize(model="coherent_gaussians"))

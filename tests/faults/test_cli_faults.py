@@ -132,7 +132,7 @@ def test_ctrl_c_during_generate_exits_130_and_keeps_finished_work(tmp_path):
     env = dict(os.environ, RFMITSUBA_QUIET="1")
     exe = Path(sys.executable).parent / "rfmitsuba"       # the installed console script
     proc = subprocess.Popen([str(exe), "generate", "bedroom", "--task", "rx",
-                             "--quick", "--human-positions", "40", "--out", str(out)], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                             "--quick", "--person-positions", "40", "--out", str(out)], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
                             env=env, text=True, preexec_fn=_terminal_sigint)
     t0 = time.time()
     def chunks():

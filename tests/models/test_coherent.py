@@ -102,10 +102,10 @@ def test_gradients_match_finite_differences(variant):
             assert g[i] == pytest.approx(fd, rel=2e-2, abs=1e-3 * np.abs(g).max()), name
 
 
-def human_point_on_the_direct_path(x, y):
-    """A human field with one scattering point at the middle of the direct segment x -> y, only its
+def person_point_on_the_direct_path(x, y):
+    """A person field with one scattering point at the middle of the direct segment x -> y, only its
     first path family (direct in, direct out) switched on, and networks that output 0."""
-    from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.data.samples import num_person_features
     from rfmitsuba.models.coherent_person import (
         CoherentPersonConfig,
         CoherentPersonField,
@@ -123,7 +123,7 @@ def human_point_on_the_direct_path(x, y):
     for m in (h.gain, h.deform):
         _zero(m)
     feet = (x + y) / 2
-    extra = np.concatenate([np.zeros((1, num_human_features(cfg.human_octaves))), feet[None]], 1)
+    extra = np.concatenate([np.zeros((1, num_person_features(cfg.person_octaves))), feet[None]], 1)
     return h, extra
 
 
@@ -131,7 +131,7 @@ def test_a_scatterer_on_the_direct_path_has_its_length_and_direction(variant):
     """Bistatic scattering from a point on the segment: path length |x - y| (so it can cancel the
     direct path: the person's shadow) and arrival from the transmitter's direction."""
     x, y = np.array([1.0, 0.8, 1.1]), np.array([3.2, 2.4, 2.0])
-    h, extra = human_point_on_the_direct_path(x, y)
+    h, extra = person_point_on_the_direct_path(x, y)
     hh = _h(h.channels(x[None], y[None], x[None], extra=extra))
     hd = _h(direct_field().channels(x[None], y[None], x[None]))  # exp(-jkL)/L along the same direction
     L = np.linalg.norm(y - x)
@@ -154,7 +154,7 @@ def test_state_round_trips_and_load_field(variant, tmp_path):
     assert isinstance(g, CoherentField) and g.num_sources == 25
     np.testing.assert_allclose(_h(g.channels(x, y, x)), _h(f.channels(x, y, x)), rtol=1e-6)
     hum = CoherentPersonField.for_background(f, seed=2)
-    _, extra = human_point_on_the_direct_path(x[0], y[0])
+    _, extra = person_point_on_the_direct_path(x[0], y[0])
     extra = np.concatenate([np.zeros((1, extra.shape[1] - 3)), [[2.0, 1.5, 0.0]]], 1)
     hum.save(tmp_path / "h.npz")
     h2 = load_field(tmp_path / "h.npz")
@@ -184,8 +184,8 @@ def test_bad_input_is_named(variant):
     with pytest.raises(ConfigError, match="extra inputs"):
         e2e.channels(np.ones((1, 3)), 2 * np.ones((1, 3)), np.ones((1, 3)))
     x, y = np.array([1.0, 0.8, 1.1]), np.array([3.2, 2.4, 2.0])
-    h, extra = human_point_on_the_direct_path(x, y)
-    with pytest.raises(ConfigError, match="human"):
+    h, extra = person_point_on_the_direct_path(x, y)
+    with pytest.raises(ConfigError, match="person"):
         h.channels(x[None], y[None], x[None], extra=None)
     with pytest.raises(ConfigError):
         from rfmitsuba.models.coherent import CoherentConfig
@@ -210,7 +210,7 @@ def test_leg_features_closed_form():
 def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
     """The perturbation field adds nothing before training (its network's last layer is zero), is
     saved with its background, and loads back to the same channels."""
-    from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.data.samples import num_person_features
     from rfmitsuba.models.base import load_field
     from rfmitsuba.models.coherent import CoherentField
     from rfmitsuba.models.coherent_person import (
@@ -223,7 +223,7 @@ def test_perturb_field_starts_at_zero_and_round_trips(variant, tmp_path):
     bg.freeze()
     p = CoherentPerturbField(bg, cfg=CoherentPersonConfig(kind="perturb"), seed=0)
     x, y = np.array([[1.0, 0.8, 1.1]]), np.array([[3.6, 2.6, 2.0]])
-    extra = np.concatenate([np.ones((1, num_human_features(3))), [[2.0, 1.5, 0.0]]], 1)
+    extra = np.concatenate([np.ones((1, num_person_features(3))), [[2.0, 1.5, 0.0]]], 1)
     assert np.abs(_h(p.channels(x, y, x, extra=extra))).max() == 0.0
     w = np.asarray(p.net.weights.numpy()).copy()
     p.net.set_weights(w + 0.01)

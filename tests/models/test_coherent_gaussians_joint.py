@@ -30,7 +30,7 @@ def _joint(seed=0):
                                cfg=CoherentGaussianConfig(init_extent=1.5), readout="amplitude", wavefront="plane",
                                vis_center=np.array([2.0, 1.5, 1.0]), frequency_hz=F, seed=seed)
     pf = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(
-        num_points=3, human_octaves=OCT, init_gain=0.3, init_strength=0.4), seed=1)
+        num_points=3, person_octaves=OCT, init_gain=0.3, init_strength=0.4), seed=1)
     rng = np.random.default_rng(seed)
     for part in (bg, pf):
         for k, v in part.params.items():
@@ -42,7 +42,7 @@ def _joint(seed=0):
 def _views(present=(True, False, True)):
     """Moving TX near (2, 1.5, 1.25), array at (3.5, 2.5, 2); a person 10-20 cm beside each
     direct path where ``present``, the empty room's all-zero features elsewhere."""
-    from rfmitsuba.data.samples import human_features
+    from rfmitsuba.data.samples import person_features
     from rfmitsuba.models.base import Views
 
     n = len(present)
@@ -53,7 +53,7 @@ def _views(present=(True, False, True)):
     h[:, 2] = 0.0
     h[~np.asarray(present)] = np.nan
     box = np.array([[0.0, 0.0, 0.0], [4.0, 3.0, 2.5]])
-    extra = np.concatenate([human_features(h, box, octaves=OCT), np.nan_to_num(h)], axis=1).astype(np.float32)
+    extra = np.concatenate([person_features(h, box, octaves=OCT), np.nan_to_num(h)], axis=1).astype(np.float32)
     return Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F, task="tx",
                  inputs=lambda field: extra)
 

@@ -45,7 +45,7 @@ def _person(bg, *, perturb=True, **cfg):
         CoherentGaussianPersonField,
     )
 
-    kw = {"num_points": 3, "human_octaves": OCT, "init_gain": 0.3, "init_strength": 0.4, **cfg}
+    kw = {"num_points": 3, "person_octaves": OCT, "init_gain": 0.3, "init_strength": 0.4, **cfg}
     p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(**kw), seed=1)
     if perturb:
         rng = np.random.default_rng(3)
@@ -58,7 +58,7 @@ def _person(bg, *, perturb=True, **cfg):
 def _views(task="tx", n=3, person=None):
     """Moving TX around (2, 1.5, 1.25), array at (3.5, 2.5, 2.0); the person stands near the middle
     of each view's direct path (10-20 cm off it), feet on the floor."""
-    from rfmitsuba.data.samples import num_human_features
+    from rfmitsuba.data.samples import num_person_features
     from rfmitsuba.models.base import Views
 
     rng = np.random.default_rng(1)
@@ -68,7 +68,7 @@ def _views(task="tx", n=3, person=None):
     if person is None:
         person = 0.5 * (x + y) + np.c_[0.1 + 0.1 * rng.random(n), np.zeros(n), np.zeros(n)]
         person[:, 2] = 0.0
-    extra = np.concatenate([np.zeros((n, num_human_features(OCT)), np.float32), person], axis=1)
+    extra = np.concatenate([np.zeros((n, num_person_features(OCT)), np.float32), person], axis=1)
     return Views(antenna_pos=q, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F, task=task,
                  inputs=lambda field: extra)
 
@@ -143,10 +143,10 @@ def test_zero_at_no_blockage_and_no_scatterers_and_small_at_the_start():
     views = _views()
     for kw in ({"num_points": 0}, {"num_points": 4, "init_gain": 0.0}):
         p = CoherentGaussianPersonField.for_background(
-            bg, cfg=CoherentGaussianPersonConfig(init_strength=0.0, human_octaves=OCT, **kw))
+            bg, cfg=CoherentGaussianPersonConfig(init_strength=0.0, person_octaves=OCT, **kw))
         assert np.all(_h(p, views) == 0)
         np.testing.assert_array_equal(render([bg, p], views).numpy(), render([bg], views).numpy())
-    p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(human_octaves=OCT))
+    p = CoherentGaussianPersonField.for_background(bg, cfg=CoherentGaussianPersonConfig(person_octaves=OCT))
     rel = np.abs(_h(p, views)).max() / np.abs(_h(bg, views)).max()
     assert 1e-4 < rel < 0.3, rel
 
@@ -166,11 +166,11 @@ def test_person_on_the_direct_path_removes_it(wavefront):
         bg = _bg(wavefront=wavefront, direct_only=direct_only, scatterers=False, perturb=False)
         p = _person(bg, perturb=False, num_points=0, init_strength=0.5, init_block_radius=0.2)
         p.params["block_logit"] = B.Float(np.array([50.0], np.float32))          # a = 1 in float32
-        from rfmitsuba.data.samples import num_human_features
+        from rfmitsuba.data.samples import num_person_features
         from rfmitsuba.models.base import Views
 
         def views(person):
-            extra = np.concatenate([np.zeros((n, num_human_features(OCT))), person], axis=1)
+            extra = np.concatenate([np.zeros((n, num_person_features(OCT))), person], axis=1)
             return Views(antenna_pos=x, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F, task="rx",
                          inputs=lambda field: extra)
 
@@ -251,3 +251,83 @@ def test_bad_input_is_named():
         CoherentGaussianPersonConfig(init_strength=1.0)
     with pytest.raises(ConfigError, match="init_radius"):
         CoherentGaussianPersonConfig(init_radius=0.5, max_offset=0.3)
+
+
+def _two_people_views(second):
+    """The views of :func:`_views` with a second person's feet at ``second`` float [3, 3] [m]."""
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.models.base import Views
+
+    v = _views()
+    one = v.inputs(None)
+    extra = np.concatenate([one, np.asarray(second, np.float32)], axis=1)
+    assert extra.shape[1] == num_person_features(OCT) + 6
+    return Views(antenna_pos=v.antenna_pos, view_pos=v.view_pos, transmitter=v.transmitter, rx_to_world=None,
+                 frequency_hz=F, task=v.task, inputs=lambda field: extra)
+
+
+def _people_field(bg, people):
+    p1 = _person(bg)
+    p = _person(bg, people=people)
+    p.assign(p1.parameters())
+    return p1, p
+
+
+def test_two_people_far_apart_are_one_and_the_order_of_people_does_not_matter():
+    """With the scatterers' gains zero, a second person 100 m away changes nothing (its blockage
+    factor is 1); the two people swapped draw the same channels; two people on the paths change
+    them more than one."""
+    from rfmitsuba.core import backend as B
+
+    bg = _bg()
+    one, two = _people_field(bg, 2)
+    for f in (one, two):
+        f.params["sc_amp"] = B.Float(np.zeros(f.params["sc_amp"].shape[0], np.float32))
+    v1 = _views()
+    feet = v1.inputs(None)[:, -3:]
+    far = feet + [100.0, 100.0, 0.0]
+    h1 = np.concatenate([np.asarray(a.numpy()) for a in one.channels(v1)])
+    h2 = np.concatenate([np.asarray(a.numpy()) for a in two.channels(_two_people_views(far))])
+    np.testing.assert_allclose(h2, h1, rtol=1e-6, atol=1e-9)
+    near = feet + [0.05, -0.05, 0.0]
+    ab = np.concatenate([np.asarray(a.numpy()) for a in two.channels(_two_people_views(near))])
+    from rfmitsuba.data.samples import num_person_features
+    from rfmitsuba.models.base import Views
+
+    swapped = np.concatenate([np.zeros((3, num_person_features(OCT)), np.float32), near, feet], axis=1)
+    v = _views()
+    ba = np.concatenate([np.asarray(a.numpy()) for a in two.channels(
+        Views(antenna_pos=v.antenna_pos, view_pos=v.view_pos, transmitter=v.transmitter, rx_to_world=None,
+              frequency_hz=F, task=v.task, inputs=lambda field: swapped))])
+    np.testing.assert_allclose(ab, ba, rtol=1e-5, atol=1e-7)
+    assert np.abs(ab).sum() > 1.05 * np.abs(h1).sum()
+
+
+@pytest.mark.parametrize("name", PARAMS)
+def test_two_people_channel_gradients(name):
+    """The shared parameters of a two-person field against central differences (as
+    :func:`test_channel_gradients`, both people near the direct paths)."""
+    bg = _bg()
+    _, p = _people_field(bg, 2)
+    views = _two_people_views(_views().inputs(None)[:, -3:] + [-0.15, 0.1, 0.0])
+    rng = np.random.default_rng(2)
+    c_re, c_im = _w(rng, 48), _w(rng, 48)
+
+    def loss(q):
+        p.assign(q)
+        hr, hi = p.channels(views)
+        return [hr * c_re, hi * c_im]
+
+    r = fd_check(loss, p.parameters(), name, count=3, top=3, rel_eps=STEP.get(name, 1e-2), min_scale=1.0, seed=4)
+    assert r.ok(5e-2, 3e-2), r.report()
+
+
+def test_people_is_checked_and_the_inputs_must_hold_every_person():
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.models.coherent_gaussians_person import CoherentGaussianPersonConfig
+
+    with pytest.raises(ConfigError, match="people must be >= 1"):
+        CoherentGaussianPersonConfig(people=0)
+    _, two = _people_field(_bg(), 2)
+    with pytest.raises(ConfigError, match="each of 2 people"):
+        two.channels(_views())

@@ -106,7 +106,7 @@ def test_splats_concat_gradients(variant, per_view_geometry):
 # --------------------------------------------------------------------------- Stage-2 splat person field
 
 def _person_field(anchor: str):
-    from rfmitsuba.data.samples import human_features
+    from rfmitsuba.data.samples import person_features
     from rfmitsuba.models.splat import SplatConfig
     from rfmitsuba.models.splat_person import SplatPersonConfig, SplatPersonField
 
@@ -115,8 +115,8 @@ def _person_field(anchor: str):
     hf = SplatPersonField.near_walk(walk, hcfg=SplatPersonConfig(num_gaussians=12, anchor=anchor),
                                     field_cfg=SplatConfig(init="random", num_gaussians=40), box=box,
                                     rng=np.random.default_rng(0), seed=3)
-    human = np.array([[1.2, 1.1, 0.0], [2.1, 1.6, 0.0], [2.9, 2.2, 0.0]])
-    extra = np.concatenate([human_features(human, box, octaves=hf.feature_octaves), human.astype(np.float32)], 1)
+    person = np.array([[1.2, 1.1, 0.0], [2.1, 1.6, 0.0], [2.9, 2.2, 0.0]])
+    extra = np.concatenate([person_features(person, box, octaves=hf.feature_octaves), person.astype(np.float32)], 1)
     antenna = np.array([[2.0, 2.0, 1.2], [1.0, 2.5, 1.0], [3.2, 0.8, 1.5]])
     return hf, antenna, extra
 
@@ -133,7 +133,7 @@ PERSON_PARAMS = {
 }
 
 
-@pytest.mark.parametrize("anchor", ["human", "world"])
+@pytest.mark.parametrize("anchor", ["person", "world"])
 @pytest.mark.parametrize("name", list(PERSON_PARAMS))
 def test_splat_person_field_gradients(variant, name, anchor):
     """d/d(parameter) of <w_m, means> + <w_s, signals> + <w_o, opacities> of
@@ -174,7 +174,7 @@ def _coherent_person(kind: str):
     """A frozen box-room background (direct path + 6 first-order images) and a person field of
     ``kind``; the perturbation network's last layer (zero at initialisation) gets random weights
     so that every parameter has a gradient."""
-    from rfmitsuba.data.samples import human_features
+    from rfmitsuba.data.samples import person_features
     from rfmitsuba.models.coherent_person import (
         CoherentPersonConfig,
         CoherentPersonField,
@@ -192,7 +192,7 @@ def _coherent_person(kind: str):
     x = np.array([[1.0, 0.8, 1.1], [2.5, 1.5, 0.7], [1.6, 2.2, 1.4]])
     y = np.tile([3.6, 2.6, 2.0], (len(x), 1))
     feet = np.array([[2.0, 1.3, 0.0], [2.9, 2.0, 0.0], [2.4, 2.4, 0.0]])
-    extra = np.concatenate([human_features(feet, BOX, octaves=hum.feature_octaves), feet], 1)
+    extra = np.concatenate([person_features(feet, BOX, octaves=hum.feature_octaves), feet], 1)
     return bg, hum, x, y, extra
 
 

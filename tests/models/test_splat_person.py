@@ -1,4 +1,4 @@
-"""Stage 2 human Gaussians: inputs reach both networks, the background stays frozen, state round trip."""
+"""Stage 2 person Gaussians: inputs reach both networks, the background stays frozen, state round trip."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 from rfmitsuba.core.errors import ConfigError
 
 
-def _fields(variant, *, anchor="human"):
+def _fields(variant, *, anchor="person"):
     from rfmitsuba.models.splat import SplatConfig, SplatField
     from rfmitsuba.models.splat_person import SplatPersonConfig, SplatPersonField
 
@@ -20,26 +20,47 @@ def _fields(variant, *, anchor="human"):
     return bg, hf, box
 
 
-def _inputs(box, human):
-    from rfmitsuba.data.samples import human_features
+def _inputs(box, person):
+    from rfmitsuba.data.samples import person_features
 
-    h = np.asarray(human, np.float64).reshape(-1, 3)
-    return np.concatenate([human_features(h, box), h.astype(np.float32)], axis=1)
+    h = np.asarray(person, np.float64).reshape(-1, 3)
+    return np.concatenate([person_features(h, box), h.astype(np.float32)], axis=1)
 
 
-def test_human_position_changes_geometry_and_signal(variant):
+def test_person_position_changes_geometry_and_signal(variant):
     bg, hf, box = _fields(variant)
     ant = np.array([[2.0, 2.0, 1.2], [2.0, 2.0, 1.2]])
     s = hf.splats(ant, extra=_inputs(box, [[1.0, 1.0, 0.0], [3.0, 2.0, 0.0]]))
     m = np.asarray(s.means.numpy()).reshape(3, 2, -1)
     sig = np.asarray(s.signals.numpy()).reshape(2, -1)
-    # anchored at the human: the two views' Gaussians are about 2 m apart along x
+    # anchored at the person: the two views' Gaussians are about 2 m apart along x
     assert np.allclose(m[0, 1] - m[0, 0], 2.0, atol=0.5 + 1e-3)
-    assert np.abs(sig[1] - sig[0]).max() > 1e-6  # the EM network sees the human position
+    assert np.abs(sig[1] - sig[0]).max() > 1e-6  # the EM network sees the person position
 
 
-def test_deformation_network_gets_human_position(variant):
-    """World-anchored Gaussians move only through the deformation network, which takes the human position."""
+def test_a_state_written_with_the_old_names_loads(variant, tmp_path):
+    """A state saved when its keys said "human" (``human_config``, ``human_octaves``, anchor
+    ``"human"``) loads as the same field (rfmitsuba.core.legacy_names)."""
+    import json
+
+    from rfmitsuba.models.base import load_field
+
+    bg, hf, box = _fields(variant)
+    state = dict(np.load(hf.save(tmp_path / "h.npz")))
+    meta = json.loads(str(state["meta"]))
+    meta["human_config"] = meta.pop("person_config")
+    meta["human_config"]["human_octaves"] = meta["human_config"].pop("person_octaves")
+    meta["human_config"]["anchor"] = "human"
+    np.savez(tmp_path / "old.npz", **{**state, "meta": np.array(json.dumps(meta))})
+    back = load_field(tmp_path / "old.npz")
+    assert back.hcfg == hf.hcfg
+    ant, x = np.array([[2.0, 2.0, 1.2]]), _inputs(box, [[2.0, 1.5, 0.0]])
+    assert np.array_equal(np.asarray(hf.splats(ant, extra=x).means.numpy()),
+                          np.asarray(back.splats(ant, extra=x).means.numpy()))
+
+
+def test_deformation_network_gets_person_position(variant):
+    """World-anchored Gaussians move only through the deformation network, which takes the person position."""
     import drjit as dr
 
     bg, hf, box = _fields(variant, anchor="world")
@@ -60,7 +81,7 @@ def test_bad_inputs(variant):
     from rfmitsuba.models.splat_person import SplatPersonConfig
 
     bg, hf, box = _fields(variant)
-    with pytest.raises(ValueError, match="human"):
+    with pytest.raises(ValueError, match="person"):
         hf.splats(np.zeros((1, 3)) + 1)
     with pytest.raises(ValueError, match=r"\[B, 22 \+ 3\]"):
         hf.splats(np.zeros((1, 3)) + 1, extra=np.zeros((1, 5), np.float32))
@@ -99,7 +120,7 @@ def test_background_bit_identical_while_stage2_trains(variant, synthetic_ds, tmp
     for k, v in before.items():
         if k != "meta":
             assert np.array_equal(v, after[k]), k
-    # the human field did train (its weights moved from their initial values)
+    # the person field did train (its weights moved from their initial values)
     assert (tmp_path / "o" / "stage2" / "final" / "field.npz").is_file()
 
 
@@ -112,4 +133,4 @@ def methods_config(*, stage1, stage2):
     s1 = C.override(TrainConfig(), ['model="splat"', f"iterations={stage1}", "downsample=6", f"val_every={stage1}",
                                     f"checkpoint_every={stage1}", "splat.init='random'", "splat.num_gaussians=150",
                                     "density.enabled=false"])
-    return MethodConfig(stage1=s1, stage2_iterations=stage2, human=SplatPersonConfig(num_gaussians=48))
+    return MethodConfig(stage1=s1, stage2_iterations=stage2, person=SplatPersonConfig(num_gaussians=48))

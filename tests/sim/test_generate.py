@@ -12,7 +12,7 @@ from rfmitsuba.sim.simulate import SolverConfig
 
 
 def _cfg(xml, **kw):
-    return gen.GenerateConfig(scene=str(xml), positions=4, human_positions=0,
+    return gen.GenerateConfig(scene=str(xml), positions=4, person_positions=0,
                               solver=SolverConfig(samples_per_src=2000, max_depth=1), **kw)
 
 
@@ -50,7 +50,7 @@ def test_exact_array_options_refused(box_room, tmp_path):
 def test_a_state_is_beamformed_and_written_block_by_block(variant, box_room, tmp_path, monkeypatch):
     """``PAS_BLOCK`` images at a time (here 3 of 10, the last block short): the chunk files are
     those of one block holding the whole state, byte for byte, and its timing names both parts."""
-    cfg = gen.GenerateConfig(scene=str(box_room), positions=10, human_positions=1,
+    cfg = gen.GenerateConfig(scene=str(box_room), positions=10, person_positions=1,
                              solver=SolverConfig(samples_per_src=2000, max_depth=1))
     whole = gen.generate(tmp_path / "whole", cfg, quiet=True)
     monkeypatch.setattr(gen, "PAS_BLOCK", 3)
@@ -75,3 +75,37 @@ def test_blocks_that_do_not_add_up_leave_no_chunk(tmp_path):
         D.write_chunk(root, 2, pas_blocks=iter([]))
     with pytest.raises(DatasetError, match="give pas or pas_blocks"):
         D.write_chunk(root, 2, channel=channel)
+
+
+def test_two_people_walk_apart_and_the_antennas_keep_clear_of_both(two_people_dataset, quick_dataset):
+    """``people = 2``: a second walk that never comes within the bodies' radii plus 0.1 m of the
+    first at one frame, antennas clear of both walks, and a one-person dataset's record unchanged
+    (no ``people`` key)."""
+    from rfmitsuba.sim import person
+    from rfmitsuba.sim.generate import PEOPLE_GAP_M
+
+    ds = two_people_dataset
+    assert ds.people_pos.shape == (ds.num_states, 2, 3)
+    np.testing.assert_array_equal(ds.people_pos[:, 0], ds.person_pos)
+    p = ds.people_pos[1:]
+    assert np.hypot(*(p[:, 0, :2] - p[:, 1, :2]).T).min() >= 2 * person.radius() + PEOPLE_GAP_M
+    below = ds.antenna_pos[:, None, 2] < person.HEIGHT + 0.1
+    d = np.hypot(*(ds.antenna_pos[:, None, :2] - p.reshape(-1, 3)[None, :, :2]).transpose(2, 0, 1))
+    assert not np.any((d < person.radius()) & below)
+    assert ds.meta["generate"]["people"] == 2 and "people" not in quick_dataset.meta["generate"]
+    assert len(ds.meta["other_people"]["positions"]) == ds.num_states - 1
+    assert quick_dataset.people_pos.shape == (quick_dataset.num_states, 1, 3)
+
+
+def test_a_states_job_draws_every_persons_body():
+    from rfmitsuba.sim.generate import StatesJob
+    from rfmitsuba.sim import person
+
+    one = person.person_mesh([1.0, 1.0, 0.0], 0.0)
+    job = StatesJob(root=None, xml=None, task="rx", frequency_hz=2.4e9, material="tissue", scattering_coefficient=0.3,
+                    solver=None, fixed_pos=np.zeros(3), antenna_pos=np.zeros((1, 3), np.float32),
+                    walk_positions=np.array([[1.0, 1.0, 0.0]]), walk_headings=np.zeros(1),
+                    other_positions=np.array([[[2.5, 1.0, 0.0]]]), other_headings=np.zeros((1, 1)))
+    both = job.bodies(1)
+    assert len(both.vertices) == 2 * len(one.vertices) and len(both.faces) == 2 * len(one.faces)
+    assert both.vertices[:, 0].max() > 2.5 > one.vertices[:, 0].max()

@@ -142,8 +142,8 @@ def test_check_points_messages(bedroom):
         bedroom.check_points(np.array([good, inside_bed]))
     with pytest.raises(PlacementError, match=r"antenna 2 at \(5\.000, 1\.000, 1\.000\) is outside the room"):
         bedroom.check_points(np.array([good, good, [5.0, 1.0, 1.0]]))
-    with pytest.raises(PlacementError, match=r"human 0 at \(0\.500, nan, 1\.000\) is not finite"):
-        bedroom.check_points(np.array([[0.5, np.nan, 1.0]]), what="human")
+    with pytest.raises(PlacementError, match=r"person 0 at \(0\.500, nan, 1\.000\) is not finite"):
+        bedroom.check_points(np.array([[0.5, np.nan, 1.0]]), what="person")
     with pytest.raises(PlacementError, match="not finite"):
         bedroom.check_points(np.array([[np.inf, 1.0, 1.0]]))
     with pytest.raises(PlacementError, match=r"is within 0.3 m of 'wardrobe'"):

@@ -78,7 +78,7 @@ MODULES = _plugin_modules()
 
 
 def test_there_are_plugins():
-    assert [m.PLUGIN_NAME for m in MODULES] == ["human-tissue"]
+    assert [m.PLUGIN_NAME for m in MODULES] == ["body-tissue"]
 
 
 def test_register_is_idempotent(variant):
@@ -140,7 +140,7 @@ def test_docstring_xml_example_loads(mod, variant, tmp_path):
     """The XML example in the docstring is a valid scene fragment using only documented parameters."""
     import mitsuba as mi
 
-    from rfmitsuba.sim import person as human
+    from rfmitsuba.sim import person as person
 
     plugins_pkg.register()
     examples = _xml_examples(mod.__doc__)
@@ -157,16 +157,16 @@ def test_docstring_xml_example_loads(mod, variant, tmp_path):
         for s in root.iter("string"):
             if s.get("name") == "filename":
                 p = tmp_path / s.get("value")
-                human.write_human_ply(p)
+                person.write_person_ply(p)
         scene = mi.load_string(ET.tostring(root, encoding="unicode").replace("filename\" value=\"",
                                                                                f"filename\" value=\"{tmp_path}/"))
         assert len(scene.shapes()) >= 1
 
 
-# ---------------------------------------------------------------- physics of human-tissue
+# ---------------------------------------------------------------- physics of body-tissue
 XML = """<scene version="2.1.0">
-<bsdf type="human-tissue" id="tissue"/>
-<bsdf type="human-tissue" id="tissue_wet">
+<bsdf type="body-tissue" id="tissue"/>
+<bsdf type="body-tissue" id="tissue_wet">
   <float name="relative_permittivity" value="50"/><float name="conductivity" value="2.5"/>
   <float name="thickness" value="0.1"/></bsdf>
 <shape type="ply" id="person"><string name="filename" value="b.ply"/><ref id="tissue" name="bsdf"/></shape>
@@ -178,7 +178,7 @@ XML = """<scene version="2.1.0">
 def scene(variant, tmp_path):
     from rfmitsuba import plugins
 
-    assert plugins.register() == plugins.register() == ["human-tissue"]      # idempotent
+    assert plugins.register() == plugins.register() == ["body-tissue"]      # idempotent
     import sionna.rt as rt
 
     trimesh.creation.box(extents=[0.3, 0.4, 1.7]).export(tmp_path / "b.ply")
@@ -187,10 +187,10 @@ def scene(variant, tmp_path):
 
 
 def test_xml_defaults_and_parameters(scene):
-    from rfmitsuba.plugins import human_tissue as ht
+    from rfmitsuba.plugins import body_tissue as ht
 
     m = scene.get("person").radio_material
-    assert isinstance(m, ht.HumanTissueMaterial)
+    assert isinstance(m, ht.BodyTissueMaterial)
     assert float(m.relative_permittivity[0]) == pytest.approx(40.0)
     assert float(m.conductivity[0]) == pytest.approx(1.7)
     assert float(m.thickness[0]) == pytest.approx(0.2)
@@ -243,7 +243,7 @@ def test_invalid_parameter_is_rejected(variant):
     from rfmitsuba import plugins
 
     plugins.register()
-    from rfmitsuba.plugins.human_tissue import HumanTissueMaterial
+    from rfmitsuba.plugins.body_tissue import BodyTissueMaterial
 
     with pytest.raises(ValueError, match="conductivity"):
-        HumanTissueMaterial(name="bad", conductivity=-1.0)
+        BodyTissueMaterial(name="bad", conductivity=-1.0)

@@ -20,7 +20,7 @@ def small_room(**kw) -> sb.RoomDescription:
         materials=[sb.Material("wall_brick", "brick", 0.2), sb.Material("slab", "concrete", 0.2),
                    sb.Material("door_wood", "wood", 0.04), sb.Material("pane", "glass", 0.01),
                    sb.Material("oak", "wood", 0.02), sb.Material("soft", "carpet_tile", 0.05),
-                   sb.Material("tissue", "human-tissue", 0.2)],
+                   sb.Material("tissue", "body-tissue", 0.2)],
         wall_material="wall_brick", floor_material="slab", ceiling_material="slab",
         openings=[sb.Opening("door", "south", offset=0.2, width=0.9, height=2.0, material="door_wood"),
                   sb.Opening("window", "east", offset=0.8, width=1.0, height=1.0, sill=1.0, material="pane",
@@ -49,7 +49,7 @@ def test_write_scene_files_and_xml(tmp_path):
     assert bsdfs["wall_brick"].attrib["type"] == "itu-radio-material"
     assert bsdfs["wall_brick"].find("string[@name='type']").attrib["value"] == "brick"
     assert float(bsdfs["pane"].find("float[@name='thickness']").attrib["value"]) == 0.01
-    assert bsdfs["tissue"].attrib["type"] == "human-tissue"
+    assert bsdfs["tissue"].attrib["type"] == "body-tissue"
     shapes = [s.attrib["id"] for s in root.findall("shape")]
     assert shapes == sb.shape_ids(desc)
     # the bed has two materials -> one shape per material, named <id>__<material>
@@ -210,7 +210,7 @@ def test_written_room_loads_in_sionna(variant, tmp_path):
     desc = small_room()
     scene = rt.load_scene(str(sb.write_scene(desc, tmp_path)), merge_shapes=False)
     assert sorted(scene.objects) == sorted(sb.shape_ids(desc))
-    assert type(scene.get("statue").radio_material).__name__ == "HumanTissueMaterial"
+    assert type(scene.get("statue").radio_material).__name__ == "BodyTissueMaterial"
     assert scene.get("wall_east").radio_material.itu_type == "brick"
 
 

@@ -157,7 +157,7 @@ def test_same_seed_same_channels_and_batching(variant, box_room):
     assert np.array_equal(batched.solve().channels("rx", frequency_hz=F), b.channels("rx", frequency_hz=F))
 
 
-def test_human_mesh_moves_absolutely(variant, box_room):
+def test_person_mesh_moves_absolutely(variant, box_room):
     """Moving the perturber to a position gives the same channel as placing it there first."""
     from sionna.rt import ITURadioMaterial
 
@@ -169,17 +169,17 @@ def test_human_mesh_moves_absolutely(variant, box_room):
                       [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
     at = lambda x, y: box + [x, y, 0]  # noqa: E731
     s1 = sim(box_room, fixed, pos, samples_per_src=5000)
-    s1.set_human(at(1.0, 1.0), faces, material=ITURadioMaterial("h-metal", "metal", 0.01))
+    s1.set_person(at(1.0, 1.0), faces, material=ITURadioMaterial("h-metal", "metal", 0.01))
     h_empty_far = s1.solve().channels("rx", frequency_hz=F)
-    s1.set_human(at(2.0, 1.3))
+    s1.set_person(at(2.0, 1.3))
     h1 = s1.solve().channels("rx", frequency_hz=F)
     s2 = sim(box_room, fixed, pos, samples_per_src=5000)
-    s2.set_human(at(2.0, 1.3), faces, material=ITURadioMaterial("h-metal", "metal", 0.01))
+    s2.set_person(at(2.0, 1.3), faces, material=ITURadioMaterial("h-metal", "metal", 0.01))
     h2 = s2.solve().channels("rx", frequency_hz=F)
     assert np.array_equal(h1, h2)
     assert not np.allclose(h1, h_empty_far)  # the perturber matters
     with pytest.raises(PlacementError, match="vertices"):
-        s2.set_human(box[:4])
+        s2.set_person(box[:4])
 
 
 def test_bad_inputs(variant, box_room, tmp_path):

@@ -382,7 +382,7 @@ def test_nan_in_pas_names_the_position(tmp_path, variant):
     pas = np.random.default_rng(0).random((1, 10, 90, 360)).astype(np.float32)
     pas[0, 3, 5, 5] = np.nan
     ap = np.random.default_rng(1).uniform(0.5, 2.5, (10, 3))
-    write_dataset(tmp_path / "ds", pas=pas, antenna_pos=ap, human_pos=np.full((1, 3), np.nan), meta={"task": "rx"})
+    write_dataset(tmp_path / "ds", pas=pas, antenna_pos=ap, person_pos=np.full((1, 3), np.nan), meta={"task": "rx"})
     data = TrainData.open(tmp_path / "ds")
     with pytest.raises(DatasetError, match="antenna position 3"):
         data.pas(np.arange(10))
@@ -500,10 +500,10 @@ def test_stage2_pattern_frozen_background_plus_trainable_set(tiny_ds, tmp_path):
     bg = SplatField.load(tmp_path / "bg" / "final" / "field.npz")
     bg.freeze()
     before = bg.state_dict()
-    human = np.array([1.0, 2.0, 0.0])
-    extra = lambda idx: np.tile(human / 4.0, (len(idx), 1))  # noqa: E731
+    person = np.array([1.0, 2.0, 0.0])
+    extra = lambda idx: np.tile(person / 4.0, (len(idx), 1))  # noqa: E731
     tr = Trainer(tiny_cfg(iterations=10, **{"splat.num_gaussians": 40}), data, tmp_path / "h", frozen=[bg],
-                 extra=extra, extra_inputs=3, name="human", quiet=True)
+                 extra=extra, extra_inputs=3, name="person", quiet=True)
     s = tr.run()
     assert s["num_gaussians"] == tr.field.num_gaussians and tr.field.extra_inputs == 3
     after = bg.state_dict()
@@ -541,11 +541,11 @@ def coherent_cfg(**over):
 @pytest.fixture(scope="module")
 def empty_bedroom(tmp_path_factory, variant):
     """Sionna bedroom, moving RX, 300 positions (240 train, 60 test), empty room, 2e4 ray samples.
-    Same as ``rfmitsuba generate bedroom --task rx --positions 300 --human-positions 0 --samples 20000``."""
+    Same as ``rfmitsuba generate bedroom --task rx --positions 300 --person-positions 0 --samples 20000``."""
     from rfmitsuba.sim import generate as gen
     from rfmitsuba.sim.simulate import SolverConfig
 
-    cfg = gen.GenerateConfig(scene="bedroom", task="rx", positions=300, human_positions=0,
+    cfg = gen.GenerateConfig(scene="bedroom", task="rx", positions=300, person_positions=0,
                                  solver=SolverConfig(samples_per_src=20_000))
     return gen.generate(tmp_path_factory.mktemp("empty_bedroom") / "ds", cfg, quiet=True).path
 

@@ -87,8 +87,8 @@ Parameters (Dr.Jit ``Float``; name, size, unit, optimizer group):
 ``pose``           6             rad, m      means in a known room (decays), else rotations (constant)
 =================  ============  ==========  ==========
 
-All are differentiable (tests/models/test_coherent_gaussians.py checks each against finite
-differences). State is plain NumPy (npz, no pickle).
+All are differentiable (tests/models/coherent_gaussians/test_coherent_gaussians_field.py checks each
+against finite differences). State is plain NumPy (npz, no pickle).
 """
 from __future__ import annotations
 

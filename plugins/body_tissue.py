@@ -1,8 +1,8 @@
-"""``human-tissue``: a radio material for the human body (Sionna RT 2.2 plugin).
+"""``body-tissue``: a radio material for the human body (Sionna RT 2.2 plugin).
 
-.. _plugin-bsdf-human-tissue:
+.. _plugin-bsdf-body-tissue:
 
-Human tissue (:monosp:`human-tissue`)
+Body tissue (:monosp:`body-tissue`)
 -------------------------------------
 
 A homogeneous, lossy dielectric for people walking through a scene. It is a
@@ -49,17 +49,17 @@ Example (the plugin must be registered first: ``rfmitsuba.plugins.register()``):
 
 .. code-block:: xml
 
-    <bsdf type="human-tissue" id="tissue">
+    <bsdf type="body-tissue" id="tissue">
         <float name="relative_permittivity" value="40.0"/>
         <float name="conductivity" value="1.7"/>
         <float name="thickness" value="0.2"/>
     </bsdf>
-    <shape type="ply" id="human">
-        <string name="filename" value="meshes/human.ply"/>
+    <shape type="ply" id="person">
+        <string name="filename" value="meshes/person.ply"/>
         <ref id="tissue" name="bsdf"/>
     </shape>
 
-From Python: ``HumanTissueMaterial(name="tissue", relative_permittivity=40.0, conductivity=1.7)``.
+From Python: ``BodyTissueMaterial(name="tissue", relative_permittivity=40.0, conductivity=1.7)``.
 """
 from __future__ import annotations
 
@@ -71,16 +71,18 @@ import mitsuba as mi  # noqa: E402
 import sionna.rt  # noqa: E402,F401  (registers Sionna's own materials)
 from sionna.rt import RadioMaterial  # noqa: E402
 
-#: Plugin name used in XML: ``<bsdf type="human-tissue">``.
-PLUGIN_NAME = "human-tissue"
+#: Plugin name used in XML: ``<bsdf type="body-tissue">``.
+PLUGIN_NAME = "body-tissue"
+#: The name scene XML written before used for the same material (it still loads).
+OLD_PLUGIN_NAME = "human-tissue"
 DEFAULT_RELATIVE_PERMITTIVITY = 40.0   # unitless, at 2.4 GHz
 DEFAULT_CONDUCTIVITY = 1.7             # S/m, at 2.4 GHz
 DEFAULT_THICKNESS = 0.2                # m
 DEFAULT_COLOR = (0.87, 0.67, 0.55)
 
 
-class HumanTissueMaterial(RadioMaterial):
-    """Radio material of human tissue (see the module docstring for parameters and units).
+class BodyTissueMaterial(RadioMaterial):
+    """Radio material of body tissue (see the module docstring for parameters and units).
 
     Either ``props`` (from XML) or ``name`` must be given.
     """
@@ -91,7 +93,7 @@ class HumanTissueMaterial(RadioMaterial):
                  color: tuple[float, float, float] = DEFAULT_COLOR, props: mi.Properties | None = None):
         if props is None:
             if name is None:
-                raise ValueError("HumanTissueMaterial needs a name (or Mitsuba props)")
+                raise ValueError("BodyTissueMaterial needs a name (or Mitsuba props)")
             super().__init__(name=name, thickness=thickness, relative_permittivity=relative_permittivity,
                              conductivity=conductivity, scattering_coefficient=scattering_coefficient,
                              xpd_coefficient=xpd_coefficient, color=color)
@@ -106,10 +108,11 @@ class HumanTissueMaterial(RadioMaterial):
         super().__init__(props=props)
 
     def to_string(self) -> str:
-        return (f"HumanTissueMaterial eta_r={self.relative_permittivity[0]:.3f} "
+        return (f"BodyTissueMaterial eta_r={self.relative_permittivity[0]:.3f} "
                 f"sigma={self.conductivity[0]:.3f} S/m thickness={self.thickness[0]:.3f} m")
 
 
 def register() -> None:
-    """Register ``human-tissue`` with Mitsuba for the active variant (call via :func:`rfmitsuba.plugins.register`)."""
-    mi.register_bsdf(PLUGIN_NAME, lambda props: HumanTissueMaterial(props=props))
+    """Register ``body-tissue`` with Mitsuba for the active variant (call via :func:`rfmitsuba.plugins.register`)."""
+    for name in (PLUGIN_NAME, OLD_PLUGIN_NAME):
+        mi.register_bsdf(name, lambda props: BodyTissueMaterial(props=props))

@@ -1,10 +1,12 @@
-"""rfmitsuba.models.coherent_gaussians: the coherent Gaussian field (virtual sources and scatterers with
-complex gains, per-element calibration and pose, amplitude or phase-only Bartlett read-out).
+"""rfmitsuba.models.coherent_gaussians.field: the coherent Gaussian field (virtual sources and
+scatterers with complex gains, per-element calibration and pose, amplitude or phase-only Bartlett
+read-out).
 
 Finite-difference gradient checks of every parameter (through the channels and through the
 read-out), the physics on hand-made cases (the direct path alone points at the transmitter; the
-spherical wavefront tends to the plane wave far away), the data scan, the state round trip and
-training from a NeRF2 folder without a scene."""
+spherical wavefront tends to the plane wave far away), the state round trip, a training step's
+kernels compiled once, a known room's ray-cast visibility (blocked paths, the tracer's depth and
+shortest segment), the visibility grid and the mutual coupling."""
 from __future__ import annotations
 
 import tempfile
@@ -12,31 +14,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from coherent_gaussians_cases import F, _field
 from fd_helpers import fd_check
 
-F = 2.4e9
 PARAMS = ["img_offset", "img_amp", "sc_pos", "sc_amp", "vis_center", "vis_log_extent", "cal", "pose"]
 
 
 #: every test on one Dr.Jit thread (the ``one_thread`` fixture of tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-def _field(*, readout="amplitude", wavefront="plane", seed=0):
-    """Direct path + one wall reflection (x = 0 plane) + 2 scatterers, perturbed away from the
-    initial values so that no parameter sits at a special point."""
-    from rfmitsuba.core import backend as B
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
-
-    A = np.stack([np.eye(3), np.diag([-1.0, 1.0, 1.0])])
-    f = CoherentGaussianField(A, np.array([0, 1]), np.array([[1.0, 2.5, 2.0], [3.2, 0.4, 0.5]]),
-                              cfg=CoherentGaussianConfig(init_extent=1.5), readout=readout, wavefront=wavefront,
-                              vis_center=np.array([2.0, 1.5, 1.0]), frequency_hz=F, seed=seed)
-    rng = np.random.default_rng(seed)
-    for k, v in f.params.items():
-        a = np.asarray(v.numpy(), np.float64)
-        f.params[k] = B.Float((a + 0.05 * rng.normal(size=a.shape)).astype(np.float32))
-    return f
 
 
 def _views(task="tx", n=3):
@@ -148,33 +133,6 @@ def test_spherical_tends_to_plane_wave_far_away():
     assert np.allclose(np.abs(h["plane"]), np.abs(h["spherical"]), rtol=1e-3)
 
 
-def test_scan_finds_the_wall_that_made_the_data():
-    """PAS drawn by a field with the direct path and the image across x = 0.6: the data scan of
-    an unknown room (direct path explained first, then matching pursuit on arrival directions)
-    finds a plane across x among its first two, within 0.4 m of x = 0.6 (seen from 2-3 m, a plane's
-    offset moves its image's direction by a few degrees per 10 cm, less than the array's beam: the
-    scan places planes coarsely and training refines them)."""
-    from rfmitsuba.core import backend as B
-    from rfmitsuba.models.base import Views, render
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField, scan
-
-    rng = np.random.default_rng(0)
-    n = 40
-    q = np.array([1.5, 0.5, 0.8]) + rng.random((n, 3)) * [1.5, 2.0, 1.0]
-    x = np.tile([3.8, 3.0, 2.2], (n, 1))
-    A = np.stack([np.eye(3), np.diag([-1.0, 1.0, 1.0])])
-    f = CoherentGaussianField(A, np.array([0, 1]), np.zeros((0, 3)), cfg=CoherentGaussianConfig(), readout="amplitude",
-                              wavefront="plane", vis_center=np.array([2.0, 1.5, 1.3]), frequency_hz=F)
-    f.params["img_offset"] = B.Float(np.array([0, 0, 0, 1.2, 0, 0], np.float32))
-    f.params["img_amp"] = B.Float(np.array([1, 0, 0.8, 0], np.float32))
-    views = Views(antenna_pos=q, view_pos=x, transmitter=q, rx_to_world=None, frequency_hz=F, task="tx")
-    pas = render([f], views, height=45, width=180).numpy()
-    got = scan(pas, x, q, images=2, scatterers=2, step=0.1, margin=2.0)
-    found = [float(b[0]) / 2 for a, b in zip(got["A"], got["b"]) if a[0, 0] == -1]
-    assert any(abs(v - 0.6) <= 0.4 for v in found), (got["A"], got["b"], got["image_score"])
-    assert got["points"].shape == (2, 3)
-
-
 def test_state_round_trip_and_frozen(tmp_path):
     from rfmitsuba.models.base import load_field, render
 
@@ -206,22 +164,6 @@ def test_bad_input_is_named():
                 rx_to_world=None, frequency_hz=F)
     with pytest.raises(ConfigError, match="finite"):
         f.channels(bad)
-
-
-def test_compose_images_builds_a_rooms_double_reflections():
-    """Two parallel walls x = 0 and x = 4 and a floor z = 0, order 2: the direct path, 3 single and
-    the double images (across both x walls, two orders; across a wall and the floor, two), each once."""
-    from rfmitsuba.models.coherent_gaussians import compose_images
-
-    A = np.stack([np.diag([-1.0, 1, 1]), np.diag([-1.0, 1, 1]), np.diag([1.0, 1, -1])])
-    b = np.array([[0.0, 0, 0], [8.0, 0, 0], [0, 0, 0]])
-    A2, b2, order = compose_images(A, b, max_order=2)
-    assert list(np.bincount(order)) == [1, 3, 4]  # perpendicular reflections commute: one image each
-    y = np.array([1.0, 2.0, 0.5])
-    imgs = {tuple(np.round(a @ y + c, 6)) for a, c in zip(A2, b2)}
-    assert len(imgs) == len(A2)
-    assert (9.0, 2.0, 0.5) in imgs and (-7.0, 2.0, 0.5) in imgs and (-1.0, 2.0, -0.5) in imgs
-    assert len(compose_images(A, b, max_order=1)[0]) == 4
 
 
 def test_training_step_kernels_compile_once(variant):
@@ -354,37 +296,6 @@ def test_path_visibility_cache_is_bounded(monkeypatch):
             np.testing.assert_array_equal(a, b)
 
 
-def test_saved_states_with_removed_options_load_where_exact():
-    """A field saved with an option that was removed loads where the option held the value the
-    code now behaves as (``material_through = false``, any ``amp_l1`` = 0, ``frame_search =
-    "apply"``: it only steered the start), and is refused, naming the option, where it did not
-    (``material_through = true``: its parameters cannot be drawn); a user's configuration that
-    names a removed option is told it was removed."""
-    import json
-
-    from rfmitsuba.core import config as C
-    from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
-
-    f = _field()
-    st = f.state_dict()
-    meta = json.loads(str(st["meta"]))
-    meta["config"].update(material_through=False, amp_l1=0.0, init_transmission=0.5, frame_search="apply",
-                          frame_min_gain=0.01, calibration_twin="other", coupling_model="neighbours")
-    st["meta"] = np.asarray(json.dumps(meta))
-    back = CoherentGaussianField.from_state_dict(st)
-    assert back.cfg.frame_search == "report"
-    np.testing.assert_array_equal(back.params["img_amp"].numpy(), f.params["img_amp"].numpy())
-    meta["config"]["material_through"] = True
-    st["meta"] = np.asarray(json.dumps(meta))
-    with pytest.raises(ConfigError, match="material_through = True: this saved file used an option that was removed"):
-        CoherentGaussianField.from_state_dict(st)
-    with pytest.raises(ConfigError, match="amp_l1: this option was removed"):
-        C.from_dict(CoherentGaussianConfig, {"amp_l1": 0.0})
-    with pytest.raises(ConfigError, match="frame_search = 'apply': this value was removed"):
-        C.from_dict(CoherentGaussianConfig, {"frame_search": "apply"})
-
-
 def test_paths_deeper_than_the_tracer_are_absent(tmp_path):
     """With the data's tracer depth D, a path exists only if its reflections plus crossings are at
     most D: at D = 1 the blocked direct path (2 wood crossings) and every blocked reflection are
@@ -464,47 +375,6 @@ def test_known_room_state_round_trip(tmp_path):
     assert "img_slope" in flat.parameters() and "img_slope" not in flat.trainable()
 
 
-def _stub_training_data(n: int, *, seed: int):
-    """A stand-in for TrainData that for_training reads: n moving-RX training positions q [m] in
-    the bedroom's free middle, the fixed TX y [m] in its corner, random PAS. Returns (data, q, y)."""
-    from types import SimpleNamespace
-
-    rng = np.random.default_rng(seed)
-    q = np.c_[rng.uniform(1.0, 2.2, n), rng.uniform(2.2, 2.8, n), rng.uniform(1.0, 1.6, n)]
-    y = np.tile([0.3, 0.3, 2.0], (n, 1))
-    data = SimpleNamespace(path="stub", train=np.arange(n), rx_to_world=None, frequency_hz=F, measured=False,
-                           readout="amplitude", task="rx", positions=lambda idx: (q[idx], y[idx], q[idx]),
-                           pas=lambda idx, d=1: rng.random((len(idx), 90 // d, 360 // d)).astype(np.float32))
-    return data, q, y
-
-
-def test_known_room_keeps_only_images_seen_in_training():
-    """for_training on a known room: the images whose path exists at no training position are
-    left out (parsimony), the direct path always stays, and every kept image is seen somewhere."""
-    from rfmitsuba.core import config as C
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField
-    from rfmitsuba.rf.images import scene_image_maps
-    from rfmitsuba.scenes import path as scene_path
-    from rfmitsuba.sim.geometry import RoomGeometry
-    from rfmitsuba.train.config import TrainConfig
-
-    xml = scene_path("bedroom")
-    data, q, y = _stub_training_data(12, seed=0)
-    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.room_scatterers=0",
-                                     "coherent_gaussians.room_order=1"])
-    f = CoherentGaussianField.for_training(cfg, data, scene_xml=xml)
-    every = scene_image_maps(RoomGeometry.from_xml(xml), room_order=1, furniture_order=1, distinct_paths=True,
-                             furniture_planes="faces")
-    ex, _, _ = f.visibility(q, y)
-    assert 1 < f.num_images < len(every) and f.order[0] == 0
-    assert ex[:, 1:].any(0).all()
-    # a known room gets the default visibility grid over the training positions' box (5% padding)
-    assert f.cfg.vis_grid == (4, 4, 2) and f.grid_cells == 32 and "vis_grid_box" not in f.trainable()
-    pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
-    np.testing.assert_allclose(f.params["vis_grid_box"].numpy(), np.r_[q.min(0) - pad, q.max(0) + pad], rtol=1e-6)
-    assert len(f.params["vis_grid"].numpy()) == 32 * f.num_primitives
-
-
 def test_pose_schedule_decays_in_a_known_room_only():
     """The array pose trains on the decaying "means" schedule where the room is known, on the
     constant "rotations" rate from a data scan; every other parameter's group is the table's."""
@@ -551,238 +421,6 @@ def test_visibility_grid():
             CoherentGaussianConfig(vis_grid=bad)
 
 
-def test_unknown_room_gets_the_default_visibility_grid():
-    """for_training from a data scan (no room): the same default grid as a known room, over the
-    training positions' box; (0, 0, 0) in the config turns it off."""
-    from rfmitsuba.core import config as C
-    from rfmitsuba.models.coherent_gaussians import DEFAULT_VIS_GRID, CoherentGaussianField
-    from rfmitsuba.train.config import TrainConfig
-
-    data, q, _ = _stub_training_data(10, seed=1)
-    small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
-    f = CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
-    assert f.cfg.vis_grid == DEFAULT_VIS_GRID == (4, 4, 2) and f.grid_cells == 32
-    pad = 0.05 * (q.max(0) - q.min(0)) + 1e-3
-    np.testing.assert_allclose(f.params["vis_grid_box"].numpy(), np.r_[q.min(0) - pad, q.max(0) + pad], rtol=1e-6)
-    off = CoherentGaussianField.for_training(C.override(TrainConfig(), small + ["coherent_gaussians.vis_grid=[0,0,0]"]),
-                                             data, scene_xml=None)
-    assert off.grid_cells == 0 and "vis_grid" not in off.parameters()
-
-
-def test_dense_unknown_rooms_get_the_finer_visibility_grid(monkeypatch):
-    """vis_grid = "auto": (8, 8, 4) for an unknown room with DENSE_POSITIONS distinct training
-    positions or more, (4, 4, 2) below that and for a known room at any count; a grid set in the
-    config is kept. Only the fine grid advises DENSE_EPOCHS passes over the data."""
-    from rfmitsuba.core import config as C
-    from rfmitsuba.models import coherent_gaussians as cg
-    from rfmitsuba.models.coherent_gaussians import field, geometry
-    from rfmitsuba.train.config import TrainConfig
-
-    assert cg.default_vis_grid(init="data", num_positions=geometry.DENSE_POSITIONS) == geometry.DENSE_VIS_GRID \
-        == (8, 8, 4)
-    assert cg.default_vis_grid(init="data", num_positions=geometry.DENSE_POSITIONS - 1) == cg.DEFAULT_VIS_GRID
-    assert cg.default_vis_grid(init="room", num_positions=10 * geometry.DENSE_POSITIONS) == cg.DEFAULT_VIS_GRID
-    monkeypatch.setattr(geometry, "DENSE_POSITIONS", 10)     # the stub's 10 positions count as dense
-    data, _, _ = _stub_training_data(10, seed=1)
-    small = ['model="coherent_gaussians"', "coherent_gaussians.images=2", "coherent_gaussians.scatterers=4"]
-    f = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
-    assert f.cfg.vis_grid == (8, 8, 4) and f.grid_cells == 256
-    g = cg.CoherentGaussianField.for_training(C.override(TrainConfig(), small + ["coherent_gaussians.vis_grid=[2,2,2]"]),
-                                              data, scene_xml=None)
-    assert g.grid_cells == 8
-    # the fine grid learns cell by cell: it asks for passes over the data (TrainConfig.epochs = "auto")
-    assert f.epochs_advised == field.DENSE_EPOCHS == 40.0 and g.epochs_advised == 0.0
-
-
-def test_frame_search_reports_a_stated_frame_that_is_far_off():
-    """A measured folder whose stated gateway frame is 30 degrees off: by default ("auto" =
-    "report" for a measured folder) the line-of-sight fit is reported in the run summary with the
-    angle it found, a warning names the gateway orientation, and the field starts from the stated
-    frame (pose zero); with the search off nothing is fitted."""
-    import warnings
-    from types import SimpleNamespace
-
-    from rfmitsuba.core import config as C
-    from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
-    from rfmitsuba.rf.frame_fit import rotation_matrix
-    from rfmitsuba.train.config import TrainConfig
-
-    from los_data import F as F920, los_spectra
-
-    pas, x, y = los_spectra(true_to_world=np.eye(3), n=24)
-    stated = rotation_matrix(np.radians(30) * np.array([0.6, 0.7, 0.39]) / np.linalg.norm([0.6, 0.7, 0.39]))
-    data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=stated, frequency_hz=F920, measured=True,
-                           readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
-                           pas=lambda idx, d=1: pas[idx] if d == 2 else None)
-    base = ['model="coherent_gaussians"', "coherent_gaussians.images=0", "coherent_gaussians.scatterers=0",
-            'coherent_gaussians.calibration_search="off"']
-    for mode in ("auto", "off"):
-        cfg = C.override(TrainConfig(), base + [f'coherent_gaussians.frame_search="{mode}"'])
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
-        assert not np.asarray(f.params["pose"].numpy()).any()
-        if mode == "auto":
-            rep = f.init_report["frame_fit"]
-            assert 25 < rep["angle_deg"] < 35 and rep["score"] - rep["stated_score"] > 0.05
-            assert any("gateway orientation" in str(w.message) for w in caught)
-        else:
-            assert f.init_report == {} and not any("gateway" in str(w.message) for w in caught)
-    with pytest.raises(ConfigError, match="frame_search"):
-        CoherentGaussianConfig(frame_search="on")
-
-
-def test_outside_room_box_counts_faces_inside():
-    """The one "outside the box" test that training (``room_box_planes``) and ``predict`` share:
-    a point on a face is inside; a millimetre past any of the six faces is outside."""
-    from rfmitsuba.models.coherent_gaussians import outside_room_box
-
-    box = [0.0, 0.0, 0.0, 4.4, 3.5, 2.8]
-    inside = np.array([[0.0, 0.0, 0.0], [4.4, 3.5, 2.8], [2.0, 1.0, 1.5]])
-    assert not outside_room_box(box, inside).any()
-    past = np.array([[-1e-3, 1, 1], [4.401, 1, 1], [1, -1e-3, 1], [1, 3.501, 1], [1, 1, -1e-3], [1, 1, 2.801]])
-    assert outside_room_box(box, past).all()
-
-
-def test_room_box_walls_join_the_scanned_planes():
-    """An unknown room with known dimensions (``room_box``): the six walls' images, and their
-    double reflections, join the scan's; a position outside the box, a malformed box, and a box
-    beside a known room's XML are errors that name the problem."""
-    from rfmitsuba.core import config as C
-    from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianField, room_box_planes
-    from rfmitsuba.scenes import path as scene_path
-    from rfmitsuba.train.config import TrainConfig
-
-    box = [0.0, 0.0, 0.0, 4.4, 3.5, 2.8]
-    A, b = room_box_planes(box, np.array([[1.0, 1.0, 1.0]]))
-    y = np.array([0.3, 0.4, 2.0])
-    mirrored = {tuple(np.round(a @ y + c, 6)) for a, c in zip(A, b)}
-    assert mirrored == {(-0.3, 0.4, 2.0), (8.5, 0.4, 2.0), (0.3, -0.4, 2.0), (0.3, 6.6, 2.0), (0.3, 0.4, -2.0),
-                        (0.3, 0.4, 3.6)}
-    with pytest.raises(ConfigError, match=r"position 1 at \[5.0, 1.0, 1.0\] m lies outside the room"):
-        room_box_planes(box, np.array([[1.0, 1.0, 1.0], [5.0, 1.0, 1.0]]))
-
-    data, q, ty = _stub_training_data(10, seed=2)
-    small = ['model="coherent_gaussians"', "coherent_gaussians.images=0", "coherent_gaussians.scatterers=0",
-             'coherent_gaussians.init="data"']
-    plain = CoherentGaussianField.for_training(C.override(TrainConfig(), small), data, scene_xml=None)
-    boxed = CoherentGaussianField.for_training(
-        C.override(TrainConfig(), small + [f"coherent_gaussians.room_box={box}"]), data, scene_xml=None)
-    assert plain.num_images == 1                          # the direct path alone
-    # + the 6 walls, + their double reflections: 12 pairs of perpendicular walls (which commute, so
-    # one image each) and 2 orders of each of the 3 pairs of parallel walls
-    assert boxed.num_images == 1 + 6 + 12 + 6
-    offsets = boxed.params["img_offset"].numpy().reshape(-1, 3)
-    images = {tuple(np.round(a @ ty[0] + c, 6)) for a, c in zip(boxed.A, offsets)}
-    assert (-0.3, 0.3, 2.0) in images and (0.3, 0.3, 3.6) in images and (-0.3, -0.3, 2.0) in images
-
-    with pytest.raises(ConfigError, match="lies outside the room"):
-        CoherentGaussianField.for_training(
-            C.override(TrainConfig(), small + ["coherent_gaussians.room_box=[0, 0, 0, 1.5, 3.5, 2.8]"]), data,
-            scene_xml=None)
-    with pytest.raises(ConfigError, match="room_box: .* matches none of"):
-        C.override(TrainConfig(), small + ["coherent_gaussians.room_box=[0, 0, 0, 4.4, 3.5]"])
-    for bad in ("[1, 0, 0, 0.5, 3.5, 2.8]", "[0, 0, 0, 4.4, 3.5, nan]"):
-        with pytest.raises(ConfigError, match="room_box must be 6 finite numbers"):
-            C.override(TrainConfig(), small + [f"coherent_gaussians.room_box={bad}"])
-    with pytest.raises(ConfigError, match="set coherent_gaussians.init=data"):
-        CoherentGaussianField.for_training(
-            C.override(TrainConfig(), small[:-1] + [f"coherent_gaussians.room_box={box}"]), data,
-            scene_xml=scene_path("bedroom"))
-
-
-def test_positions_within_the_beam_get_the_scan_and_wider_ones_the_pursuit():
-    """A room walked around a corner device spreads 20-ish degrees (pursuit, no scanned planes);
-    tags in a patch 5 m from the gateway a few degrees (scan, 12 planes); explicit settings win."""
-    from types import SimpleNamespace
-
-    from rfmitsuba.models.coherent_gaussians.geometry import (SCAN_PLANES, CoherentGaussianConfig, position_spread_deg,
-                                                     scan_planes, spreads_wide, uses_pursuit)
-
-    rng = np.random.default_rng(0)
-    room = np.c_[rng.uniform(0.15, 4.25, 300), rng.uniform(0.15, 3.35, 300), rng.uniform(0.5, 2.0, 300)]
-    tags = np.c_[rng.uniform(1.0, 2.6, 300), rng.uniform(0.5, 1.8, 300), rng.uniform(0.5, 1.4, 300)]
-    corner, gateway = np.array([0.3, 0.3, 2.0]), np.array([7.0, 1.2, 1.0])
-    assert 15 < position_spread_deg(corner, room) < 30
-    assert position_spread_deg(gateway, tags) < 8
-    assert position_spread_deg(corner, corner + np.array([[1.0, 0, 0], [-1.0, 0, 0]])) == 90.0
-    # along a line seen end on: no spread at all
-    assert position_spread_deg(np.zeros(3), np.outer(np.arange(1, 5), [0, 1.0, 0])) == 0.0
-
-    def data(task, fixed, moving):
-        n = len(moving)
-        f = np.tile(fixed, (n, 1))
-        return SimpleNamespace(train=np.arange(n), task=task,
-                               positions=lambda idx: (moving[idx], f[idx], moving[idx]) if task == "rx"
-                               else (f[idx], moving[idx], moving[idx]))
-
-    walk_rx, walk_tx, tag_tx = data("rx", corner, room), data("tx", corner, room), data("tx", gateway, tags)
-    assert spreads_wide(walk_rx) and spreads_wide(walk_tx) and not spreads_wide(tag_tx)
-    c = CoherentGaussianConfig()
-    assert [scan_planes(c, d) for d in (walk_rx, walk_tx, tag_tx)] == [0, 0, SCAN_PLANES]
-    assert [uses_pursuit(c, d) for d in (walk_rx, walk_tx, tag_tx)] == [True, True, False]
-    c = CoherentGaussianConfig(images=3, pursuit="on")
-    assert scan_planes(c, walk_rx) == 3 and uses_pursuit(c, tag_tx)
-    assert not uses_pursuit(CoherentGaussianConfig(pursuit="off"), walk_tx)
-
-
-def test_calibration_search_starts_the_calibration_at_the_fitted_offsets():
-    """Phase-only spectra (a NeRF2 folder) of an array whose elements carry offsets anywhere in
-    +-180 degrees: by default ("auto") the initial field's line of sight draws the data's PAS at
-    correlation > 0.99 (``cal`` starts at the fitted offsets, the run summary says so); with the
-    search off, at under 0.5."""
-    from types import SimpleNamespace
-
-    from rfmitsuba.core import config as C
-    from rfmitsuba.core.errors import ConfigError
-    from rfmitsuba.models.base import Views, render
-    from rfmitsuba.models.coherent_gaussians import CoherentGaussianConfig, CoherentGaussianField
-    from rfmitsuba.train.config import TrainConfig
-
-    from los_data import F as F920, los_spectra
-
-    true = np.random.default_rng(3).uniform(-np.pi, np.pi, 16)
-    pas, x, y = los_spectra(offsets_rad=true, n=24)
-    data = SimpleNamespace(path="stub", train=np.arange(len(x)), rx_to_world=None, frequency_hz=F920, measured=False,
-                           readout="phase_only", task="tx", positions=lambda idx: (x[idx], y[idx], y[idx]),
-                           pas=lambda idx, d=1: pas[idx] if d == 2 else None)
-    views = Views(antenna_pos=y, view_pos=x, transmitter=y, rx_to_world=None, frequency_hz=F920, task="tx")
-    corr = {}
-    for mode in ("auto", "off"):
-        cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
-                                         "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
-                                         "coherent_gaussians.coupling=false",
-                                         f'coherent_gaussians.calibration_search="{mode}"'])
-        f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
-        img = np.asarray(render([f], views, height=45, width=180))
-        a = img.reshape(len(x), -1) - img.reshape(len(x), -1).mean(1, keepdims=True)
-        b = pas.reshape(len(x), -1) - pas.reshape(len(x), -1).mean(1, keepdims=True)
-        corr[mode] = float(np.mean((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)))
-        cal = np.asarray(f.params["cal"].numpy()).reshape(16, 2)
-        if mode != "off":
-            rep = f.init_report["calibration_fit"]
-            assert rep["applied"] and rep["score"] > 0.99 > 0.5 > rep["stated_score"]
-            np.testing.assert_allclose(cal[:, 0] + 1j * cal[:, 1], np.exp(1j * np.radians(rep["phase_deg"])), atol=1e-5)
-            assert f.starts_advised == 2        # a searched calibration: two training starts
-        else:
-            assert "calibration_fit" not in f.init_report and np.allclose(cal, [1.0, 0.0])
-            assert f.starts_advised == 1
-    assert corr["auto"] > 0.99 and corr["off"] < 0.5
-    # with the coupling left to "auto", phase-only spectra learn it, and a learned coupling also
-    # trains from two starts
-    cfg = C.override(TrainConfig(), ['model="coherent_gaussians"', "coherent_gaussians.images=0",
-                                     "coherent_gaussians.scatterers=0", 'coherent_gaussians.frame_search="off"',
-                                     'coherent_gaussians.calibration_search="off"'])
-    f = CoherentGaussianField.for_training(cfg, data, scene_xml=None)
-    assert f.cfg.coupling is True and "coupling" in f.params and f.starts_advised == 2
-    with pytest.raises(ConfigError, match="calibration_search"):
-        CoherentGaussianConfig(calibration_search="on")
-    with pytest.raises(ConfigError, match="calibration_min_gain"):
-        CoherentGaussianConfig(calibration_min_gain=float("nan"))
-
-
 def _coupled_field(seed=0):
     """_field's sources with the mutual coupling on, every parameter perturbed (K too)."""
     import dataclasses
@@ -805,20 +443,6 @@ def test_coupling_gradients(name):
     """d/d(parameter) of <c, h> with the coupling on: AD against central differences."""
     _, g = _coupled_field()
     _check_channel_gradient(g, name)
-
-
-def test_coupling_index_is_reciprocal_between_neighbours():
-    """K = K^T, one coefficient per pair of row, column or diagonal neighbours of the 4 x 4 array
-    (12 + 12 + 18 = 42), none on the diagonal or farther apart."""
-    from rfmitsuba.models.coherent_gaussians import coupling_index, coupling_size
-
-    idx = coupling_index()
-    np.testing.assert_array_equal(idx, idx.T)
-    assert coupling_size() == 42 and sorted(set(idx[idx >= 0].tolist())) == list(range(42))
-    r, c = np.divmod(np.arange(16), 4)
-    far = np.maximum(np.abs(r[:, None] - r[None]), np.abs(c[:, None] - c[None]))
-    assert (idx[far != 1] == -1).all() and (idx[far == 1] >= 0).all()
-    assert (np.bincount(idx[idx >= 0]) == 2).all()                        # each pair: K[m, n] and K[n, m]
 
 
 def test_coupling_mixes_the_elements_as_i_plus_k(tmp_path):
@@ -917,66 +541,3 @@ def test_candidate_image_gradient_sees_the_coupling():
     # d/d re of sum(Gr Re h + Gi Im h) with h = gain * h_c: <G, h_c>; d/d im: <G, j h_c>
     want = [G[0] @ hcr + G[1] @ hci, -G[0] @ hci + G[1] @ hcr]
     np.testing.assert_allclose(got, want, rtol=2e-3, atol=2e-3 * np.abs(want).max())
-
-
-@pytest.mark.parametrize("h", [90, 45, 18])
-def test_pas_lookup_reads_the_pixel_of_its_own_direction(h):
-    """Every pixel's look direction (rfmitsuba.rf.grid, block centres on a coarse grid) reads
-    back that pixel, on the full grid and on coarse ones."""
-    from rfmitsuba.models.coherent_gaussians import pas_lookup
-    from rfmitsuba.rf.grid import directions
-
-    d = 90 // h
-    pas = np.arange(h * 4 * h, dtype=np.float64).reshape(1, h, 4 * h)
-    u = directions(resolution_deg=d).reshape(1, -1, 3)
-    np.testing.assert_array_equal(pas_lookup(pas, u), pas.reshape(1, -1))
-
-
-def test_greedy_picks_as_scoring_every_direction_at_every_pick():
-    """The scan's greedy pursuit turns candidate directions into pixels once; its picks match
-    scoring every candidate's directions anew at every pick (the definition)."""
-    from rfmitsuba.models.coherent_gaussians.scan import _greedy, _Residual, _unit
-
-    rng = np.random.default_rng(7)
-    pas = rng.random((12, 45, 180))
-    dirs = _unit(rng.normal(size=(12, 300, 3)))
-    allowed = rng.random(300) > 0.2
-    want, res, ok = [], _Residual(pas, 12.0), allowed.copy()
-    for _ in range(10):
-        sc = np.where(ok, res.score(dirs), -np.inf)
-        i = int(np.argmax(sc))
-        want.append(i)
-        ok[i] = False
-        res.explain(dirs[:, i])
-    assert _greedy(_Residual(pas, 12.0), dirs, 10, allowed=allowed) == want
-
-
-@pytest.mark.parametrize("readout", ["amplitude", "phase_only"])
-def test_read_out_runs_the_kernels_with_gradients_and_the_host_products_without(readout):
-    """A differentiable read-out (a training step, traced or recorded) is the Bartlett op's
-    kernels bit for bit, so a traced step equals its recording; without gradients (rendering,
-    prediction) it is the host products (on LLVM; the kernels on CUDA)."""
-    import drjit as dr
-
-    from rfmitsuba.core import backend as B
-    from rfmitsuba.models.coherent_gaussians.array import read_out
-    from rfmitsuba.rf.bartlett import bartlett
-
-    rng = np.random.default_rng(3)
-    h = (rng.normal(size=(3, 16)) + 1j * rng.normal(size=(3, 16))).astype(np.complex64)
-    kw = dict(frequency_hz=F, height=9, width=36, normalize=True)
-
-    def channels(grad):
-        hr, hi = B.Float(h.real.ravel()), B.Float(h.imag.ravel())
-        if grad:
-            dr.enable_grad(hr, hi)
-        if readout == "phase_only":
-            mag = dr.sqrt(hr * hr + hi * hi + 1e-20)
-            return (hr, hi), (hr / mag, hi / mag)
-        return (hr, hi), (hr, hi)
-
-    for grad, host in ((True, False), (False, not B.is_cuda())):
-        (hr, hi), unit = channels(grad)
-        got = read_out(hr, hi, readout=readout, **kw).numpy()
-        want = bartlett(*(dr.detach(u) for u in unit), host=host, **kw).numpy()
-        assert np.array_equal(got, want), (grad, host)
