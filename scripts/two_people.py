@@ -26,25 +26,12 @@ LABEL = {"baseline": "Baseline", "ours": "Ours (one person field: person 1's fee
          "ours_people": "Ours (every person: both people's feet)"}
 
 
-def stat(v) -> str:
-    v = np.asarray(v, np.float64)
-    return f"{v.mean():.3f}" + (f" ± {v.std():.3f}" if len(v) > 1 else "")
-
-
 def collect(cmp: Path) -> dict:
-    results = json.loads((cmp / "results.json").read_text())
-    dataset = Path(json.loads((cmp / "dataset.json").read_text())["dataset"])
-    rows = {m: sorted((r for r in results if r["method"] == m), key=lambda r: r["seed"]) for m in METHODS}
-    out = {"dataset": str(dataset), "name": dataset.name, "seeds": [r["seed"] for r in rows["ours"]]}
-    for m, rs in rows.items():
-        out[m] = {"dynamic": [r["eval"]["dynamic"]["model"]["mean"] for r in rs],
-                  "affected": [r["eval"]["affected"]["model"]["mean"] for r in rs],
-                  "train_s": [r["train"]["train_time_s"] for r in rs]}
-    ev = rows["ours"][0]["eval"]
-    out["floors"] = {k: ev["dynamic"][k]["mean"] for k in ("nearest_neighbour", "idw3", "mean_image")}
-    out["floors"]["affected_nearest_neighbour"] = ev["affected"]["nearest_neighbour"]["mean"]
-    out["floors"]["affected_empty_room"] = ev["affected"]["empty_room"]["mean"]
-    out["affected_fraction"] = ev["affected"]["fraction"]
+    from rfmitsuba.experiments.compare import summary_by_method
+
+    out = summary_by_method(cmp, METHODS)
+    for m in METHODS:
+        del out[m]["train"]
     return out
 
 
@@ -62,18 +49,13 @@ def main() -> None:
              "model does; Ours (every person) trains one person field that draws both people (the same body, "
              "each person its own scatterers and blockage, the blockages multiplied), from both people's feet. "
              "Both are evaluated on the held-out walk frames; mean ± spread over the seeds.", ""]
+    from rfmitsuba.experiments.compare import summary_table
+
     for e in entries:
         f = e["floors"]
         lines += [f"## {e['name']}", "", f"Seeds {', '.join(map(str, e['seeds']))}; {100 * e['affected_fraction']:.1f} % "
                   "of the dynamic test PAS are changed by the people (SSIM against the empty room's PAS below 0.9): "
-                  "the column *where the people matter*.", "",
-                  "| method | dynamic mean SSIM | where the people matter | training (s) |", "|---|---|---|---|"]
-        for m in METHODS:
-            lines.append(f"| {LABEL[m]} | {stat(e[m]['dynamic'])} | {stat(e[m]['affected'])} | "
-                         f"{np.mean(e[m]['train_s']):.0f} |")
-        lines += [f"| nearest neighbour | {f['nearest_neighbour']:.3f} | {f['affected_nearest_neighbour']:.3f} | |",
-                  f"| IDW-3 | {f['idw3']:.3f} | | |", f"| mean image | {f['mean_image']:.3f} | | |",
-                  f"| the empty room's true PAS | | {f['affected_empty_room']:.3f} | |", ""]
+                  "the column *where the person matters*.", ""] + summary_table(e, LABEL) + [""]
         gain = np.asarray(e["ours_people"]["affected"]) - np.asarray(e["ours"]["affected"])
         one = np.asarray(e["ours"]["affected"]) - np.asarray(e["baseline"]["affected"])
         gap = f["affected_empty_room"] - np.mean(e["ours_people"]["affected"])

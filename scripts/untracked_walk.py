@@ -29,28 +29,16 @@ METHODS = ("baseline", "ours", "ours_untracked")
 LABEL = {"baseline": "Baseline", "ours": "Ours (tracked walk)", "ours_untracked": "Ours (no tracker)"}
 
 
-def stat(v) -> str:
-    v = np.asarray([x for x in v if x is not None], np.float64)
-    return "–" if not len(v) else f"{v.mean():.3f}" + (f" ± {v.std():.3f}" if len(v) > 1 else "")
-
-
 def collect(cmp: Path) -> dict:
-    results = json.loads((cmp / "results.json").read_text())
-    dataset = Path(json.loads((cmp / "dataset.json").read_text())["dataset"])
-    rows = {m: [r for r in results if r["method"] == m] for m in METHODS}
-    out = {"dataset": str(dataset), "name": dataset.name, "seeds": sorted(r["seed"] for r in rows["ours_untracked"])}
-    for m, rs in rows.items():
-        out[m] = {"dynamic": [r["eval"]["dynamic"]["model"]["mean"] for r in rs],
-                  "affected": [r["eval"]["affected"]["model"]["mean"] for r in rs],
-                  "train_s": [r["train"]["train_time_s"] for r in rs]}
-    any_r = rows["ours"][0]["eval"]
-    out["floors"] = {k: any_r["dynamic"][k]["mean"] for k in ("nearest_neighbour", "idw3", "mean_image")}
-    out["floors"]["affected_nearest_neighbour"] = any_r["affected"]["nearest_neighbour"]["mean"]
-    out["floors"]["affected_empty_room"] = any_r["affected"]["empty_room"]["mean"]
-    out["affected_fraction"] = any_r["affected"]["fraction"]
-    out["walk_rounds"] = [r["train"]["walk_rounds"] for r in rows["ours_untracked"]]
-    out["walk_search_s"] = [r["train"]["walk_search_s"] for r in rows["ours_untracked"]]
+    from rfmitsuba.experiments.compare import summary_by_method
+
+    out = summary_by_method(cmp, METHODS)
+    untracked = out["ours_untracked"]["train"]
+    out["walk_rounds"] = [t["walk_rounds"] for t in untracked]
+    out["walk_search_s"] = [t["walk_search_s"] for t in untracked]
     out["walk_file"] = str(cmp / f"seed{out['seeds'][0]}" / "ours_untracked" / "walk.json")
+    for m in METHODS:
+        del out[m]["train"]
     return out
 
 
@@ -100,18 +88,13 @@ def main() -> None:
              "trained). Ours (tracked walk) trains on the dataset's person positions. Both are evaluated "
              "alike, on the held-out walk positions at the dataset's person positions; mean ± spread over the "
              "seeds.", "", "![true and estimated walks](walks.png)", ""]
+    from rfmitsuba.experiments.compare import summary_table
+
     for e in entries:
-        f = e["floors"]
         lines += [f"## {e['name']}", "", f"Seeds {', '.join(map(str, e['seeds']))}; {100 * e['affected_fraction']:.1f} % "
                   "of the dynamic test PAS are changed by the person (SSIM against the empty room's PAS below 0.9): "
-                  "the columns *where the person matters*.", "",
-                  "| method | dynamic mean SSIM | where the person matters | training (s) |", "|---|---|---|---|"]
-        for m in METHODS:
-            lines.append(f"| {LABEL[m]} | {stat(e[m]['dynamic'])} | {stat(e[m]['affected'])} | "
-                         f"{np.mean(e[m]['train_s']):.0f} |")
-        lines += [f"| nearest neighbour | {f['nearest_neighbour']:.3f} | {f['affected_nearest_neighbour']:.3f} | |",
-                  f"| IDW-3 | {f['idw3']:.3f} | | |", f"| mean image | {f['mean_image']:.3f} | | |",
-                  f"| the empty room's true PAS | | {f['affected_empty_room']:.3f} | |", "",
+                  "the columns *where the person matters*.", ""] + summary_table(e, LABEL)
+        lines += ["",
                   "| round | walk error, median (cm) | 90th percentile (cm) |", "|---|---|---|"]
         rounds = np.asarray([[(r["median_cm"], r["p90_cm"]) for r in s] for s in e["walk_rounds"]])
         for i in range(rounds.shape[1]):

@@ -154,6 +154,56 @@ def _compare(dataset: Path, out: Path, cfg: CompareConfig, *, quiet: bool, progr
     return write_text(out / "report.md", report(results, dataset=dataset, cfg=cfg, out=out))
 
 
+def summary_by_method(out: str | Path, methods: tuple | list) -> dict:
+    """A finished comparison's headline figures, per method over its seeds (results pages).
+
+    Returns:
+        {"dataset": path, "name": its folder name, "seeds": of the first method, "affected_fraction",
+        "floors": {"nearest_neighbour", "idw3", "mean_image" (dynamic means), "affected_nearest_neighbour",
+        "affected_empty_room"}, and per method {"dynamic": [mean SSIM per seed], "affected": [mean
+        where the person matters per seed], "train_s": [seconds per seed], "train": [train summaries]}}.
+
+    Raises:
+        RunError: no ``results.json``, or a method without finished jobs.
+    """
+    out = Path(out)
+    if not (out / "results.json").is_file():
+        raise RunError(f"{out}: no results.json; run the comparison first")
+    results = json.loads((out / "results.json").read_text())
+    dataset = Path(json.loads((out / "dataset.json").read_text())["dataset"])
+    rows = {m: sorted((r for r in results if r["method"] == m), key=lambda r: r["seed"]) for m in methods}
+    missing = [m for m, rs in rows.items() if not rs]
+    if missing:
+        raise RunError(f"{out}: no finished jobs of {', '.join(missing)}")
+    ev = rows[methods[0]][0]["eval"]
+    summary = {"dataset": str(dataset), "name": dataset.name, "seeds": [r["seed"] for r in rows[methods[0]]],
+               "affected_fraction": ev["affected"]["fraction"],
+               "floors": {**{k: ev["dynamic"][k]["mean"] for k in ("nearest_neighbour", "idw3", "mean_image")},
+                          "affected_nearest_neighbour": ev["affected"]["nearest_neighbour"]["mean"],
+                          "affected_empty_room": ev["affected"]["empty_room"]["mean"]}}
+    for m, rs in rows.items():
+        summary[m] = {"dynamic": [r["eval"]["dynamic"]["model"]["mean"] for r in rs],
+                      "affected": [r["eval"]["affected"]["model"]["mean"] for r in rs],
+                      "train_s": [r["train"]["train_time_s"] for r in rs], "train": [r["train"] for r in rs]}
+    return summary
+
+
+def summary_table(summary: dict, labels: dict) -> list[str]:
+    """Markdown rows of :func:`summary_by_method`'s figures: each method of ``labels`` (name ->
+    row label; mean +- spread over seeds), then the floors."""
+    def stat(v) -> str:
+        v = np.asarray(v, np.float64)
+        return f"{v.mean():.3f}" + (f" ± {v.std():.3f}" if len(v) > 1 else "")
+
+    f = summary["floors"]
+    lines = ["| method | dynamic mean SSIM | where the person matters | training (s) |", "|---|---|---|---|"]
+    lines += [f"| {label} | {stat(summary[m]['dynamic'])} | {stat(summary[m]['affected'])} | "
+              f"{np.mean(summary[m]['train_s']):.0f} |" for m, label in labels.items()]
+    return lines + [f"| nearest neighbour | {f['nearest_neighbour']:.3f} | {f['affected_nearest_neighbour']:.3f} | |",
+                    f"| IDW-3 | {f['idw3']:.3f} | | |", f"| mean image | {f['mean_image']:.3f} | | |",
+                    f"| the empty room's true PAS | | {f['affected_empty_room']:.3f} | |"]
+
+
 def _depth(method: str) -> int:
     """How many methods ``method`` builds on in a chain (Baseline 0, Ours 1, Stage 3 2)."""
     prior = get_method(method).builds_on

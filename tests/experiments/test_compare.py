@@ -177,3 +177,12 @@ def test_ours_every_person_draws_both_people_of_a_two_person_walk(two_people_dat
     res = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
     assert all(math.isfinite(res[m]["eval"]["dynamic"]["model"]["mean"]) for m in ("ours", "ours_people"))
     assert "Ours (every person)" in (out / "report.md").read_text()
+    # the headline figures the results pages read
+    from rfmitsuba.experiments.compare import summary_by_method, summary_table
+
+    summary = summary_by_method(out, ("ours", "ours_people"))
+    assert summary["seeds"] == [0] and summary["ours_people"]["dynamic"] == [res["ours_people"]["eval"]["dynamic"]
+                                                                            ["model"]["mean"]]
+    assert len(summary_table(summary, {"ours": "Ours", "ours_people": "every person"})) == 2 + 2 + 4
+    with pytest.raises(RunError, match="no finished jobs of baseline"):
+        summary_by_method(out, ("ours", "baseline"))
