@@ -29,8 +29,12 @@ LABEL = {"baseline": "Baseline", "ours": "Ours (one person field: person 1's fee
 def collect(cmp: Path) -> dict:
     from rfmitsuba.experiments.compare import summary_by_method
 
-    out = summary_by_method(cmp, METHODS)
-    for m in METHODS:
+    results = json.loads((cmp / "results.json").read_text())
+    untracked = any(r["method"] == "ours_untracked" for r in results)
+    out = summary_by_method(cmp, METHODS + (("ours_untracked",) if untracked else ()))
+    if untracked:
+        out["walk"] = [t["walk"] for t in out["ours_untracked"]["train"]]
+    for m in METHODS + (("ours_untracked",) if untracked else ()):
         del out[m]["train"]
     return out
 
@@ -65,8 +69,23 @@ def main() -> None:
                   "second person's change is noise to it. Both stay well below the empty room's true PAS (a "
                   f"perfect background alone, no person drawn: {gap:.3f} above the model of every person): the "
                   "background's own error, not the people, limits these PAS.",
-                  "- Not built: the walk of two people without a tracker (which frame's change belongs to which "
-                  "person: the data association).", ""]
+                  ""]
+        if "walk" in e:
+            w = e["walk"]
+            med = np.asarray([x["median_cm"] for x in w]); p90 = np.asarray([x["p90_cm"] for x in w])
+            nmed = np.asarray([x["nearest_person_median_cm"] for x in w])
+            np90 = np.asarray([x["nearest_person_p90_cm"] for x in w])
+            lines += ["### Without a tracker", "",
+                      "Ours (no tracker) searches one walk, one position per frame, as if one person walked "
+                      "(`ours_untracked`): the data association of two people is not modelled.", ""]
+            lines += summary_table(e, {"ours_untracked": "Ours (no tracker), one walk searched"})[:3]
+            lines += ["",
+                      f"- Its walk is {med.mean():.0f} ± {med.std():.0f} cm (median; p90 {p90.mean():.0f} cm) from "
+                      f"person 1 and {nmed.mean():.0f} ± {nmed.std():.0f} cm (p90 {np90.mean():.0f} cm) from the "
+                      "nearer of the two people: it follows neither person, but whoever changes the PAS more at "
+                      "each frame.", ""]
+        else:
+            lines += ["- Not run here: the walk of two people without a tracker.", ""]
     lines += ["## Reproduce", "", "```bash",
               "rfmitsuba generate bedroom --task rx --positions 150 --person-positions 60 --people 2 --out ds_bed2_150x60",
               "rfmitsuba compare ds_bed2_150x60 --out cmp_bed2 --methods baseline,ours,ours_people --seeds 0,1,2",

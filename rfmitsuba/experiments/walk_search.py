@@ -197,11 +197,20 @@ def search_walk(model: TwoStage, frames: np.ndarray, cfg: WalkSearchConfig, *, i
 
 def walk_error(data: SampleData, frames: np.ndarray, positions: np.ndarray) -> dict:
     """Horizontal error of an estimated walk against the dataset's person positions [cm]:
-    {"median_cm", "p90_cm", "mean_cm", "frames"}."""
-    truth = np.asarray(data._ds.person_pos, np.float64)[np.asarray(frames) + 1]
-    err = 100.0 * np.hypot(*(np.asarray(positions)[:, :2] - truth[:, :2]).T)
-    return {"median_cm": float(np.median(err)), "p90_cm": float(np.percentile(err, 90)),
-            "mean_cm": float(err.mean()), "frames": int(len(err))}
+    {"median_cm", "p90_cm", "mean_cm", "frames"}; on a walk of several people also against the
+    nearest person at each frame ("nearest_person_median_cm", "nearest_person_p90_cm")."""
+    frames = np.asarray(frames)
+    truth = np.asarray(data._ds.person_pos, np.float64)[frames + 1]
+    p = np.asarray(positions, np.float64)
+    err = 100.0 * np.hypot(*(p[:, :2] - truth[:, :2]).T)
+    out = {"median_cm": float(np.median(err)), "p90_cm": float(np.percentile(err, 90)),
+           "mean_cm": float(err.mean()), "frames": int(len(err))}
+    people = np.asarray(getattr(data._ds, "people_pos", truth[:, None]), np.float64)
+    if people.ndim == 3 and people.shape[1] > 1:
+        near = 100.0 * np.hypot(*(p[:, None, :2] - people[frames + 1][:, :, :2]).transpose(2, 0, 1)).min(1)
+        out.update({"nearest_person_median_cm": float(np.median(near)),
+                    "nearest_person_p90_cm": float(np.percentile(near, 90))})
+    return out
 
 
 def with_walk(data: SampleData, frames: np.ndarray, positions: np.ndarray) -> SampleData:

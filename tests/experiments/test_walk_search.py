@@ -120,3 +120,14 @@ def test_ours_untracked_trains_on_its_own_walk_and_reports_its_error(quick_datas
     assert np.isfinite(m["eval"]["dynamic"]["model"]["mean"])
     report = (tmp_path / "cmp" / "report.md").read_text()
     assert "Ours (no tracker)" in report
+
+
+def test_the_walks_error_on_a_walk_of_two_people_also_counts_the_nearer_person(two_people_dataset):
+    from rfmitsuba.data.samples import SampleData
+    from rfmitsuba.experiments.walk_search import training_frames, walk_error
+
+    data = SampleData.open_samples(two_people_dataset.path, states="person")
+    frames = training_frames(data)
+    second = np.asarray(two_people_dataset.people_pos)[frames + 1, 1]
+    err = walk_error(data, frames, second)
+    assert err["nearest_person_median_cm"] == 0.0 and err["median_cm"] > 50.0
