@@ -25,7 +25,7 @@ def test_registry_and_budgets():
     from rfmitsuba.experiments.methods import METHODS, get_method, stage1_config
 
     assert set(METHODS) == {"baseline", "continued", "duplicated", "baseline_person", "end_to_end", "ours",
-                            "ours_untracked", "refined"}
+                            "ours_people", "ours_untracked", "refined"}
     assert [get_method(m).builds_on for m in ("baseline", "continued", "ours", "ours_untracked", "refined")] == \
         [None, "baseline", "baseline", "baseline", "ours"]
     mc = _mcfg(30, 20)
