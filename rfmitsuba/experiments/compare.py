@@ -111,9 +111,9 @@ def compare(dataset: str | Path, out: str | Path, *, cfg: CompareConfig | None =
 
     Raises:
         RunError: ``out`` holds another configuration or dataset, or another process is running a
-        comparison into it (:mod:`rfmitsuba.core.folder_lock`); DatasetError: a dataset
-        without person-present states (the methods need them); JobsFailed (a RunError): on a
-        cluster, jobs failed (each named; the others are done and kept).
+            comparison into it (:mod:`rfmitsuba.core.folder_lock`).
+        DatasetError: a dataset without person-present states (the methods need them).
+        JobsFailed: (a RunError) on a cluster, jobs failed (each named; the others are done and kept).
     """
 
     cfg = cfg or CompareConfig()
