@@ -45,13 +45,15 @@ OPEN_MARGIN_M = 1.0
 
 @dataclass
 class WalkSearchConfig:
-    """How Ours (no tracker) estimates the walk (module docstring).
+    """How Ours (no tracker) estimates the walk (module docstring; the measurements behind the
+    defaults are in the lab notes).
 
-    rounds: Stage-2 trainings, each on the walk searched with the field before it (>= 1);
-    grid_m: grid spacing of the coarse search [m]; views: PAS per frame compared (those the person
-    changes most); max_speed_mps: fastest walk between two frames [m/s] (0: no bound);
-    search_strength: blockage strength of the untrained search field, in [0, 1);
-    descent_steps: descent steps per frame after the walk (0: the grid point is kept).
+    - rounds: Stage-2 trainings, each on the walk searched with the field before it, >= 1 (4).
+    - grid_m: grid spacing of the coarse search [m] (0.25).
+    - views: PAS per frame compared, those the person changes most (12).
+    - max_speed_mps: fastest walk between two frames [m/s]; 0: no bound (1.5).
+    - search_strength: blockage strength of the untrained first search field, in [0, 1) (0.2).
+    - descent_steps: descent steps per frame after the walk; 0 keeps the grid point (12).
     """
 
     rounds: int = 4
