@@ -158,7 +158,8 @@ def summary_by_method(out: str | Path, methods: tuple | list) -> dict:
     """A finished comparison's headline figures, per method over its seeds (results pages).
 
     Returns:
-        {"dataset": path, "name": its folder name, "seeds": of the first method, "affected_fraction",
+        {"dataset": path, "name": its room and task with its folder name, "seeds": of the first method,
+        "affected_fraction",
         "floors": {"nearest_neighbour", "idw3", "mean_image" (dynamic means), "affected_nearest_neighbour",
         "affected_empty_room"}, and per method {"dynamic": [mean SSIM per seed], "affected": [mean
         where the person matters per seed], "train_s": [seconds per seed], "train": [train summaries]}}.
@@ -176,7 +177,13 @@ def summary_by_method(out: str | Path, methods: tuple | list) -> dict:
     if missing:
         raise RunError(f"{out}: no finished jobs of {', '.join(missing)}")
     ev = rows[methods[0]][0]["eval"]
-    summary = {"dataset": str(dataset), "name": dataset.name, "seeds": [r["seed"] for r in rows[methods[0]]],
+    meta = {}
+    if (dataset / "meta.json").is_file():
+        meta = json.loads((dataset / "meta.json").read_text())
+    scene = (meta.get("scene") or {}).get("name") if isinstance(meta.get("scene"), dict) else None
+    task = {"rx": "moving RX", "tx": "moving TX"}.get(meta.get("task"))
+    name = f"{scene.replace('_', ' ')}, {task} ({dataset.name})" if scene and task else dataset.name
+    summary = {"dataset": str(dataset), "name": name, "seeds": [r["seed"] for r in rows[methods[0]]],
                "affected_fraction": ev["affected"]["fraction"],
                "floors": {**{k: ev["dynamic"][k]["mean"] for k in ("nearest_neighbour", "idw3", "mean_image")},
                           "affected_nearest_neighbour": ev["affected"]["nearest_neighbour"]["mean"],
