@@ -63,7 +63,7 @@ def figure(entries: list[dict], path: Path) -> None:
         ax.plot(truth[:, 0], truth[:, 1], "o-", ms=3, lw=0.6, label="walk (dataset's positions)")
         ax.plot(est[:, 0], est[:, 1], "x", ms=5, label="estimated, last round")
         err = walk["rounds"][-1]["error"]
-        ax.set_title(f"{e['name']}, seed {e['seeds'][0]}: walk error median {err['median_cm']:.0f} cm, "
+        ax.set_title(f"{e['name']}\nseed {e['seeds'][0]}: walk error median {err['median_cm']:.0f} cm, "
                      f"p90 {err['p90_cm']:.0f} cm", fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
