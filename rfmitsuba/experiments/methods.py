@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
 from dataclasses import dataclass
 from dataclasses import field as dc_field
@@ -381,16 +382,17 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
             "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")],
-            **{k: s2[k] for k in ("walk", "walk_rounds", "walk_search_s") if k in s2}}
+            **{k: s2[k] for k in ("walk", "walk_round", "walk_rounds", "walk_search_s") if k in s2}}
 
 
 def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg2: TrainConfig, person_cls,
                      pcfg, seed: int, quiet: bool) -> dict:
-    """Stage 2 of Ours (no tracker): rounds of walk search and Stage-2 training
-    (:mod:`rfmitsuba.experiments.walk_search`); the last round's field is ``out/stage2``, the walks
-    ``out/walk.json``. Returns the last Stage-2 summary, its training time the rounds' and the
+    """Stage 2 of Ours (no tracker): rounds of walk search and Stage-2 training into
+    ``out/stage2_round<r>`` (:mod:`rfmitsuba.experiments.walk_search`); the round of the best
+    validation SSIM is copied to ``out/stage2`` (the model), the walks are ``out/walk.json``. Returns the last Stage-2 summary, its training time the rounds' and the
     searches' sum (``walk_search_s`` the searches'), with
-    ``walk``: the last walk's error against the dataset's person positions [cm] (a report only)."""
+    ``walk``: the chosen round's (``walk_round``) walk error against the dataset's person positions [cm]
+    (a report only)."""
     from ..eval.locate import TwoStage
     from . import walk_search as W
 
@@ -407,7 +409,7 @@ def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg
     person = person_cls.for_background(bg, cfg=dataclasses.replace(pcfg, init_strength=wcfg.search_strength,
                                                                     init_gain=0.0), seed=seed, name="person")
     person.freeze()
-    rounds, total_s, search_s, s2 = [], 0.0, 0.0, None
+    rounds, summaries, total_s, search_s = [], [], 0.0, 0.0
     for r in range(wcfg.rounds):
         model = TwoStage(background=bg, person=person, data=walk_data, feet_z=region.z, walk=centre, job=out)
         t0 = time.perf_counter()
@@ -416,18 +418,25 @@ def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg
         walk_data = W.with_walk(data, frames, found["positions"])
         rounds.append({**found, "error": W.walk_error(data, frames, found["positions"])})
         W.write_walk(out / "walk.json", rounds, frames)
-        folder = out / ("stage2" if r == wcfg.rounds - 1 else f"stage2_round{r}")
+        folder = out / f"stage2_round{r}"
         d, walk = walk_data, found["positions"]
-        s2 = Trainer(cfg2, d, folder, frozen=[bg], quiet=quiet, name="person",
-                     extra=lambda idx, d=d: d.features(idx, octaves=oct_, raw=True),
-                     extra_inputs=num_person_features(oct_) + 3,
-                     field_factory=lambda tr, rng, walk=walk: person_cls.for_background(
-                         bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")).run()
-        total_s += s2["train_time_s"]
+        summaries.append(Trainer(cfg2, d, folder, frozen=[bg], quiet=quiet, name="person",
+                                 extra=lambda idx, d=d: d.features(idx, octaves=oct_, raw=True),
+                                 extra_inputs=num_person_features(oct_) + 3,
+                                 field_factory=lambda tr, rng, walk=walk: person_cls.for_background(
+                                     bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")).run())
+        total_s += summaries[-1]["train_time_s"]
         person = load_field(folder / "final" / "field.npz")
         person.freeze()
-    return {**s2, "train_time_s": total_s + search_s, "walk_search_s": search_s, "walk": rounds[-1]["error"],
-            "walk_rounds": [x["error"] for x in rounds]}
+    # the round whose field draws its own walk's validation PAS best is the model (no position
+    # is read: the validation PAS are training frames at their estimated positions)
+    best = int(np.argmax([s["val_ssim"] for s in summaries]))
+    if not (out / "stage2" / "final" / "field.npz").is_file():
+        if (out / "stage2").exists():
+            shutil.rmtree(out / "stage2")                     # a copy cut short
+        shutil.copytree(out / f"stage2_round{best}", out / "stage2")
+    return {**summaries[best], "train_time_s": total_s + search_s, "walk_search_s": search_s,
+            "walk": rounds[best]["error"], "walk_round": best, "walk_rounds": [x["error"] for x in rounds]}
 
 
 def load_model(name: str, job_dir: str | Path, *, octaves: int = 3) -> FieldSet:

@@ -17,7 +17,9 @@ in rounds:
 3. **Descent.** Each frame's point on that path is refined by descent on the position
    (:func:`rfmitsuba.eval.locate.refine`), kept where it is when the descent finds no lower loss.
 4. **Training.** The Stage-2 person field trains on the estimated walk exactly as Ours trains on
-   the tracked one; the next round searches with that trained field.
+   the tracked one; the next round searches with that trained field. The model is the round
+   whose field draws its validation PAS (training frames at their estimated positions) best:
+   where the person changes little, later rounds can drift away from the walk.
 
 The first round searches with an untrained person field that blocks the background's paths near
 the body (blockage strength ``search_strength``, no scatterers): what a body does before anything

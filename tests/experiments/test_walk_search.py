@@ -113,9 +113,15 @@ def test_ours_untracked_trains_on_its_own_walk_and_reports_its_error(quick_datas
     compare(quick_dataset.path, tmp_path / "cmp", cfg=cfg, progress=False)
     job = tmp_path / "cmp" / "seed0" / "ours_untracked"
     walk = json.loads((job / "walk.json").read_text())
-    assert len(walk["rounds"]) == 2 and (job / "stage2_round0" / "final" / "field.npz").is_file()
+    assert len(walk["rounds"]) == 2 and all((job / f"stage2_round{r}" / "final" / "field.npz").is_file() for r in (0, 1))
     m = json.loads((job / "metrics.json").read_text())
     assert set(m["train"]["walk"]) == {"median_cm", "p90_cm", "mean_cm", "frames"}
+    # the model is the round of the best validation SSIM, copied to stage2
+    r = m["train"]["walk_round"]
+    vals = [json.loads((job / f"stage2_round{k}" / "final" / "summary.json").read_text())["val_ssim"] for k in (0, 1)]
+    assert r == int(np.argmax(vals)) and m["train"]["walk"] == walk["rounds"][r]["error"]
+    assert (job / "stage2" / "final" / "field.npz").read_bytes() == \
+        (job / f"stage2_round{r}" / "final" / "field.npz").read_bytes()
     assert len(m["train"]["walk_rounds"]) == 2 and m["train"]["walk_search_s"] > 0
     assert np.isfinite(m["eval"]["dynamic"]["model"]["mean"])
     report = (tmp_path / "cmp" / "report.md").read_text()
