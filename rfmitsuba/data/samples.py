@@ -37,6 +37,18 @@ STATE_SETS = ("empty", "person", "all")
 LAYOUTS = ("random", "grid")
 
 
+def feature_box(lo: np.ndarray, hi: np.ndarray, person_pos: np.ndarray) -> np.ndarray:
+    """The box that normalises person positions: ``lo``..``hi`` (float [3] each, the scene's
+    bounds) widened to hold every finite feet position of ``person_pos`` (float [K, 3]) and a body
+    of 1.8 m above it, grown by 0.3 m on every side [m]: float64 [2, 3]."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    p = np.asarray(person_pos, np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(1)]
+    if len(p):
+        lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0) + [0.0, 0.0, 1.8])
+    return np.stack([lo - 0.3, hi + 0.3])
+
+
 def person_features(person_pos: np.ndarray, box: np.ndarray, *, octaves: int = 3) -> np.ndarray:
     """Network input describing a person position (or its absence).
 
@@ -184,10 +196,7 @@ class SampleData(TrainData):
         if meshes:
             allv = np.concatenate([v for v, _ in meshes])
             lo, hi = np.minimum(lo, allv.min(0)), np.maximum(hi, allv.max(0))
-        hpf = hp[np.isfinite(hp).all(1)]
-        if len(hpf):
-            lo, hi = np.minimum(lo, hpf.min(0)), np.maximum(hi, hpf.max(0) + [0, 0, 1.8])
-        box = np.stack([lo - 0.3, hi + 0.3])
+        box = feature_box(lo, hi, hp)
         data = cls(path=base.path, task=base.task, antenna_pos=ap, view_pos=vp, rx_to_world=base.rx_to_world,
                    train=np.sort(train), test=np.sort(test), scene_xml=base.scene_xml, transmitter=base.transmitter,
                    bounds=base.bounds, state=0, frequency_hz=base.frequency_hz, states=s_arr, antennas=a_arr,

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..core.atomic import write_json_with_numpy
 from ..core.errors import ConfigError, DatasetError
-from ..data.samples import SampleData
+from ..data.samples import SampleData, feature_box
 from ..eval.locate import Query, SearchRegion, TwoStage, refine
 
 #: the box of the moving device's positions grown by this much [m] where no room is known
@@ -230,10 +230,7 @@ def with_walk(data: SampleData, frames: np.ndarray, positions: np.ndarray) -> Sa
         pp[data.states == h + 1] = p
     out.person_pos = pp
     out.people_pos = pp[:, None, :]
-    lo, hi = (np.asarray(v, np.float64) for v in data.bounds)
-    p = np.asarray(positions, np.float64)
-    lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0) + [0.0, 0.0, 1.8])
-    out.box = np.stack([lo - 0.3, hi + 0.3])
+    out.box = feature_box(*data.bounds, positions)
     return out
 
 
