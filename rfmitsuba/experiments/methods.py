@@ -357,15 +357,8 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
                      layout=layout, walk_frames=walk_frames, seed=seed)
     cfg2 = stage2_config(mcfg, seed=seed)
     kind, pcfg = person_field(mcfg, bg)
-    oct_ = pcfg.person_octaves
     person_cls = field_class(kind)
-    walk = np.unique(data.person_pos[data.train], axis=0)
-
-    def factory(tr, rng):
-        return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")
-
     write_json_with_numpy(out / "stage1.json", {"stage1_dir": str(stage1_dir.resolve())})
-    people = 1
     if name == "ours_people":
         people = int(np.asarray(data.people_pos).shape[1]) if data.people_pos is not None else 1
         if kind != "coherent_gaussians_person":
@@ -376,13 +369,29 @@ def train_method(name: str, dataset: str | Path, out: str | Path, *, mcfg: Metho
         s2 = _train_untracked(data, bg, out, mcfg=mcfg, cfg2=cfg2, person_cls=person_cls, pcfg=pcfg, seed=seed,
                               quiet=quiet)
     else:
-        s2 = Trainer(cfg2, data, out / "stage2", frozen=[bg], quiet=quiet, name="person",
-                     extra=lambda idx: data.features(idx, octaves=oct_, raw=True, people=people),
-                     extra_inputs=num_person_features(oct_) + 3 * people, field_factory=factory).run()
+        s2 = _stage2_trainer(cfg2, data, out / "stage2", bg=bg, person_cls=person_cls, pcfg=pcfg, seed=seed,
+                             quiet=quiet).run()
     return {"train_time_s": s1["train_time_s"] + s2["train_time_s"], "steps": s1["steps"] + s2["steps"],
             "stage1_train_time_s": s1["train_time_s"], "val_ssim": s2["val_ssim"],
             "stage1_val_ssim": s1["val_ssim"], "runs": [str(stage1_dir), str(out / "stage2")],
             **{k: s2[k] for k in ("walk", "walk_round", "walk_rounds", "walk_search_s") if k in s2}}
+
+
+def _stage2_trainer(cfg2: TrainConfig, data: SampleData, folder: Path, *, bg, person_cls, pcfg, seed: int,
+                    quiet: bool) -> Trainer:
+    """The Stage-2 trainer of a two-stage method: a fresh ``person_cls`` field of ``pcfg`` (one
+    or ``pcfg.people`` people) on the frozen background ``bg``, trained on ``data``'s person
+    features and positions into ``folder``; its walk is ``data``'s training person positions."""
+    people = getattr(pcfg, "people", 1)
+    walk = np.unique(data.person_pos[data.train], axis=0)
+    oct_ = pcfg.person_octaves
+
+    def factory(tr, rng):
+        return person_cls.for_background(bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")
+
+    return Trainer(cfg2, data, folder, frozen=[bg], quiet=quiet, name="person",
+                   extra=lambda idx: data.features(idx, octaves=oct_, raw=True, people=people),
+                   extra_inputs=num_person_features(oct_) + 3 * people, field_factory=factory)
 
 
 def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg2: TrainConfig, person_cls,
@@ -403,7 +412,6 @@ def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg
     frames = W.training_frames(data)
     region = W.search_region(data)
     interval = W.frame_interval_s(data)
-    oct_ = pcfg.person_octaves
     centre = region.feet(0.5 * (region.lo + region.hi)[None])
     walk_data = W.with_walk(data, frames, np.repeat(centre, len(frames), axis=0))
     person = person_cls.for_background(bg, cfg=dataclasses.replace(pcfg, init_strength=wcfg.search_strength,
@@ -419,12 +427,8 @@ def _train_untracked(data: SampleData, bg, out: Path, *, mcfg: MethodConfig, cfg
         rounds.append({**found, "error": W.walk_error(data, frames, found["positions"])})
         W.write_walk(out / "walk.json", rounds, frames)
         folder = out / f"stage2_round{r}"
-        d, walk = walk_data, found["positions"]
-        summaries.append(Trainer(cfg2, d, folder, frozen=[bg], quiet=quiet, name="person",
-                                 extra=lambda idx, d=d: d.features(idx, octaves=oct_, raw=True),
-                                 extra_inputs=num_person_features(oct_) + 3,
-                                 field_factory=lambda tr, rng, walk=walk: person_cls.for_background(
-                                     bg, cfg=pcfg, walk=walk, rng=rng, seed=seed, name="person")).run())
+        summaries.append(_stage2_trainer(cfg2, walk_data, folder, bg=bg, person_cls=person_cls, pcfg=pcfg, seed=seed,
+                                         quiet=quiet).run())
         total_s += summaries[-1]["train_time_s"]
         person = load_field(folder / "final" / "field.npz")
         person.freeze()
