@@ -96,6 +96,19 @@ def _runs_line(out: Path) -> str:
             + f" = {sum(walls):.0f} s ({sum(walls) / 3600:.2f} h) of wall time")
 
 
+def _dataset_sizes(cfg) -> str:
+    """The run's datasets as the header states them: ``P antenna positions x (1 + W) states``
+    per kind (the empty room and W walk positions; an empty-room dataset of the Rx-count table:
+    its own positions x 1 state), several joined by "; "."""
+    kinds = set()
+    for job in all_jobs(cfg) or []:
+        d = job.dataset
+        kinds.add((d.static_positions, 0) if d.static_positions else
+                  (cfg.data.positions, d.walk_positions or cfg.data.person_positions))
+    kinds = sorted(kinds or {(cfg.data.positions, cfg.data.person_positions)}, key=lambda k: (k[1] == 0, k))
+    return "; ".join(f"{p} antenna positions x " + (f"(1 + {w}) states" if w else "1 state") for p, w in kinds)
+
+
 def _ray_samples(cfg) -> str:
     """The ray samples per source of the configuration's Sionna datasets, as the header states them."""
     if cfg.source != "sionna":
@@ -123,8 +136,8 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
         load = "n/a"
     t = cfg.train
     L += ["# rfmitsuba reproduction of *One Walk is All You Need*", "",
-          f"Size **{cfg.size}** (data source {cfg.source}: {cfg.data.positions} antenna positions x "
-          f"(1 + {cfg.data.person_positions}) states per dataset{_ray_samples(cfg)}), seeds {seeds}; every figure "
+          f"Size **{cfg.size}** (data source {cfg.source}: {_dataset_sizes(cfg)} per dataset"
+          f"{_ray_samples(cfg)}), seeds {seeds}; every figure "
           "of ours is mean ± sample std over the seeds. Written "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
           + (f"this run took {wall_s:.0f} s wall time (jobs finished earlier and skipped are not included)"

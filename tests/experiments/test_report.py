@@ -1,5 +1,5 @@
 """rfmitsuba.experiments.report: the header says at which resolution each family trains and how many
-ray samples the datasets were traced with."""
+ray samples the datasets were traced with, and their sizes."""
 from __future__ import annotations
 
 from rfmitsuba.experiments.report import _model_line
@@ -27,3 +27,14 @@ def test_header_states_the_ray_samples_per_source():
     full.data.samples_per_src, full.data.samples_scale = 0, 1.0
     assert _ray_samples(full) == ", each room's default ray samples per source"
     assert _ray_samples(size_config("tiny")) == ""          # synthetic data: no rays
+
+
+def test_header_states_the_datasets_each_table_uses():
+    from rfmitsuba.experiments.report import _dataset_sizes
+
+    full = size_config("full")
+    # the main tables' walk datasets and the Rx-count table's empty-room datasets
+    assert _dataset_sizes(full) == "900 antenna positions x (1 + 35) states; 7500 antenna positions x 1 state"
+    # the data-scarce table alone: one long walk per room and task
+    full.tables, full.walk_lengths = ["data_scarce"], [0, 35, 280]
+    assert _dataset_sizes(full) == "900 antenna positions x (1 + 280) states"
