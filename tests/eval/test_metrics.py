@@ -120,10 +120,38 @@ def test_floors_from_a_row_reader_equal_floors_from_the_array(monkeypatch):
     np.testing.assert_array_equal(metrics.mean_training_image(train), minmax(train.astype(np.float64).mean(0)[None]))
     sizes = [len(r) for r in reads]
     assert max(sizes) <= max(8, 3 * k)                     # never the whole array at once
-    assert sum(sizes[-5:]) == m and sizes[-5:] == [8, 8, 8, 8, 5]   # the mean image's chunks
-    assert len(sizes) == 6 and sizes[0] <= 3 * k              # the neighbour floors' rows, read once
+    assert sum(sizes[:5]) == m and sizes[:5] == [8, 8, 8, 8, 5]    # the mean image's chunks
+    assert len(sizes) == 6 and sizes[5] <= 3 * k              # the neighbour floors' rows, read once
     with pytest.raises(IndexError, match="int array"):
         PasRows(rows=rows, read=read)[3]
+
+
+def test_floors_over_test_chunks_equal_floors_in_one_pass(monkeypatch):
+    """The floors run a chunk of test images at a time (the neighbours' images of a walk's
+    10 000 test PAS are 5.2 GB at once): the same values bit for bit as one chunk, and a chunk
+    reads only its own neighbours' rows."""
+    from rfmitsuba.data.views import PasRows
+    from rfmitsuba.eval import metrics
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
+
+    rng = np.random.default_rng(5)
+    m, k = 40, 21
+    train = minmax(rng.random((m, 9, 12)).astype(np.float32))
+    test = minmax(rng.random((k, 9, 12)).astype(np.float32))
+    pos, qpos = rng.random((m, 3)), rng.random((k, 3))
+    one = metrics.floors(train, pos, test, qpos)
+    reads = []
+
+    def read(samples):
+        reads.append(np.asarray(samples).copy())
+        return train[samples]
+
+    monkeypatch.setattr(metrics, "PAS_CHUNK", 8)
+    chunked = metrics.floors(PasRows(rows=np.arange(m), read=read), pos, test, qpos)
+    for key in one:
+        np.testing.assert_array_equal(chunked[key], one[key])
+    neighbour_reads = [len(r) for r in reads[5:]]             # after the mean image's 5 chunks
+    assert len(neighbour_reads) == 3 and all(n <= 3 * 8 for n in neighbour_reads)   # 8 + 8 + 5 test images
 
 
 def test_best_floor_names_the_higher_neighbour_floor():
