@@ -685,6 +685,36 @@ class DataScarceTable(Table):
         return worth_over_seeds(self.counts(cfg), self.curves(cfg, results, ds, "baseline", 0),
                                 self.curves(cfg, results, ds, self.static_method(cfg), walk), at=at)
 
+    def _over_continued(self, cfg: ExperimentConfig, results: dict, ds: DatasetSpec, counts: list[int],
+                        walks: list[int]) -> list[str]:
+        """The grid of the walk's static gain over Continued (the same positions, trained longer
+        without the walk), paired over seeds, per static positions and walk length: what the walk
+        adds beyond more steps. Empty where Continued has not run."""
+        from .results import paired_verdict
+
+        sm = self.static_method(cfg)
+        rows, seen = [], False
+        for n in counts:
+            cont = self._cell(results, ds, "continued", n, 0)
+            cells = []
+            for w in walks:
+                v = paired_verdict(self._cell(results, ds, sm, n, w), cont, STAT) if cont else None
+                if v is None:
+                    cells.append("-")
+                    continue
+                seen = True
+                sd = "" if math.isnan(v["spread"]) else f" ± {v['spread']:.3f}"
+                text = f"{v['effect']:+.3f}{sd}"
+                cells.append(f"**{text}**" if v["holds"] is True else text)
+            rows.append(f"| {n} | " + " | ".join(cells) + " |")
+        if not seen:
+            return []
+        return [f"Static gain of {LABEL[sm]} over Continued (the Baseline trained {cfg.train.stage2_iterations} "
+                "steps longer on the same positions, without the walk), mean ± std of the per-seed differences; "
+                "**bold** where it holds by the paired rule. This is what the walk adds beyond more steps:", "",
+                "| static positions | " + " | ".join(f"walk {w}" for w in walks) + " |",
+                "|---|" + "---|" * len(walks), *rows, ""]
+
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         from .break_even import format_worth
         from .results import paired_verdict
@@ -728,6 +758,7 @@ class DataScarceTable(Table):
                     row.append(f"**{fmt(rs, STAT)}**" if v is not None and v["holds"] is True else fmt(rs, STAT))
                 L.append(f"| {n} | " + " | ".join(row) + " |")
             L.append("")
+            L += self._over_continued(cfg, results, ds, counts, walks)
             worth = {n: self.worth(cfg, results, ds, at=n, walk=one) for n in counts[:-1]}
             L += [f"Static positions one {one}-position walk is worth, read off the curves (Baseline's static curve "
                   f"reaches {LABEL[sm]}'s score at n + worth positions, linear in log positions; per seed, then "

@@ -235,11 +235,16 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
         worth = 4 * 2 ** 0.3 - 4
         assert f"| 4 | {worth:.0f} ± 0 (per seed" in text
         assert "| +0.030 ± 0.000 | **holds** | +0.030 ± 0.000 | **holds** |" in verdict_row
+        # beyond more steps (Continued): the gain at the scarcest positions, none elsewhere
+        grid = text[text.index("over Continued (the Baseline trained"):]
+        assert "| 4 | **+0.030 ± 0.000** | **+0.030 ± 0.000** |" in grid
+        assert "| 8 | +0.000 ± 0.000 | +0.000 ± 0.000 |" in grid
         assert "never improves" not in text
     else:
         assert "| 4 | 0 ± 0 (per seed 0, 0, 0) |" in text
         assert verdict_row.endswith("| +0.000 ± 0.000 | **fails** | +0.000 ± 0.000 | **fails** |")
         assert "**The walk never improves the static scene.**" in text
+        assert "| 4 | +0.000 ± 0.000 | +0.000 ± 0.000 |" in text[text.index("over Continued (the Baseline trained"):]
     assert "- Baseline, walk 0, static: 4 (0.601 < 0.650)" in text
     assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
     assert table.figures(tmp_path, cfg, results) and (tmp_path / "data_scarce.png").is_file()
