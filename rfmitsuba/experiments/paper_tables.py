@@ -685,20 +685,19 @@ class DataScarceTable(Table):
         return worth_over_seeds(self.counts(cfg), self.curves(cfg, results, ds, "baseline", 0),
                                 self.curves(cfg, results, ds, self.static_method(cfg), walk), at=at)
 
-    def _over_continued(self, cfg: ExperimentConfig, results: dict, ds: DatasetSpec, counts: list[int],
-                        walks: list[int]) -> list[str]:
+    def _over_continued(self, cfg: ExperimentConfig, results: dict, ds: DatasetSpec) -> list[str]:
         """The grid of the walk's static gain over Continued (the same positions, trained longer
         without the walk), paired over seeds, per static positions and walk length: what the walk
         adds beyond more steps. Empty where Continued has not run."""
         from .results import paired_verdict
 
-        sm = self.static_method(cfg)
+        sm, walks = self.static_method(cfg), self.walks(cfg)
         rows, seen = [], False
-        for n in counts:
+        for n in self.counts(cfg):
             cont = self._cell(results, ds, "continued", n, 0)
             cells = []
             for w in walks:
-                v = paired_verdict(self._cell(results, ds, sm, n, w), cont, STAT) if cont else None
+                v = paired_verdict(self._cell(results, ds, sm, n, w), cont, STAT)
                 if v is None:
                     cells.append("-")
                     continue
@@ -758,7 +757,7 @@ class DataScarceTable(Table):
                     row.append(f"**{fmt(rs, STAT)}**" if v is not None and v["holds"] is True else fmt(rs, STAT))
                 L.append(f"| {n} | " + " | ".join(row) + " |")
             L.append("")
-            L += self._over_continued(cfg, results, ds, counts, walks)
+            L += self._over_continued(cfg, results, ds)
             worth = {n: self.worth(cfg, results, ds, at=n, walk=one) for n in counts[:-1]}
             L += [f"Static positions one {one}-position walk is worth, read off the curves (Baseline's static curve "
                   f"reaches {LABEL[sm]}'s score at n + worth positions, linear in log positions; per seed, then "

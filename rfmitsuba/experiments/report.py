@@ -101,7 +101,7 @@ def _dataset_sizes(cfg) -> str:
     per kind (the empty room and W walk positions; an empty-room dataset of the Rx-count table:
     its own positions x 1 state), several joined by "; "."""
     kinds = set()
-    for job in all_jobs(cfg) or []:
+    for job in all_jobs(cfg):
         d = job.dataset
         kinds.add((d.static_positions, 0) if d.static_positions else
                   (cfg.data.positions, d.walk_positions or cfg.data.person_positions))
