@@ -623,10 +623,13 @@ def test_a_closed_form_field_is_conditioned_once_validated_and_evaluated(tmp_pat
     """model = "gaussian_process" on a folder as published (no rfmitsuba.json): no gradient steps,
     validation on the held-out training positions, a run that load_run and evaluate_run read, and
     the same command again changes nothing."""
+    from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.data.views import TrainData
     from rfmitsuba.eval.run import evaluate_run
+    from rfmitsuba.models.gaussian_process import GaussianProcessField
+    from rfmitsuba.rf.bartlett_ref import normalize as minmax
     from rfmitsuba.train.trainer import load_run, train
 
     folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=40, task="tx")), tmp_path / "n")
@@ -642,6 +645,18 @@ def test_a_closed_form_field_is_conditioned_once_validated_and_evaluated(tmp_pat
     assert renderer.fields[0].kind == "gaussian_process" and renderer.num_primitives == s["num_gaussians"]
     ev = evaluate_run(out)
     assert ev["model"]["n"] == len(data.test) and 0 < ev["model"]["mean"] <= 1
+    # validated conditioned on the fitting positions alone, then conditioned on every training
+    # position: the interpolating field draws the validation spectra it did not see at validation
+    split = json.loads((out / "split.json").read_text())
+    assert split["val"] and s["conditioned_on"] == sorted(split["train"]) == sorted(split["fit"] + split["val"])
+    assert renderer.num_primitives == len(split["train"])
+    fit, val = (np.asarray(split[k], np.int64) for k in ("fit", "val"))
+    fit_only = GaussianProcessField()
+    fit_only.condition(data.antenna_pos[fit], data.pas(fit))
+    unseen = ssim_images(minmax(fit_only.predict(data.antenna_pos[val])), data.pas(val))
+    drawn = ssim_images(minmax(renderer.fields[0].predict(data.antenna_pos[val])), data.pas(val))
+    assert s["val_ssim"] == pytest.approx(unseen.mean(), abs=1e-4)
+    assert drawn.min() > 0.9999 and drawn.mean() > unseen.mean()
     stamp = (out / "final" / "field.npz").stat().st_mtime_ns
     assert train(folder, out, cfg=tiny_cfg(model='"gaussian_process"'), quiet=True)["val_ssim"] == s["val_ssim"]
     assert (out / "final" / "field.npz").stat().st_mtime_ns == stamp
