@@ -34,7 +34,7 @@ from ..data.views import TrainData
 AUTO_KINDS = ("coherent_gaussians", "splat")
 #: candidates added for measured folders (``TrainData.measured``: a NeRF2 folder as published). The
 #: Gaussian-process field interpolates the measured spectra themselves: on the measured NeRF2 RFID
-#: folder it scores 0.939 / 0.977 (mean / median test SSIM, published split) against IDW-3's
+#: folder it scores 0.941 / 0.977 (mean / median test SSIM, published split) against IDW-3's
 #: 0.933 / 0.973 and the coherent Gaussian field's 0.851 / 0.888 (docs/results/measured/fields.md).
 #: Not tried on simulated folders, where the coherent Gaussian field draws what an interpolator cannot.
 MEASURED_KINDS = ("gaussian_process",)

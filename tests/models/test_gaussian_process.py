@@ -52,6 +52,41 @@ def test_the_likelihood_prefers_the_true_length_scale():
     assert nll[0.1] < nll[0.03] and nll[0.1] < nll[0.3]
 
 
+def _images(n=50, h=16, w=32, *, ls=0.2, seed=0):
+    """n positions and min-max normalised h x w images drawn from the process (isotropic ls [m])."""
+    x, y = _draw(n=n, m=h * w, ls=(ls, ls, ls), nugget=1e-4, seed=seed)
+    return x, ((y - y.min(1, keepdims=True)) / np.ptp(y, 1, keepdims=True)).reshape(n, h, w)
+
+
+def test_the_scale_factor_moves_wrong_length_scales_towards_the_true_ones():
+    """Images drawn with length scale 0.2 m: given scales a quarter of that, the leave-one-out SSIM
+    picks the largest factor and gains over the scales given; given twice the truth, a factor of at
+    most 1; the scores recorded are the leave-one-out SSIMs, and the chosen one is their best."""
+    from rfmitsuba.models.gaussian_process import SCALE_FACTORS, choose_scale_factor
+
+    x, img = _images()
+    short = choose_scale_factor(x, img, {"length_scales_m": [0.05] * 3, "nugget": 1e-4})
+    scores = short["loo_ssim_by_factor"]
+    assert short["scale_factor"] == max(SCALE_FACTORS) and set(scores) == {str(f) for f in SCALE_FACTORS}
+    assert scores[str(short["scale_factor"])] == max(scores.values()) > scores["1.0"] + 0.05
+    long = choose_scale_factor(x, img, {"length_scales_m": [0.4] * 3, "nugget": 1e-4})
+    assert long["scale_factor"] <= 1.0
+
+
+def test_conditioning_records_the_likelihood_and_the_factor():
+    from rfmitsuba.models.gaussian_process import GaussianProcessField
+
+    x, img = _images(n=40)
+    f = GaussianProcessField(height=16, width=32)
+    h = f.condition(x, img)
+    assert np.allclose(h["length_scales_m"], h["scale_factor"] * np.asarray(h["likelihood_length_scales_m"]))
+    assert h["scale_factor"] in (1.0, 0.5, 0.7, 1.4, 2.0, 3.0) and "leave-one-out" in h["why"]
+    tiny = GaussianProcessField(height=6, width=12)
+    t = tiny.condition(x, img[:, :6, :12])
+    assert t["scale_factor"] == 1.0 and "window" in t["why"]
+    assert t["length_scales_m"] == t["likelihood_length_scales_m"]
+
+
 def _field(n=40, h=6, w=12, seed=0):
     from rfmitsuba.models.gaussian_process import GaussianProcessField
 
