@@ -52,8 +52,9 @@ def loo_ssim(run: Path, data, renderer) -> float | None:
     f = renderer.fields[0]
     if f.kind != "gaussian_process":
         return None
-    fit = np.asarray(json.loads((run / "split.json").read_text())["fit"], np.int64)
-    return float(np.mean(ssim_images(normalize(f.loo_predictions()), data.pas(fit))))
+    summary = json.loads((run / "final" / "summary.json").read_text())
+    on = summary.get("conditioned_on") or json.loads((run / "split.json").read_text())["fit"]
+    return float(np.mean(ssim_images(normalize(f.loo_predictions()), data.pas(np.asarray(on, np.int64)))))
 
 
 def quartiles(run: Path, data) -> dict:
