@@ -36,6 +36,11 @@ LABEL = {"default": "field (default)", "likelihood": "field, likelihood's scales
          "idw3": "IDW-3", "mean_image": "mean image"}
 
 
+def margin(row: dict, variant: str) -> float:
+    """Mean test SSIM of ``variant`` minus the best floor's in one protocol's row."""
+    return row[variant]["mean"] - max(row[k]["mean"] for k in FLOORS)
+
+
 def protocols(positions: np.ndarray, published: tuple, seeds: list[int]):
     """(name, train indices, test indices) of every protocol for positions float [A, 3] [m]."""
     a = len(positions)
@@ -82,13 +87,13 @@ def summary(rows: dict) -> list[str]:
     margin to the best floor."""
     lines = []
     for v in VARIANTS:
-        margin = [r[v]["mean"] - max(r[k]["mean"] for k in FLOORS) for r in rows.values()]
-        wins = sum(m > 0 for m in margin)
-        worst = min(rows, key=lambda n: rows[n][v]["mean"] - max(rows[n][k]["mean"] for k in FLOORS))
+        margins = [margin(r, v) for r in rows.values()]
+        wins = sum(m > 0 for m in margins)
+        worst = min(rows, key=lambda n: margin(rows[n], v))
         lines.append(f"- {LABEL[v]}: beats the best floor in mean in **{wins} of {len(rows)}** protocols; "
                      f"mean over the protocols {np.mean([r[v]['mean'] for r in rows.values()]):.3f} "
                      f"(median {np.mean([r[v]['median'] for r in rows.values()]):.3f}); worst margin to the best "
-                     f"floor {min(margin):+.3f} ({worst})")
+                     f"floor {min(margins):+.3f} ({worst})")
     floors_mean = "; ".join(f"{LABEL[k]} {np.mean([r[k]['mean'] for r in rows.values()]):.3f}" for k in FLOORS)
     return lines + [f"- the floors' means over the protocols: {floors_mean}"]
 
@@ -102,8 +107,7 @@ def figure(rows: dict, path: Path) -> None:
     y = np.arange(len(names))
     fig, ax = plt.subplots(figsize=(7, 0.32 * len(names) + 1.2))
     for off, v, colour in ((-0.18, "default", "tab:blue"), (0.18, "likelihood", "tab:gray")):
-        margin = [rows[n][v]["mean"] - max(rows[n][k]["mean"] for k in FLOORS) for n in names]
-        ax.barh(y + off, margin, height=0.34, color=colour, label=LABEL[v])
+        ax.barh(y + off, [margin(rows[n], v) for n in names], height=0.34, color=colour, label=LABEL[v])
     ax.axvline(0, color="k", lw=0.8)
     ax.set_yticks(y, names)
     ax.invert_yaxis()

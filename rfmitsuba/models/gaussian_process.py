@@ -73,8 +73,6 @@ NUGGET_BOUNDS = (1e-6, 1.0)
 #: the common factors on the likelihood's length scales that :func:`choose_scale_factor` tries
 #: (half octaves; the first of the best on a tie, 1 first)
 SCALE_FACTORS = (1.0, 0.5, 0.7, 1.4, 2.0, 3.0)
-#: the smallest image side SSIM's window fits (:mod:`rfmitsuba.core.ssim`, 7 x 7)
-SSIM_MIN_SIDE = 7
 
 
 def exponential_kernel(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndarray:
@@ -165,11 +163,11 @@ def choose_scale_factor(positions: np.ndarray, images: np.ndarray, hyper: dict) 
         factor of :data:`SCALE_FACTORS` scores the mean SSIM of the min-max normalised leave-one-out
         predictions against the images; on a grid smaller than SSIM's window the factor is 1.
     """
-    from ..core.ssim import ssim_images
+    from ..core.ssim import WINDOW, ssim_images
 
     x = np.asarray(positions, np.float64)
     y = np.asarray(images, np.float64)
-    if min(y.shape[1:]) < SSIM_MIN_SIDE:
+    if min(y.shape[1:]) < WINDOW:
         return {"scale_factor": 1.0, "loo_ssim_by_factor": {},
                 "why": f"images {y.shape[1]} x {y.shape[2]} are smaller than SSIM's window: the likelihood's scales"}
     flat = y.reshape(len(y), -1)
