@@ -689,7 +689,7 @@ class DataScarceTable(Table):
         """The grid of the walk's static gain over Continued (the same positions, trained longer
         without the walk), paired over seeds, per static positions and walk length: what the walk
         adds beyond more steps. Empty where Continued has not run."""
-        from .results import paired_verdict
+        from .results import format_effect, paired_verdict
 
         sm, walks = self.static_method(cfg), self.walks(cfg)
         rows, seen = [], False
@@ -702,8 +702,7 @@ class DataScarceTable(Table):
                     cells.append("-")
                     continue
                 seen = True
-                sd = "" if math.isnan(v["spread"]) else f" ± {v['spread']:.3f}"
-                text = f"{v['effect']:+.3f}{sd}"
+                text = format_effect(v)
                 cells.append(f"**{text}**" if v["holds"] is True else text)
             rows.append(f"| {n} | " + " | ".join(cells) + " |")
         if not seen:
@@ -716,7 +715,7 @@ class DataScarceTable(Table):
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         from .break_even import format_worth
-        from .results import paired_verdict
+        from .results import format_effect, paired_verdict
 
         counts, walks, one = self.counts(cfg), self.walks(cfg), self.one_walk(cfg)
         lead, sm = counts[0], self.static_method(cfg)
@@ -800,7 +799,7 @@ class DataScarceTable(Table):
             cells_ = []
             for other in (base[lead], self._cell(results, ds, "continued", lead, 0)):
                 v = paired_verdict(rl, other, STAT)
-                cells_ += ["-", "n/a (not run)"] if v is None else [f"{v['effect']:+.3f} ± {v['spread']:.3f}",
+                cells_ += ["-", "n/a (not run)"] if v is None else [format_effect(v),
                                                                     said[v["holds"]]]
             verdicts.append(f"| {room} | {task} | {format_worth(worth[lead]) if lead in worth else '-'} | "
                             + " | ".join(cells_) + " |")

@@ -117,8 +117,15 @@ class Claims:
             return
         d = v["per_seed"]
         self.add(claim, paper_evidence,
-                 f"{names[0]} {v['a']:.3f} vs {names[1]} {v['b']:.3f}: effect {v['effect']:+.3f} ± {v['spread']:.3f} "
+                 f"{names[0]} {v['a']:.3f} vs {names[1]} {v['b']:.3f}: effect {format_effect(v)} "
                  f"over {len(d)} seeds (per seed {', '.join(f'{x:+.3f}' for x in d)})", v["holds"])
+
+
+def format_effect(verdict: dict) -> str:
+    """A :func:`paired_verdict`'s effect as text, "+0.004 ± 0.002" (three decimals, signed); the
+    spread is left out where it is undefined (one seed)."""
+    spread = verdict["spread"]
+    return f"{verdict['effect']:+.3f}" + ("" if math.isnan(spread) else f" ± {spread:.3f}")
 
 
 def paired_verdict(a: list[dict], b: list[dict], path: str) -> dict | None:

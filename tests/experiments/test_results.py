@@ -36,6 +36,13 @@ def test_paired_effect_and_spread_are_over_common_seeds():
     assert "A 0.850 vs B 0.815: effect +0.035 ± 0.021 over 2 seeds (per seed +0.050, +0.020)" in c.rows[0]
 
 
+def test_one_common_seed_has_no_spread_in_the_text():
+    c = Claims()
+    c.paired("A beats B", "-", _rows("ours", {0: 0.9}), _rows("baseline", {0: 0.85}), DYN, names=("A", "B"))
+    assert "effect +0.050 over 1 seeds" in c.rows[0] and "nan" not in c.rows[0]
+    assert c.rows[0].endswith("| **unclear** |")
+
+
 def test_select_tells_where_a_job_was_evaluated():
     main, extra = DatasetSpec("bedroom", "rx"), DatasetSpec("bedroom", "rx", static_positions=7500)
     r = {"a": {"job": Job(extra, "baseline", 0, positions=1800, eval_dataset=main).record()},
