@@ -20,9 +20,11 @@ import numpy as np
 
 from ..core import backend as B
 from ..core.errors import ImageError
+from ..core.ssim import WINDOW
 
-#: Window side, pixels, and the constants of skimage's defaults.
-WIN = 7
+#: Window side [px]: the metric protocol's (:data:`rfmitsuba.core.ssim.WINDOW`), so the loss and the
+#: metric cannot drift apart. The constants are skimage's defaults.
+WIN = WINDOW
 K1, K2 = 0.01, 0.03
 #: Weight of the SSIM term in the training loss (lambda in the paper).
 LAMBDA = 0.2
