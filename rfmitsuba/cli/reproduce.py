@@ -29,7 +29,8 @@ def register(sub) -> None:
                    help="with --plan: also time the estimates by the finished jobs of this reproduction folder")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: write OUT/report.md from the jobs finished so far (the others show as '-'); "
-                        "safe beside a running reproduction")
+                        "of OUT's own selection (OUT/experiment.toml) unless --config, --size, --tables or --set "
+                        "choose another; safe beside a running reproduction")
     cluster.add_cli_options(p)
     p.set_defaults(func=run)
 
@@ -69,7 +70,8 @@ def run(args) -> int:
     if args.report_only:
         from ..experiments.reproduce import report_finished
 
-        path, done, total = report_finished(args.out, cfg)
+        chosen = args.config or args.size or args.quick or args.set or getattr(args, "tables", None)
+        path, done, total = report_finished(args.out, cfg if chosen else None)
         print(f"report of {done} of {total} jobs finished: {path}")
         return 0
     path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet,

@@ -29,6 +29,7 @@ from .results import (
     LABEL,
     STAT,
     STAT_FIT,
+    STAT_IDW,
     STAT_MED,
     STAT_MI,
     STAT_NN,
@@ -777,17 +778,21 @@ class DataScarceTable(Table):
                     L.append(f"| | | *floors: NN / IDW-3 / mean image* | {floors('static')} | {floors('dynamic')} | "
                              f"{fmt(ref, AFF_NN).split(' ±')[0]} | |")
             L.append("")
-            below: dict = {}      # (method, walk, part) -> [(positions, model, floor)]
+            below: dict = {}      # (method, walk, part) -> ["positions (model < floor, ...)"]
+            floors_of = {"static": (STAT, (("IDW-3", STAT_IDW), ("NN", STAT_NN))),
+                         "dynamic": (DYN, (("IDW-3", DYN_IDW), ("NN", DYN_NN)))}
             for n in counts:
                 for w in [0] + walks:
                     for m in (self.static_methods if w == 0 else walk_ms):
                         rs = self._cell(results, ds, m, n, w)
-                        for part, p, fp in (("static", STAT, STAT_NN), ("dynamic", DYN, DYN_NN)):
-                            a, f = mean(rs, p), mean(rs, fp)
-                            if math.isfinite(a) and math.isfinite(f) and a < f:
-                                below.setdefault((m, w, part), []).append(f"{n} ({a:.3f} < {f:.3f})")
-            L += ["Below the nearest-neighbour floor of the same training samples (static positions, model < floor):"
-                  + ("" if below else " none."), ""]
+                        for part, (p, fps) in floors_of.items():
+                            a = mean(rs, p)
+                            under = [f"{name} {f:.3f}" for name, fp in fps for f in [mean(rs, fp)]
+                                     if math.isfinite(a) and math.isfinite(f) and a < f]
+                            if under:
+                                below.setdefault((m, w, part), []).append(f"{n} ({a:.3f} < {', '.join(under)})")
+            L += ["Below a floor of the same training samples, nearest neighbour (NN) or IDW-3 (static positions, "
+                  "model < floors):" + ("" if below else " none."), ""]
             L += [f"- {LABEL[m]}, walk {w}, {part}: " + ", ".join(v) for (m, w, part), v in below.items()]
             L += [""] if below else []
             rl = self._cell(results, ds, sm, lead, one)
@@ -821,7 +826,7 @@ class DataScarceTable(Table):
     def figures(self, out: Path, cfg: ExperimentConfig, results: dict) -> list[str]:
         """``data_scarce.png``: per room and task the static SSIM (mean and seed std) over the static
         positions, one curve per walk length (walk 0: Baseline; else :meth:`static_method`),
-        Continued and the nearest-neighbour floor beside them; nothing when no job has finished."""
+        Continued and the nearest-neighbour and IDW-3 floors beside them; nothing when no job has finished."""
         from ..core import plots
 
         counts, walks, sm = self.counts(cfg), self.walks(cfg), self.static_method(cfg)
@@ -843,10 +848,11 @@ class DataScarceTable(Table):
                     x, y, e = zip(*pts)
                     ax.errorbar(x, y, yerr=e, marker="o", markersize=4, capsize=3, color=colour, linestyle=style,
                                 label=name)
-            nn = [(n, mean(self._cell(results, ds, "baseline", n, 0), STAT_NN)) for n in counts]
-            nn = [(n, v) for n, v in nn if math.isfinite(v)]
-            if nn:
-                ax.plot(*zip(*nn), ":", color="grey", label="nearest neighbour")
+            for path, style, name in ((STAT_NN, ":", "nearest neighbour"), (STAT_IDW, "-.", "IDW-3")):
+                floor = [(n, mean(self._cell(results, ds, "baseline", n, 0), path)) for n in counts]
+                floor = [(n, v) for n, v in floor if math.isfinite(v)]
+                if floor:
+                    ax.plot(*zip(*floor), style, color="grey", label=name)
             ax.set_xscale("log")
             ax.set_xticks(counts, [str(n) for n in counts])
             ax.minorticks_off()

@@ -240,11 +240,12 @@ def reproduce_job(job: Job, out: Path, cfg: ExperimentConfig, data_dir: Path, *,
                    eval_dataset=dataset_path(job.eval_dataset, cfg, data_dir) if job.eval_dataset else None)
 
 
-def report_finished(out: str | Path, cfg: ExperimentConfig) -> tuple[Path, int, int]:
+def report_finished(out: str | Path, cfg: ExperimentConfig | None = None) -> tuple[Path, int, int]:
     """Write ``out/report.md`` from the jobs finished so far, without training or generating
     anything: tables show a job not yet done as "-". Safe beside a running ``reproduce`` into
     ``out`` (it reads only finished jobs' ``metrics.json``; that run rewrites the report at its
-    end).
+    end). ``cfg`` None: the folder's own selection (``out/experiment.toml``, as its latest run
+    saved it), so a report is never rewritten from a selection that run did not make.
 
     Returns:
         (report path, jobs finished, jobs in the configuration).
@@ -255,6 +256,8 @@ def report_finished(out: str | Path, cfg: ExperimentConfig) -> tuple[Path, int, 
     out = Path(out)
     if not (out / "experiment.toml").is_file():
         raise RunError(f"{out} holds no reproduction (no experiment.toml): nothing to report")
+    if cfg is None:
+        cfg = C.load(ExperimentConfig, out / "experiment.toml", saved=True)
     check_experiment(out, cfg)
     jobs = all_jobs(cfg)
     results = {}

@@ -208,7 +208,9 @@ def test_data_scarce_table_jobs_share_their_baselines_and_the_test_positions():
 def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_helps(tmp_path, gain):
     """Made-up results: Baseline climbs 0.60 -> 0.70 -> 0.80 over the static positions; with the walk
     the static score is ``gain`` higher at the scarcest positions. A gain: the bold cell, its worth
-    read off the curve and the verdict holds; none: the verdict fails and the page says so."""
+    read off the curve and the verdict holds; none: the verdict fails and the page says so. Either
+    way the cells below a floor (nearest neighbour 0.65, IDW-3 0.72) are listed with the floors
+    they miss."""
     from rfmitsuba.experiments.paper_tables import DataScarceTable
 
     cfg = size_config("tiny")
@@ -223,6 +225,7 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
                 stat += gain
             name, r = _result(job, 0.7, stat)
             r["eval"]["static"]["nearest_neighbour"]["mean"] = 0.65
+            r["eval"]["static"]["idw3"] = {"mean": 0.72}
             r["train"]["train_time_s"] = 2.0
             results[name] = r
     claims = Claims()
@@ -245,7 +248,8 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
         assert verdict_row.endswith("| +0.000 ± 0.000 | **fails** | +0.000 ± 0.000 | **fails** |")
         assert "**The walk never improves the static scene.**" in text
         assert "| 4 | +0.000 ± 0.000 | +0.000 ± 0.000 |" in text[text.index("over Continued (the Baseline trained"):]
-    assert "- Baseline, walk 0, static: 4 (0.601 < 0.650)" in text
+    # below both floors at 4 positions, below IDW-3 alone at 8, above both at 16
+    assert "- Baseline, walk 0, static: 4 (0.601 < IDW-3 0.720, NN 0.650), 8 (0.701 < IDW-3 0.720)\n" in text
     assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
     assert table.figures(tmp_path, cfg, results) and (tmp_path / "data_scarce.png").is_file()
     assert table.figures(tmp_path / "none", cfg, {}) == []

@@ -130,8 +130,8 @@ def test_reevaluate_rewrites_metrics_without_training(tiny_reproduction, tmp_pat
 
 def test_report_only_writes_the_finished_jobs(tiny_reproduction, tmp_path, capsys):
     """`reproduce --report-only` writes the report from the finished jobs alone: unfinished ones
-    show as "-", nothing is trained, generated or marked done; a folder without a reproduction
-    is named."""
+    show as "-", nothing is trained, generated or marked done; without a size on the command line
+    it reports the folder's own selection; a folder without a reproduction is named."""
     import shutil
 
     from rfmitsuba.cli import main
@@ -154,6 +154,9 @@ def test_report_only_writes_the_finished_jobs(tiny_reproduction, tmp_path, capsy
     assert {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/metrics.json")} == stamps
     assert not any(m.exists() for m in pending)
     assert main(["reproduce", "--out", str(out), "--size", "tiny", "--report-only"]) == 0
+    assert f"report of {total - 3} of {total} jobs finished" in capsys.readouterr().out
+    # no selection on the command line: the folder's own (not the default size's tables)
+    assert main(["reproduce", "--out", str(out), "--report-only"]) == 0
     assert f"report of {total - 3} of {total} jobs finished" in capsys.readouterr().out
     with pytest.raises(RunError, match="holds no reproduction"):
         report_finished(tmp_path / "empty", cfg)
