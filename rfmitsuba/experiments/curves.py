@@ -163,6 +163,8 @@ def speed_accuracy(path: Path, groups: dict[str, list[tuple[str, int, dict]]]) -
     """Draw ``path`` (one panel per group: validation SSIM against cumulative training time, every
     method) and return the report's Markdown: the figure, what it shows and, per group and method,
     the final validation SSIM, the time to come within :data:`TOL` of it and the training time.
+    With no curve to draw (no jobs, or none whose training logs are found) no figure is written,
+    an older one at ``path`` is removed, and the Markdown says why.
 
     Args:
         path: the PNG to write.
@@ -172,6 +174,12 @@ def speed_accuracy(path: Path, groups: dict[str, list[tuple[str, int, dict]]]) -
     curves = {g: [c for c in (job_curve(m, s, r) for m, s, r in jobs) if c is not None] for g, jobs in groups.items()}
     missing = sum(len(jobs) for jobs in groups.values()) - sum(len(c) for c in curves.values())
     shown = [g for g in curves if curves[g]]
+    if not shown:
+        path.unlink(missing_ok=True)
+        if not missing:
+            return ["None in this selection: no curve to draw.", ""]
+        return [f"No curve to draw: the run folders (`train.runs` of the metrics) or training logs of all {missing} "
+                "job(s) were not found from this working directory.", ""]
     ncol = min(3, max(len(shown), 1))
     nrow = max(1, math.ceil(len(shown) / ncol))
     fig, axes = plots.subplots(nrow, ncol, figsize=(6.5 * ncol, 4.5 * nrow), squeeze=False)

@@ -80,3 +80,17 @@ def test_speed_accuracy_figure_and_table(tmp_path):
     # Baseline: within 0.005 at t=10 (seed 0) and t=4 (seed 1); Ours: Stage 2 within at 14 s cumulative
     assert "| bedroom | Baseline | 2 | 0.900 ± 0.000 | 7.0 ± 4.2 | 9.0 ± 1.4 | 0.800 ± 0.000 |" in text
     assert "| bedroom | Ours (two-stage) | 1 | 0.750 ± 0.000 | 14.0 ± 0.0 | 14.5 ± 0.0 | 0.800 ± 0.000 |" in text
+
+
+def test_speed_accuracy_with_nothing_to_draw_says_so_and_writes_no_figure(tmp_path):
+    """No jobs (a selection of data-scarce cells alone), or none with a training log: no blank
+    figure, no empty table; a figure of an earlier report at the path is removed."""
+    from rfmitsuba.experiments.curves import speed_accuracy
+
+    png = tmp_path / "sa.png"
+    png.write_bytes(b"stale")
+    assert speed_accuracy(png, {}) == ["None in this selection: no curve to draw.", ""]
+    assert not png.exists()
+    lines = speed_accuracy(png, {"bedroom": [("baseline", 0, _result([str(tmp_path / "gone")]))]})
+    assert "all 1 job(s) were not found" in lines[0] and not png.exists()
+    assert not any(line.startswith("| runs |") for line in lines)
