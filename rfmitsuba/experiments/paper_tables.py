@@ -787,10 +787,12 @@ class DataScarceTable(Table):
                         rs = self._cell(results, ds, m, n, w)
                         for part, (p, fps) in floors_of.items():
                             a = mean(rs, p)
-                            under = [f"{name} {f:.3f}" for name, fp in fps for f in [mean(rs, fp)]
+                            under = [(name, f) for name, fp in fps for f in [mean(rs, fp)]
                                      if math.isfinite(a) and math.isfinite(f) and a < f]
-                            if under:
-                                below.setdefault((m, w, part), []).append(f"{n} ({a:.3f} < {', '.join(under)})")
+                            if under:  # more digits (up to 6) where three would print the model equal to a floor
+                                d = next((d for d in range(3, 6) if all(f"{a:.{d}f}" != f"{f:.{d}f}" for _, f in under)), 6)
+                                floors_missed = ", ".join(f"{name} {f:.{d}f}" for name, f in under)
+                                below.setdefault((m, w, part), []).append(f"{n} ({a:.{d}f} < {floors_missed})")
             L += ["Below a floor of the same training samples, nearest neighbour (NN) or IDW-3 (static positions, "
                   "model < floors):" + ("" if below else " none."), ""]
             L += [f"- {LABEL[m]}, walk {w}, {part}: " + ", ".join(v) for (m, w, part), v in below.items()]

@@ -226,6 +226,7 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
             name, r = _result(job, 0.7, stat)
             r["eval"]["static"]["nearest_neighbour"]["mean"] = 0.65
             r["eval"]["static"]["idw3"] = {"mean": 0.72}
+            r["eval"]["dynamic"]["idw3"] = {"mean": 0.7004}   # above the dynamic 0.7, equal at three digits
             r["train"]["train_time_s"] = 2.0
             results[name] = r
     claims = Claims()
@@ -250,6 +251,8 @@ def test_data_scarce_table_reads_the_break_even_and_says_when_the_walk_never_hel
         assert "| 4 | +0.000 ± 0.000 | +0.000 ± 0.000 |" in text[text.index("over Continued (the Baseline trained"):]
     # below both floors at 4 positions, below IDW-3 alone at 8, above both at 16
     assert "- Baseline, walk 0, static: 4 (0.601 < IDW-3 0.720, NN 0.650), 8 (0.701 < IDW-3 0.720)\n" in text
+    # a model below a floor that it equals at three digits is printed at four
+    assert "- Baseline, walk 0, dynamic: 4 (0.7000 < IDW-3 0.7004), 8 (0.7000 < IDW-3 0.7004)," in text
     assert claims.rows[0].startswith(f"| One {table.one_walk(cfg)}-position walk improves the static scene at 4")
     assert table.figures(tmp_path, cfg, results) and (tmp_path / "data_scarce.png").is_file()
     assert table.figures(tmp_path / "none", cfg, {}) == []
