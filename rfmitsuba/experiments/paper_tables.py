@@ -790,7 +790,8 @@ class DataScarceTable(Table):
                             under = [(name, f) for name, fp in fps for f in [mean(rs, fp)]
                                      if math.isfinite(a) and math.isfinite(f) and a < f]
                             if under:  # more digits (up to 6) where three would print the model equal to a floor
-                                d = next((d for d in range(3, 6) if all(f"{a:.{d}f}" != f"{f:.{d}f}" for _, f in under)), 6)
+                                d = next((k for k in range(3, 6)
+                                          if all(f"{a:.{k}f}" != f"{f:.{k}f}" for _, f in under)), 6)
                                 floors_missed = ", ".join(f"{name} {f:.{d}f}" for name, f in under)
                                 below.setdefault((m, w, part), []).append(f"{n} ({a:.{d}f} < {floors_missed})")
             L += ["Below a floor of the same training samples, nearest neighbour (NN) or IDW-3 (static positions, "
