@@ -609,6 +609,11 @@ class RxCountTable(Table):
         return ["![Static positions against one walk](rx_count.png)", ""]
 
 
+#: the data-scarce table's below-floor list: per evaluation part, the model's path and its floors'
+BELOW_FLOORS = {"static": (STAT, (("IDW-3", STAT_IDW), ("NN", STAT_NN))),
+                "dynamic": (DYN, (("IDW-3", DYN_IDW), ("NN", DYN_NN)))}
+
+
 class DataScarceTable(Table):
     """Where one walk pays: static training positions laid out on a coarse grid over the free
     floor (``cfg.scarce_positions``) against walks of ``cfg.walk_lengths`` positions (the first N
@@ -779,13 +784,11 @@ class DataScarceTable(Table):
                              f"{fmt(ref, AFF_NN).split(' ±')[0]} | |")
             L.append("")
             below: dict = {}      # (method, walk, part) -> ["positions (model < floor, ...)"]
-            floors_of = {"static": (STAT, (("IDW-3", STAT_IDW), ("NN", STAT_NN))),
-                         "dynamic": (DYN, (("IDW-3", DYN_IDW), ("NN", DYN_NN)))}
             for n in counts:
                 for w in [0] + walks:
                     for m in (self.static_methods if w == 0 else walk_ms):
                         rs = self._cell(results, ds, m, n, w)
-                        for part, (p, fps) in floors_of.items():
+                        for part, (p, fps) in BELOW_FLOORS.items():
                             a = mean(rs, p)
                             under = [(name, f) for name, fp in fps for f in [mean(rs, fp)]
                                      if math.isfinite(a) and math.isfinite(f) and a < f]
@@ -851,8 +854,9 @@ class DataScarceTable(Table):
                     x, y, e = zip(*pts)
                     ax.errorbar(x, y, yerr=e, marker="o", markersize=4, capsize=3, color=colour, linestyle=style,
                                 label=name)
+            base = {n: self._cell(results, ds, "baseline", n, 0) for n in counts}
             for path, style, name in ((STAT_NN, ":", "nearest neighbour"), (STAT_IDW, "-.", "IDW-3")):
-                floor = [(n, mean(self._cell(results, ds, "baseline", n, 0), path)) for n in counts]
+                floor = [(n, mean(base[n], path)) for n in counts]
                 floor = [(n, v) for n, v in floor if math.isfinite(v)]
                 if floor:
                     ax.plot(*zip(*floor), style, color="grey", label=name)

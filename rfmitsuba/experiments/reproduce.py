@@ -258,7 +258,8 @@ def report_finished(out: str | Path, cfg: ExperimentConfig | None = None) -> tup
         raise RunError(f"{out} holds no reproduction (no experiment.toml): nothing to report")
     if cfg is None:
         cfg = C.load(ExperimentConfig, out / "experiment.toml", saved=True)
-    check_experiment(out, cfg)
+    else:
+        check_experiment(out, cfg)
     jobs = all_jobs(cfg)
     results = {}
     for j in jobs:
