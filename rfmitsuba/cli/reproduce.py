@@ -6,7 +6,10 @@ from ..core import cluster
 
 def register(sub) -> None:
     p = sub.add_parser("reproduce", help="generate data, train every method, write the paper's tables (resumable)")
-    p.add_argument("--out", required=True, help="output folder (report.md, jobs/, data/); a killed run resumes")
+    p.add_argument("--out", required=True,
+                   help="output folder (report.md, jobs/, data/); a killed run resumes, and without --config, --size, "
+                        "--quick, --tables or --set an existing folder runs, plans or reports its own selection "
+                        "(OUT/experiment.toml)")
     p.add_argument("--quick", action="store_true", help="the quick size (minutes on 2 cores)")
     p.add_argument("--size", choices=["tiny", "quick", "medium", "full"], default=None,  # sizes.PAPER_SIZES
                    help="experiment size (default full; --quick = quick; tiny = synthetic data, seconds; medium = "
@@ -35,14 +38,31 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def selects(args) -> bool:
+    """Whether the command line chooses an experiment (--config, --size, --quick, --tables or --set)."""
+    return bool(args.config or args.size or args.quick or args.set or getattr(args, "tables", None))
+
+
 def build_config(args):
-    """The ExperimentConfig of the command line: --config file or size, then --set overrides."""
+    """The ExperimentConfig of the command line: --config file or size, then --set overrides; with
+    none of them, the existing ``--out`` folder's own (its experiment.toml, as its latest run saved
+    it), else the full size. The one place a bare ``--out`` is decided: running, ``--plan`` and
+    ``--report-only`` all take the folder's selection, not the default size's tables."""
+    from pathlib import Path
+
     from ..core import config as C
     from ..core.errors import ConfigError
     from ..experiments.sizes import ExperimentConfig, size_config
 
     if args.config and (args.quick or args.size):
         raise ConfigError("give either --config or --quick/--size, not both")
+    saved = Path(args.out) / "experiment.toml"
+    if not selects(args) and saved.is_file():
+        import sys
+
+        print(f"{args.out}: its own selection ({saved}); give --size, --config, --tables or --set to choose another",
+              file=sys.stderr)
+        return C.load(ExperimentConfig, saved, saved=True)
     if args.config:
         cfg = C.load(ExperimentConfig, args.config)
     else:
@@ -70,8 +90,7 @@ def run(args) -> int:
     if args.report_only:
         from ..experiments.reproduce import report_finished
 
-        chosen = args.config or args.size or args.quick or args.set or getattr(args, "tables", None)
-        path, done, total = report_finished(args.out, cfg if chosen else None)
+        path, done, total = report_finished(args.out, cfg if selects(args) else None)
         print(f"report of {done} of {total} jobs finished: {path}")
         return 0
     path = reproduce(args.out, cfg, data_dir=args.data, reevaluate=args.reevaluate, quiet=args.quiet,

@@ -101,6 +101,23 @@ def test_cli_plan_prints_and_writes_nothing(tiny_reproduction, tmp_path, capsys)
     assert "--plan-from goes with --plan" in capsys.readouterr().err and not fresh.exists()
 
 
+def test_cli_plan_without_a_selection_plans_the_folders_own(tiny_reproduction, capsys):
+    """A bare ``--plan`` on an existing folder plans its experiment.toml's jobs (here the tiny
+    size's, all finished), not the default size's tables (which differ from the folder's and were
+    refused as another configuration)."""
+    from rfmitsuba.cli import main
+
+    out, cfg, _, _ = tiny_reproduction
+    n = len(all_jobs(cfg))
+    assert main(["reproduce", "--out", str(out), "--plan"]) == 0
+    captured = capsys.readouterr()
+    assert f"| **all** | {n} | {n} | 0 | 0.00 | 0 |" in captured.out
+    assert "its own selection" in captured.err
+    # a selection on the command line is still checked against the folder
+    assert main(["reproduce", "--out", str(out), "--size", "full", "--plan"]) != 0
+    assert "holds another experiment configuration" in capsys.readouterr().err
+
+
 def test_datasets_to_generate_are_timed_by_those_generated(tmp_path):
     """A missing dataset is estimated by the seconds per PAS of generated datasets (same scene and
     task first, else any), counting only the states a partial dataset has not written yet."""

@@ -162,6 +162,28 @@ def test_report_only_writes_the_finished_jobs(tiny_reproduction, tmp_path, capsy
         report_finished(tmp_path / "empty", cfg)
 
 
+def test_a_bare_rerun_resumes_the_folders_own_selection(tiny_reproduction, tmp_path, capsys):
+    """``reproduce --out OUT`` with no size, config, tables or set resumes OUT's own experiment
+    (a killed tiny run finishes as tiny), where it was refused as the full size before."""
+    import json
+    import shutil
+
+    from rfmitsuba.cli import main
+    from rfmitsuba.experiments.reproduce import all_jobs
+
+    src, cfg, _, _ = tiny_reproduction
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    marker = sorted(out.glob("jobs/*/*/DONE"))[0]
+    marker.unlink()
+    kept = {p: p.stat().st_mtime_ns for p in out.glob("jobs/*/*/DONE")}
+    assert main(["reproduce", "--out", str(out), "--data", str(src / "data"), "--quiet"]) == 0
+    assert marker.is_file() and {p: p.stat().st_mtime_ns for p in kept} == kept
+    assert "its own selection" in capsys.readouterr().err
+    assert json.loads((marker.parent / "metrics.json").read_text())
+    assert len(list(out.glob("jobs/*/*/DONE"))) == len(all_jobs(cfg))
+
+
 def test_solver_config_scales_each_rooms_default_samples():
     """The full size traces a quarter of each room's default ray samples; an explicit count wins;
     scale 1 leaves the room's default to the generator."""
