@@ -19,6 +19,7 @@ from .results import (
     AFF,
     AFF_EMPTY,
     AFF_NN,
+    BELOW_FLOORS,
     DYN,
     DYN_IDW,
     DYN_IDW_NOISY,
@@ -35,6 +36,7 @@ from .results import (
     STAT_NN,
     Claims,
     fmt,
+    format_below,
     mean,
     mean_std_n,
     paper_fmt,
@@ -609,11 +611,6 @@ class RxCountTable(Table):
         return ["![Static positions against one walk](rx_count.png)", ""]
 
 
-#: the data-scarce table's below-floor list: per evaluation part, the model's path and its floors'
-BELOW_FLOORS = {"static": (STAT, (("IDW-3", STAT_IDW), ("NN", STAT_NN))),
-                "dynamic": (DYN, (("IDW-3", DYN_IDW), ("NN", DYN_NN)))}
-
-
 class DataScarceTable(Table):
     """Where one walk pays: static training positions laid out on a coarse grid over the free
     floor (``cfg.scarce_positions``) against walks of ``cfg.walk_lengths`` positions (the first N
@@ -790,13 +787,10 @@ class DataScarceTable(Table):
                         rs = self._cell(results, ds, m, n, w)
                         for part, (p, fps) in BELOW_FLOORS.items():
                             a = mean(rs, p)
-                            under = [(name, f) for name, fp in fps for f in [mean(rs, fp)]
+                            under = [(name, f) for name, fp, _ in fps for f in [mean(rs, fp)]
                                      if math.isfinite(a) and math.isfinite(f) and a < f]
-                            if under:  # more digits (up to 6) where three would print the model equal to a floor
-                                d = next((k for k in range(3, 6)
-                                          if all(f"{a:.{k}f}" != f"{f:.{k}f}" for _, f in under)), 6)
-                                floors_missed = ", ".join(f"{name} {f:.{d}f}" for name, f in under)
-                                below.setdefault((m, w, part), []).append(f"{n} ({a:.{d}f} < {floors_missed})")
+                            if under:
+                                below.setdefault((m, w, part), []).append(f"{n} ({format_below(a, under)})")
             L += ["Below a floor of the same training samples, nearest neighbour (NN) or IDW-3 (static positions, "
                   "model < floors):" + ("" if below else " none."), ""]
             L += [f"- {LABEL[m]}, walk {w}, {part}: " + ", ".join(v) for (m, w, part), v in below.items()]

@@ -20,15 +20,15 @@ from .curves import speed_accuracy
 from .methods import METHODS
 from .paper_tables import TABLES, all_jobs
 from .results import (
+    BELOW_FLOORS,
     DYN,
     DYN_NN,
-    DYN_NN_NOISY,
     LABEL,
     STAT,
     STAT_NN,
-    STAT_NN_NOISY,
     Claims,
     fmt,
+    format_below,
     mean,
     mean_std_n,
 )
@@ -181,45 +181,7 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
     L += table_wall_times(cfg, results)
 
     # ---------------------------------------------------------------- stability
-    L += ["## Where methods break (below the nearest-neighbour floor)", "",
-          "A configuration is listed when the mean over seeds of a method falls below the nearest-neighbour floor "
-          "of the same evaluation (with training noise: the floor looked up in the same noisy training data, where "
-          "a job of that noise level recorded it); the largest seed-to-seed std per method is given too.", ""]
-    groups: dict = {}
-    noisy_floor: dict = {}   # (dataset, snr, positions, part) -> NN floors on the noisy training data, per job
-    for r in results.values():
-        j = r["job"]
-        key = (j["dataset"], j["method"], j["snr_db"], j["positions"], j.get("layout", "random"), j.get("walk_frames"))
-        groups.setdefault(key, []).append(r)
-        for part, fp in (("dynamic", DYN_NN_NOISY), ("static", STAT_NN_NOISY)):
-            v = mean([r], fp)
-            if j["snr_db"] != "none" and math.isfinite(v):
-                noisy_floor.setdefault((j["dataset"], j["snr_db"], j["positions"], part), []).append(v)
-    broken = []
-    for (ds, m, snr, n, layout, walk), rs in sorted(groups.items(), key=lambda kv: str(kv[0])):
-        for part, mp, fp in (("dynamic", DYN, DYN_NN), ("static", STAT, STAT_NN)):
-            a, f = mean(rs, mp), mean(rs, fp)
-            floor_name = "nearest neighbour"
-            if (ds, snr, n, part) in noisy_floor:
-                f = sum(noisy_floor[(ds, snr, n, part)]) / len(noisy_floor[(ds, snr, n, part)])
-                floor_name = "nearest neighbour on the same noisy training data"
-            if math.isfinite(a) and math.isfinite(f) and a < f:
-                cond = (ds + ("" if snr == "none" else f", SNR {snr:g} dB")
-                        + (f", {n} positions" + (f" ({layout})" if layout != "random" else "") if n else "")
-                        + ("" if walk is None else f", walk {walk}"))
-                broken.append(f"- {LABEL[m]}, {cond}: {part} {a:.3f} < {floor_name} {f:.3f}")
-    L += broken or ["- none: every method beats the nearest-neighbour floor everywhere"]
-    n_runs = sum(1 for rs in groups.values() for mp, fp in ((DYN, DYN_NN), (STAT, STAT_NN))
-                 if math.isfinite(mean(rs, mp)) and math.isfinite(mean(rs, fp)))
-    if n_runs and len(broken) > n_runs / 2:
-        L += ["", f"**{len(broken)} of {n_runs} results are below the nearest-neighbour floor: at this size "
-              "the report checks the pipeline, not the methods.** The verdicts below are about this size only."]
-    L.append("")
-    for m in METHODS:
-        sds = [mean_std_n(rs, DYN)[1] for (ds, mm, *_), rs in groups.items() if mm == m and len(rs) > 1]
-        if sds:
-            L.append(f"- {LABEL[m]}: largest std over seeds of the dynamic mean {max(sds):.3f}")
-    L.append("")
+    L += where_methods_break(results)
 
     # ---------------------------------------------------------------- claims
     L += ["## Paper claims on our data", "", "| claim | paper | ours | verdict |", "|---|---|---|---|"]
@@ -228,6 +190,61 @@ def write_report(out: Path, cfg, results: dict, *, wall_s: float | None, jobs_to
           "`results.json` in this folder.", ""]
     return write_text(out / "report.md", "\n".join(L))
 
+
+def where_methods_break(results: dict) -> list[str]:
+    """The report's "Where methods break": every configuration (dataset, method, noise, positions,
+    layout, walk) whose mean over seeds falls below the nearest-neighbour or IDW-3 floor of the same
+    evaluation (:data:`~rfmitsuba.experiments.results.BELOW_FLOORS`; with training noise the floors
+    of the same noisy training data), each with the floors it misses, then the largest
+    seed-to-seed std per method; ``results`` {key: metrics with "job"}. Markdown lines."""
+    L = ["## Where methods break (below the nearest-neighbour or IDW-3 floor)", "",
+          "A configuration is listed when the mean over seeds of a method falls below the nearest-neighbour (NN) "
+          "or the IDW-3 floor of the same evaluation, naming each floor it misses (with training noise: the floors "
+          "looked up in the same noisy training data, where a job of that noise level recorded them); the largest "
+          "seed-to-seed std per method is given too.", ""]
+    groups: dict = {}
+    noisy_floor: dict = {}   # (dataset, snr, positions, part, floor) -> floors on the noisy training data, per job
+    for r in results.values():
+        j = r["job"]
+        key = (j["dataset"], j["method"], j["snr_db"], j["positions"], j.get("layout", "random"), j.get("walk_frames"))
+        groups.setdefault(key, []).append(r)
+        for part, (_, fps) in BELOW_FLOORS.items():
+            for name, _, noisy in fps:
+                v = mean([r], noisy)
+                if j["snr_db"] != "none" and math.isfinite(v):
+                    noisy_floor.setdefault((j["dataset"], j["snr_db"], j["positions"], part, name), []).append(v)
+    broken, below_nn = [], 0
+    for (ds, m, snr, n, layout, walk), rs in sorted(groups.items(), key=lambda kv: str(kv[0])):
+        for part, (mp, fps) in BELOW_FLOORS.items():
+            a = mean(rs, mp)
+            under, noisy = [], False
+            for name, fp, _ in fps:
+                f = mean(rs, fp)
+                if (ds, snr, n, part, name) in noisy_floor:
+                    vs = noisy_floor[(ds, snr, n, part, name)]
+                    f, noisy = sum(vs) / len(vs), True
+                if math.isfinite(a) and math.isfinite(f) and a < f:
+                    under.append((name, f))
+            if under:
+                below_nn += any(name == "NN" for name, _ in under)
+                cond = (ds + ("" if snr == "none" else f", SNR {snr:g} dB")
+                        + (f", {n} positions" + (f" ({layout})" if layout != "random" else "") if n else "")
+                        + ("" if walk is None else f", walk {walk}"))
+                broken.append(f"- {LABEL[m]}, {cond}: {part} {format_below(a, under)}"
+                              + (" (floors on the same noisy training data)" if noisy else ""))
+    L += broken or ["- none: every method beats the nearest-neighbour and IDW-3 floors everywhere"]
+    n_runs = sum(1 for rs in groups.values() for mp, fp in ((DYN, DYN_NN), (STAT, STAT_NN))
+                 if math.isfinite(mean(rs, mp)) and math.isfinite(mean(rs, fp)))
+    if n_runs and below_nn > n_runs / 2:
+        L += ["", f"**{below_nn} of {n_runs} results are below the nearest-neighbour floor: at this size "
+              "the report checks the pipeline, not the methods.** The verdicts below are about this size only."]
+    L.append("")
+    for m in METHODS:
+        sds = [mean_std_n(rs, DYN)[1] for (ds, mm, *_), rs in groups.items() if mm == m and len(rs) > 1]
+        if sds:
+            L.append(f"- {LABEL[m]}: largest std over seeds of the dynamic mean {max(sds):.3f}")
+    L.append("")
+    return L
 
 
 def speed_groups(results: dict) -> dict[str, list[tuple[str, int, dict]]]:

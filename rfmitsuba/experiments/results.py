@@ -86,6 +86,7 @@ DYN_IDW = "eval.dynamic.idw3.mean"
 DYN_NN_NOISY = "eval.dynamic.floors_noisy_training.nearest_neighbour.mean"
 DYN_IDW_NOISY = "eval.dynamic.floors_noisy_training.idw3.mean"
 STAT_NN_NOISY = "eval.static.floors_noisy_training.nearest_neighbour.mean"
+STAT_IDW_NOISY = "eval.static.floors_noisy_training.idw3.mean"
 STAT_NN = "eval.static.nearest_neighbour.mean"
 STAT_IDW = "eval.static.idw3.mean"
 STAT_MI = "eval.static.mean_image.mean"
@@ -120,6 +121,21 @@ class Claims:
         self.add(claim, paper_evidence,
                  f"{names[0]} {v['a']:.3f} vs {names[1]} {v['b']:.3f}: effect {format_effect(v)} "
                  f"over {len(d)} seeds (per seed {', '.join(f'{x:+.3f}' for x in d)})", v["holds"])
+
+
+#: the floors a result is listed below (the data-scarce table's list, the report's "Where methods
+#: break"): per evaluation part, the model's path and its floors' (name, path, path on the noisy
+#: training data), in the order a listed result names them
+BELOW_FLOORS = {"static": (STAT, (("IDW-3", STAT_IDW, STAT_IDW_NOISY), ("NN", STAT_NN, STAT_NN_NOISY))),
+                "dynamic": (DYN, (("IDW-3", DYN_IDW, DYN_IDW_NOISY), ("NN", DYN_NN, DYN_NN_NOISY)))}
+
+
+def format_below(value: float, floors: list[tuple[str, float]]) -> str:
+    """A result below floors as text, "0.617 < IDW-3 0.663, NN 0.621": ``floors`` [(name, value)],
+    printed with the fewest digits, 3 to 6, that tell the result from every floor (three would
+    print 0.65916 against 0.65920 as equal)."""
+    d = next((k for k in range(3, 6) if all(f"{value:.{k}f}" != f"{f:.{k}f}" for _, f in floors)), 6)
+    return f"{value:.{d}f} < " + ", ".join(f"{name} {f:.{d}f}" for name, f in floors)
 
 
 def format_effect(verdict: dict) -> str:

@@ -38,3 +38,40 @@ def test_header_states_the_datasets_each_table_uses():
     # the data-scarce table alone: one long walk per room and task
     full.tables, full.walk_lengths = ["data_scarce"], [0, 35, 280]
     assert _dataset_sizes(full) == "900 antenna positions x (1 + 280) states"
+
+
+def _job(method, seed, *, snr="none", dyn, stat, floors, noisy=None):
+    """A finished job's metrics as the report reads them: floors {part: (NN, IDW-3)}."""
+    def part(p):
+        d = {"model": {"mean": {"dynamic": dyn, "static": stat}[p]},
+             "nearest_neighbour": {"mean": floors[p][0]}, "idw3": {"mean": floors[p][1]}}
+        if noisy:
+            d["floors_noisy_training"] = {"nearest_neighbour": {"mean": noisy[p][0]}, "idw3": {"mean": noisy[p][1]}}
+        return d
+    return {"job": {"dataset": "bedroom_rx_tissue", "method": method, "seed": seed, "snr_db": snr, "positions": 0},
+            "eval": {"dynamic": part("dynamic"), "static": part("static")}}
+
+
+def test_where_methods_break_names_each_floor_missed():
+    """A result below IDW-3 alone is listed (it was not: the section knew nearest neighbour only), one
+    below both names both, one above both is not; with training noise the floors are those of the
+    same noisy training data; a result equal to a floor at three digits is printed with more."""
+    from rfmitsuba.experiments.report import where_methods_break
+
+    fl = {"dynamic": (0.70, 0.75), "static": (0.72, 0.78)}
+    results = {
+        "a/0": _job("baseline", 0, dyn=0.73, stat=0.80, floors=fl),             # dynamic below IDW-3 only
+        "b/0": _job("ours", 0, dyn=0.80, stat=0.71, floors=fl),                 # static below both
+        "c/0": _job("end_to_end", 0, dyn=0.80, stat=0.79, floors=fl),           # above both
+        "d/0": _job("baseline", 0, snr=10.0, dyn=0.66, stat=0.70, floors=fl,    # clean floors would list it
+                    noisy={"dynamic": (0.60, 0.65), "static": (0.68, 0.70004)}),
+    }
+    text = "\n".join(where_methods_break(results))
+    assert "- Baseline, bedroom_rx_tissue: dynamic 0.730 < IDW-3 0.750\n" in text + "\n"
+    assert "- Ours (two-stage), bedroom_rx_tissue: static 0.710 < IDW-3 0.780, NN 0.720" in text
+    assert "End-to-End" not in text
+    noisy = [line for line in text.splitlines() if "SNR 10 dB" in line]
+    assert noisy == ["- Baseline, bedroom_rx_tissue, SNR 10 dB: static 0.70000 < IDW-3 0.70004 "
+                     "(floors on the same noisy training data)"]
+    assert "checks the pipeline" not in text                                 # 1 of 8 below NN
+    assert where_methods_break({"c/0": results["c/0"]})[4].startswith("- none: every method beats")
