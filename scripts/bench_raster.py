@@ -7,7 +7,7 @@ lists, then times ``splat.raster.Rasterize``'s ``eval`` (forward) and ``backward
 a fixed random image gradient: the wall time (median), the kernels' own time (Dr.Jit's kernel
 history) and a checksum of the image and of each gradient, so that two commits can be compared
 on one machine (run it with each commit's ``PYTHONPATH``). The figures of the lab notes'
-entry (docs/lab-notes/measurements.md, "The splat rasteriser's loops") were taken this way.
+entry (docs/lab-notes/speed.md, "The splat rasteriser's loops") were taken this way.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""How much of the ground truth do fewer ray samples lose? (docs/lab-notes/measurements.md, 2026-11-26)
+"""How much of the ground truth do fewer ray samples lose? (docs/lab-notes/paper-tables.md, 2026-11-26)
 
 Traces the empty room of a generated dataset at its first ``--positions`` antenna positions
 with several ``samples_per_src`` settings (one thread, as ``generate`` does) and prints, per

@@ -8,7 +8,7 @@ block``, then ``rfmitsuba eval RUN``); the figure bins the test positions by the
 the nearest training position (equal counts per bin) and plots each group's mean SSIM per bin
 (the mean over its runs) and the floors of the first run. Made
 docs/results/coherent_field/nerf2like_block_by_distance.png from the lab run 53 runs of the lab notes
-(docs/lab-notes/measurements.md, 2026-11-29).
+(docs/lab-notes/nerf2like.md, 2026-11-29).
 """
 from __future__ import annotations
 

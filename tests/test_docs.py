@@ -1,6 +1,6 @@
 """The documentation's relative links (README, docs/, notebooks/README) point at files that exist.
 
-The README links the committed reports under docs/results/ and the lab log docs/lab-notes/measurements.md;
+The README links the committed reports under docs/results/ and the lab notes docs/lab-notes/;
 moving or renaming one of them must not leave a user with a dead link."""
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ that memory is 64-byte aligned is written into every kernel that reads it (``ali
 again. NumPy promises 16-byte alignment only, so a step that uploads fresh arrays (a batch's
 target images, the host products of :class:`rfmitsuba.models.nn.MLP`) met a new combination of
 alignments almost every step: the splat field's traced Stage-1 step (10 000 Gaussians, batch 4,
-45 x 180) compiled 17 kernels in 20 steps, 25 ms each (docs/lab-notes/measurements.md). A recorded step (:mod:`rfmitsuba.train.frozen_step`) is valid only for the alignments it
+45 x 180) compiled 17 kernels in 20 steps, 25 ms each (docs/lab-notes/speed.md). A recorded step (:mod:`rfmitsuba.train.frozen_step`) is valid only for the alignments it
 was recorded with, for the same reason.
 
 Every upload in a training or rendering step goes through :func:`upload` (the columns of a

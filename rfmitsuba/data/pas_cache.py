@@ -4,7 +4,7 @@
 Every job of a comparison or reproduction that trains on a walk dataset read the same 20 000
 full-resolution PAS (2.6 GB) from disk and block-averaged and normalised them again: a full-size
 Ours job spent 22 s of its 55 s outside its training steps doing so, most of it waiting for the
-disk (docs/lab-notes/measurements.md). The images at ``d = 2`` are a quarter of that size and
+disk (docs/lab-notes/speed.md). The images at ``d = 2`` are a quarter of that size and
 need no arithmetic.
 
 One entry is one state at one block size, in the dataset's own folder::

@@ -43,7 +43,7 @@ class DataSize:
         against every receiver), so the full size's 0.25 made its datasets' solves 2.8 times faster (16.7 s against 47 s
         per 900-receiver bedroom state).
         Against a 2e5-sample reference (bedroom, 200 positions) the PAS agree at mean SSIM
-        0.9986 with 1e5 samples, 0.9973 with 3e4 and 0.9964 with 2e4 (docs/lab-notes/measurements.md).
+        0.9986 with 1e5 samples, 0.9973 with 3e4 and 0.9964 with 2e4 (docs/lab-notes/paper-tables.md).
     """
 
     positions: int = 900
@@ -269,7 +269,7 @@ def method_config(train: TrainSize, *, scene_known: bool = True):
     mcfg = MethodConfig(stage1=s1, stage2_iterations=t.stage2_iterations,
                         person=SplatPersonConfig(num_gaussians=t.person_gaussians))
     if t.model == "coherent":
-        # the learning rates of the bedroom figures of docs/lab-notes/measurements.md (network 3e-3 -> 3e-4; Stage 2 slower)
+        # the learning rates of the bedroom figures of docs/lab-notes/paper-tables.md (network 3e-3 -> 3e-4; Stage 2 slower)
         s1.optim.lr_net, s1.optim.lr_net_final = 3e-3, 3e-4
         mcfg.stage2_optim = dataclasses.replace(s1.optim, lr_amp=3e-3, lr_amp_final=3e-4, lr_means=3e-3,
                                                 lr_means_final=3e-4)

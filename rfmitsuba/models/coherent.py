@@ -4,7 +4,7 @@ Why: a simulated (or measured) PAS is the Bartlett response of the array to the 
 sum of all paths, ``P = |sum_m w_m h_m|``. Paths that arrive together interfere and draw
 the dark arcs of the PAS; a sum of splats, which adds intensities, cannot draw them, and the
 interference pattern changes every few centimetres, faster than any smooth interpolator of
-the PAS can follow (see docs/lab-notes/measurements.md, "Stage 1"). This field models what the array actually sees:
+the PAS can follow (see docs/lab-notes/paper-tables.md, "Stage 1"). This field models what the array actually sees:
 
     h_m(x, y) = sum_i  g_i(x, y) * exp(-j k L_i) / L_i * exp(+j k r_m . u_i),
     L_i = |M_i(y) - x|,  u_i = (M_i(y) - x) / L_i,

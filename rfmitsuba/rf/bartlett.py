@@ -19,7 +19,7 @@ atomic scatter or a materialised [B, pixels, 16] array:
   chunks' partial sums are then laid end to end and added. On the CPU few chunks are best: the
   partial sums (2 x 16 x views per chunk) are written out, and with 4096 chunks writing them
   took as long as the loop (8 views, 45 x 180, one thread, load 3: the loop and the sums'
-  kernels 2.53 + 1.99 ms with 4096 chunks, 2.07 + 0.12 ms with 128; ``docs/lab-notes/measurements.md``);
+  kernels 2.53 + 1.99 ms with 4096 chunks, 2.07 + 0.12 ms with 128; ``docs/lab-notes/speed.md``);
   a GPU needs the lanes. The pixel count is compiled
   in as a literal, so index division is a multiplication, and the kernels compile once per grid
   and batch size (up to ``UNROLL``).

@@ -25,7 +25,7 @@ What it can and cannot do (NeRF2-like simulation, 160 training spectra, 4x4 arra
 So it tells a wrong gateway orientation from a right one reliably, but locates the frame only to
 several degrees. :class:`~rfmitsuba.models.coherent_gaussians.CoherentGaussianField` reports it
 for measured folders and warns when the stated frame is far off; it does not start from the
-fitted frame, which did not raise test SSIM (docs/lab-notes/measurements.md, the measured-data
+fitted frame, which did not raise test SSIM (docs/lab-notes/nerf2like.md, the measured-data
 protocols).
 
 Phase-only and amplitude read-outs give the same pattern for one plane wave, so the search

@@ -57,7 +57,7 @@ class TrainConfig:
     (:mod:`rfmitsuba.train.resolve`) from the configuration, the data and the initial field, and a
     run records each decision with its reason in ``RUN/resolved.toml`` (``rfmitsuba train
     --dry-run`` prints them without training); the measurements behind each default are in the lab
-    notes (docs/lab-notes/measurements.md).
+    notes (docs/lab-notes/defaults.md).
 
     iterations: optimizer steps (6000).
     epochs: least passes over the fitting positions, ``max(iterations, ceil(epochs * positions /

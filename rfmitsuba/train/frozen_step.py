@@ -2,7 +2,7 @@
 
 A small field's training step spends much of its time tracing: the coherent Gaussian field's
 Stage-1 step (73 sources, batch 8, 45 x 180) spends about 18 ms in kernels and about 12 ms
-building and generating them again every step (one Dr.Jit thread; docs/lab-notes/measurements.md). :class:`FrozenLoss` traces the device part of a step once per *structure* and then replays
+building and generating them again every step (one Dr.Jit thread; docs/lab-notes/speed.md). :class:`FrozenLoss` traces the device part of a step once per *structure* and then replays
 its kernels with the new batch: the same kernels on the same inputs, so the losses and
 parameters are bit-identical to the traced step's (``tests/train/test_frozen_step.py``).
 

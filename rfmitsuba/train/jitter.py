@@ -6,7 +6,7 @@ that matches every training position can still change much faster than the data 
 them. On the NeRF2-like spatial-block split (the test tags a slab 0.9-17 cm past the training
 tags, spectra 1-5 cm apart scoring 0.90-0.96 against each other) one field fit the training tags
 at 0.955-0.965 SSIM and scored 0.81 on test tags within 6 cm of them, where the nearest training
-spectrum scores 0.943 (docs/lab-notes/measurements.md).
+spectrum scores 0.943 (docs/lab-notes/nerf2like.md).
 
 With ``TrainConfig.jitter`` = ``s`` > 0 every step adds ``TrainConfig.jitter_views`` copies of its
 batch whose moving device (the transmitter in the moving-TX task, the array with the receiver in

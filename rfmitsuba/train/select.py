@@ -15,7 +15,7 @@ room gain from the double reflections (moving RX 0.909 -> 0.947 test SSIM over 3
 NeRF2-like tags in a 1.6 m region seen from 5 m lose (0.955 -> 0.937, seed 0). The casts fit a
 room's shadows, the windows extrapolate more smoothly beyond the training positions (NeRF2-like,
 known room, block split, 3 seeds: 0.801 against 0.916 with the windows alone), and validation
-decides (it may not see such a difference: docs/lab-notes/measurements.md). The trial runs stay in ``RUN/select/``
+decides (it may not see such a difference: docs/lab-notes/nerf2like.md). The trial runs stay in ``RUN/select/``
 with ``choice.json``; the chosen field then trains with the full budget into ``RUN`` itself,
 whose ``config.toml`` names it. The same command resumes at any point, and a finished choice
 is not made again.

@@ -15,7 +15,7 @@ class CoherentGaussianConfig:
 
     One line per option: meaning [unit] (default). "auto" is decided from the data at the start of
     training and recorded in the run summary; the measurements behind each default are in the lab
-    notes (docs/lab-notes/measurements.md).
+    notes (docs/lab-notes/defaults.md).
 
     init: "room" (the scene's image sources), "data" (the directional scan) or "auto": "room" where the
         dataset names a scene ("auto").

@@ -183,7 +183,7 @@ class CoherentGaussianField(FlatParameterField):
     format = FORMAT
     #: trains on 45 x 180 block means (``TrainConfig.downsample = "auto"``): its sources are points and
     #: its read-out the array's beam (about 26 degrees wide), so 2-degree pixels pin them as well as
-    #: 1-degree ones at a quarter of the read-out's cost (docs/lab-notes/measurements.md)
+    #: 1-degree ones at a quarter of the read-out's cost (docs/lab-notes/rooms.md)
     downsample_advised = 2
 
     def __init__(self, A: np.ndarray, order: np.ndarray, scatterers: np.ndarray, *, cfg: CoherentGaussianConfig,
@@ -290,7 +290,7 @@ class CoherentGaussianField(FlatParameterField):
         mutual coupling is learned (``coupling``): NeRF2-like, coupling -15 dB, seeds 0-2, test SSIM
         0.948 / 0.960 / 0.961 with one start, 0.957 / 0.962 / 0.957 with two (IDW-3 0.952); the
         code as committed later, seeds 0-4, two starts: 0.954 +- 0.005, 4 of 5 above IDW-3
-        (docs/lab-notes/measurements.md)."""
+        (docs/lab-notes/nerf2like.md)."""
         searched = self.init_report.get("calibration_fit", {}).get("applied")
         return 2 if searched or self.cfg.coupling is True else 1
 
@@ -301,7 +301,7 @@ class CoherentGaussianField(FlatParameterField):
         unknown room, validation slab held out) one field scored 0.886 +- 0.003 without and
         0.909 +- 0.006 with the jittered copies (3 and 10 seeds; nearest neighbour 0.911, IDW-3
         0.906), its spread over seeds a quarter of before; on the published random split 0.959
-        +- 0.001 with them, 5 of 5 seeds above IDW-3, against 4 of 5 without (docs/lab-notes/measurements.md). Simulated rooms with the amplitude read-out were not measured with them, so
+        +- 0.001 with them, 5 of 5 seeds above IDW-3, against 4 of 5 without (docs/lab-notes/nerf2like.md). Simulated rooms with the amplitude read-out were not measured with them, so
         they get none."""
         return JITTER_PHASE_ONLY if self.readout == "phase_only" else 0.0
 
