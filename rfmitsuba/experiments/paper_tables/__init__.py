@@ -13,7 +13,7 @@ from __future__ import annotations
 from ..job import Job
 from ..sizes import TABLES as TABLE_NAMES
 from ..sizes import ExperimentConfig
-from .base import Table, plots_colours, reference_dataset
+from .base import ReferenceTable, Table, plots_colours, reference_dataset
 from .data_scarce import DataScarceTable
 from .large_room import LargeRoomTable
 from .main import MainTable, truth_band
@@ -32,8 +32,9 @@ TABLES: dict[str, Table] = {t.key: t for t in (MainTable(), TwoStageTable(), Per
 assert tuple(TABLES) == tuple(TABLE_NAMES), "paper_tables.TABLES and sizes.TABLES must name the same tables"
 
 __all__ = ["TABLES", "DataScarceTable", "LargeRoomTable", "MainTable", "MaterialTable", "NoiseTable",
-           "PerturbationTable", "PositionsTable", "RxCountTable", "Table", "ThirdStageTable", "TwoStageTable",
-           "all_jobs", "plots_colours", "reference_dataset", "static_positions_for", "table_jobs", "truth_band"]
+           "PerturbationTable", "PositionsTable", "ReferenceTable", "RxCountTable", "Table",
+           "ThirdStageTable", "TwoStageTable", "all_jobs", "plots_colours", "reference_dataset",
+           "static_positions_for", "table_jobs", "truth_band"]
 
 
 def table_jobs(cfg: ExperimentConfig) -> dict[str, list[Job]]:

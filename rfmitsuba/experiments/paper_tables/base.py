@@ -34,6 +34,16 @@ class Table:
         return []
 
 
+class ReferenceTable(Table):
+    """A table of the fixed ``methods`` on the reference dataset (:func:`reference_dataset`), one
+    job each per seed: the ablations."""
+
+    methods: tuple[str, ...] = ()
+
+    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
+        return [Job(reference_dataset(cfg), m, seed) for m in self.methods]
+
+
 def plots_colours(n: int) -> list:
     """``n`` colours from light to dark, the longest walk darkest."""
     from matplotlib import colormaps

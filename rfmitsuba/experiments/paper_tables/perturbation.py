@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from .. import paper
-from ..job import Job
 from ..results import (
     DYN,
     LABEL,
@@ -14,17 +13,14 @@ from ..results import (
     select,
 )
 from ..sizes import ExperimentConfig
-from .base import Table, reference_dataset
+from .base import ReferenceTable, reference_dataset
 
 
-class PerturbationTable(Table):
+class PerturbationTable(ReferenceTable):
     """Role of perturbation data: Baseline, Duplicated, Baseline (person), Ours (paper Table `tab:ablation_info`)."""
 
     key = "perturbation"
     methods = ("baseline", "duplicated", "baseline_person", "ours")
-
-    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
-        return [Job(reference_dataset(cfg), m, seed) for m in self.methods]
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]

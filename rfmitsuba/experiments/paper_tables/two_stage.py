@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from .. import paper
-from ..job import Job
 from ..results import (
     DYN,
     LABEL,
@@ -15,18 +14,15 @@ from ..results import (
     select,
 )
 from ..sizes import ExperimentConfig
-from .base import Table, reference_dataset
+from .base import ReferenceTable, reference_dataset
 
 
-class TwoStageTable(Table):
+class TwoStageTable(ReferenceTable):
     """Two-stage ablation: Baseline, End-to-End, Continued, Ours on the first room and task
     (paper Table `tab:ablation_strategy`)."""
 
     key = "two_stage"
     methods = ("baseline", "end_to_end", "continued", "ours")
-
-    def jobs(self, cfg: ExperimentConfig, seed: int) -> list[Job]:
-        return [Job(reference_dataset(cfg), m, seed) for m in self.methods]
 
     def section(self, cfg: ExperimentConfig, results: dict, claims: Claims) -> list[str]:
         room, task = cfg.rooms[0], cfg.tasks[0]
