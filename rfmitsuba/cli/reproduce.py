@@ -1,6 +1,9 @@
 """``rfmitsuba reproduce [--quick] --out DIR``: the paper's tables on our data, resumable."""
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 from ..core import cluster
 
 
@@ -48,8 +51,6 @@ def build_config(args):
     none of them, the existing ``--out`` folder's own (its experiment.toml, as its latest run saved
     it), else the full size. The one place a bare ``--out`` is decided: running, ``--plan`` and
     ``--report-only`` all take the folder's selection, not the default size's tables."""
-    from pathlib import Path
-
     from ..core import config as C
     from ..core.errors import ConfigError
     from ..experiments.sizes import ExperimentConfig, size_config
@@ -58,8 +59,6 @@ def build_config(args):
         raise ConfigError("give either --config or --quick/--size, not both")
     saved = Path(args.out) / "experiment.toml"
     if not selects(args) and saved.is_file():
-        import sys
-
         print(f"{args.out}: its own selection ({saved}); give --size, --config, --tables or --set to choose another",
               file=sys.stderr)
         return C.load(ExperimentConfig, saved, saved=True)

@@ -75,3 +75,15 @@ def test_where_methods_break_names_each_floor_missed():
                      "(floors on the same noisy training data)"]
     assert "checks the pipeline" not in text                                 # 1 of 8 below NN
     assert where_methods_break({"c/0": results["c/0"]})[4].startswith("- none: every method beats")
+
+
+def test_where_methods_break_says_when_most_results_are_below_nearest_neighbour():
+    """More than half of the results below the NN floor: the section says the report checks the
+    pipeline, counting each (configuration, part) once."""
+    from rfmitsuba.experiments.report import where_methods_break
+
+    fl = {"dynamic": (0.9, 0.95), "static": (0.9, 0.95)}
+    results = {f"{m}/0": _job(m, 0, dyn=0.5, stat=0.5, floors=fl) for m in ("baseline", "ours")}
+    results["end_to_end/0"] = _job("end_to_end", 0, dyn=0.99, stat=0.99, floors=fl)
+    text = "\n".join(where_methods_break(results))
+    assert "**4 of 6 results are below the nearest-neighbour floor: at this size the report checks the pipeline" in text

@@ -44,6 +44,3 @@ class NoiseTable(Table):
             L.append(f"| {'clean' if snr is None else f'{snr:g}'} | " + " | ".join(row) + f" | {nn} | {idw} |")
         L.append("")
         return L
-
-
-#: every table by name, in report order
