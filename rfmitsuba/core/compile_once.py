@@ -1,5 +1,5 @@
 """Build something expensive once, on first use, from any thread: the fused Numba loops of
-:mod:`rfmitsuba.rf.bartlett_loops` and :mod:`rfmitsuba.models.host_loops`."""
+:mod:`rfmitsuba.rf.bartlett_loops` and :mod:`rfmitsuba.models.nn.host_loops`."""
 from __future__ import annotations
 
 import threading

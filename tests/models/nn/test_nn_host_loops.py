@@ -1,10 +1,10 @@
-"""Tests of rfmitsuba.models.host_loops: each fused loop against its NumPy twin."""
+"""Tests of rfmitsuba.models.nn.host_loops: each fused loop against its NumPy twin."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rfmitsuba.models import host_loops as H
+from rfmitsuba.models.nn import host_loops as H
 
 
 def _case(rng, rows=37, cols=16):

@@ -1,4 +1,4 @@
-"""The element-wise steps of the host MLP passes (:class:`rfmitsuba.models.nn._HostPass`) as
+"""The element-wise steps of the host MLP passes (:class:`rfmitsuba.models.nn.host_pass.HostPass`) as
 fused loops, each with its plain NumPy twin.
 
 A host pass runs an MLP block by block (2048 rows of 64 features): a matrix product on the
@@ -11,7 +11,7 @@ derivative 69 -> 18 us, the derivative with its column sums and an input-gradien
 113 -> 34 us.
 
 Every loop computes what its twin computes with the same float32 operations in the same
-order per element, so values are bit-identical (``tests/models/test_host_loops.py``); column
+order per element, so values are bit-identical (``tests/models/nn/test_nn_host_loops.py``); column
 sums are added row by row here and by a matrix product in the twins (equal up to float32
 rounding). Without Numba (it is a dependency, but an environment may lack it) the twins run.
 The first call in a process imports Numba and compiles or loads the loops: 0.63 s for
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.compile_once import CompiledOnce
+from ...core.compile_once import CompiledOnce
 
 #: Negative slope of the networks' LeakyReLU.
 SLOPE = np.float32(0.01)
