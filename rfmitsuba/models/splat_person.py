@@ -245,7 +245,7 @@ class SplatPersonField(SplatField):
             pos01 = [means[k] / float(ext[k]) * 0.5 + 0.25 for k in range(3)]
         else:
             pos01 = [(means[k] - float(lo[k])) / float(ext[k]) * 0.5 for k in range(3)]
-        enc = encode(pos01, octaves=d.octaves, kind="sin")
+        enc = encode(pos01, octaves=d.octaves)
         ex = columns(e)
         inputs = [dr.gather(B.Float, x, gi) for x in enc] + [dr.gather(B.Float, x, bi) for x in ex]
         out = self.deform(inputs)

@@ -29,13 +29,17 @@ from .density import DensityConfig
 @dataclass
 class OptimConfig:
     """Adam learning rates (per step). ``*_final`` values are reached at the last iteration by
-    exponential decay; the others are constant, and so is a group whose ``*_final`` is 0."""
+    exponential decay; the others are constant, and so is a group whose ``*_final`` is 0. The
+    rotations (and an array's pose) keep a constant rate: decaying it lost on NeRF2-like folders
+    (docs/lab-notes/nerf2like.md)."""
+
+    #: options this class no longer has (:mod:`rfmitsuba.core.config`); None: they only steered training
+    removed_options: ClassVar[dict] = {"lr_rotations_final": None}
 
     lr_means: float = 2e-3
     lr_means_final: float = 2e-5
     lr_log_scales: float = 5e-3
     lr_rotations: float = 1e-3
-    lr_rotations_final: float = 0.0
     lr_opacity: float = 2e-2
     lr_net: float = 2e-3
     lr_net_final: float = 2e-4
@@ -80,10 +84,9 @@ class TrainConfig:
         coupling) ("auto").
     revert_drop: a run ending this much below the best validation check of its last 30% keeps that
         check's field; 0: always the last [SSIM] (0.01).
-    jitter: spread of jittered copies of each batch, the moving device displaced by N(0, (jitter *
+    jitter: spread of one jittered copy of each batch, the moving device displaced by N(0, (jitter *
         wavelength)^2) per axis; "auto": as the field advises (0.153 for phase-only spectra, else 0)
         [wavelengths] ("auto").
-    jitter_views: jittered copies per step (1).
     model: a registered Stage-1 field kind ("splat", "coherent", "coherent_gaussians",
         "gaussian_process") or "auto": train the candidates briefly and keep the best by validation SSIM
         (:mod:`rfmitsuba.train.select`; :func:`rfmitsuba.train.trainer.train` decides it, a
@@ -96,7 +99,7 @@ class TrainConfig:
     """
 
     #: options that were removed because they did not help (core.config: saved files still load)
-    removed_options: ClassVar[dict] = {"members": 1, "val_positions": "random"}
+    removed_options: ClassVar[dict] = {"members": 1, "val_positions": "random", "jitter_views": None}
     #: options that were renamed (core.config: saved files still load)
     renamed_options: ClassVar[dict] = {"field": "splat"}
     #: the sentinels "auto" replaced (core.config: saved files still load)
@@ -120,7 +123,6 @@ class TrainConfig:
     starts: int | Literal["auto"] = "auto"
     revert_drop: float = 0.01
     jitter: float | Literal["auto"] = "auto"
-    jitter_views: int = 1
     model: str = "auto"
     split: Literal["dataset", "block", "random"] = "dataset"
     scene: str = ""
@@ -163,9 +165,6 @@ class TrainConfig:
         if self.jitter != "auto" and not (_number(self.jitter) and math.isfinite(self.jitter) and self.jitter >= 0):
             raise ConfigError(f"TrainConfig.jitter must be 'auto' (as the field advises) or a finite number >= 0 "
                               f"[wavelengths], got {self.jitter!r}")
-        if not (isinstance(self.jitter_views, int) and not isinstance(self.jitter_views, bool)
-                and 1 <= self.jitter_views <= 8):
-            raise ConfigError(f"TrainConfig.jitter_views must be an integer in 1..8, got {self.jitter_views!r}")
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and self.threads >= 0):
             raise ConfigError(f"TrainConfig.threads must be an integer >= 0 (0 = all cores), got {self.threads!r}")
 

@@ -6,8 +6,8 @@ The trainer calls the named hooks of :class:`Strategy`; :class:`DensityStrategy`
   Gaussian's position gradient (our renderer takes world-space means, so this is the
   gradient of the loss with respect to the 3-D mean, summed over the views of the step)
   and how often the Gaussian received any gradient;
-* :meth:`~DensityStrategy.step_end` after the optimizer step: every ``every`` steps in
-  [start, stop) clones small Gaussians and splits large ones whose mean gradient exceeds
+* :meth:`~DensityStrategy.step_end` after the optimizer step: every ``every`` steps from
+  ``start`` on clones small Gaussians and splits large ones whose mean gradient exceeds
   ``grad_threshold`` (largest first, at most ``max_growth`` * N new ones, never more than
   ``max_gaussians`` in all), prunes Gaussians whose attenuation delta stays below
   ``prune_opacity`` in every probe view or whose largest scale exceeds ``prune_scale`` metres,
@@ -24,6 +24,7 @@ All randomness comes from the numpy generator the trainer passes in.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -36,9 +37,11 @@ from ..models.splat import GAUSSIAN_KEYS, SplatField
 class DensityConfig:
     """Adaptive density control settings (steps are optimizer iterations; lengths in metres)."""
 
+    #: options this class no longer has (:mod:`rfmitsuba.core.config`); None: they only steered training
+    removed_options: ClassVar[dict] = {"stop": None}
+
     enabled: bool = True
     start: int = 200
-    stop: int = 100000
     every: int = 100
     grad_threshold: float = 2e-4
     max_growth: float = 0.3
@@ -201,8 +204,8 @@ class DensityStrategy(Strategy):
         if not c.enabled:
             return False
         changed = False
-        grow_until = c.stop if self.iterations is None else min(c.stop, self.iterations - c.every)
-        reset_until = c.stop if self.iterations is None else min(c.stop, self.iterations // 2 + 1)
+        grow_until = float("inf") if self.iterations is None else self.iterations - c.every
+        reset_until = float("inf") if self.iterations is None else self.iterations // 2 + 1
         if c.start <= step < grow_until and step % c.every == 0 and self.grad_sum is not None:
             changed |= self._densify_and_prune(step, field, opt, rng=rng, probe_views=probe_views)
         if c.reset_every > 0 and step % c.reset_every == 0 and step < reset_until:

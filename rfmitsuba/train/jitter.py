@@ -8,7 +8,7 @@ tags, spectra 1-5 cm apart scoring 0.90-0.96 against each other) one field fit t
 at 0.955-0.965 SSIM and scored 0.81 on test tags within 6 cm of them, where the nearest training
 spectrum scores 0.943 (docs/lab-notes/nerf2like.md).
 
-With ``TrainConfig.jitter`` = ``s`` > 0 every step adds ``TrainConfig.jitter_views`` copies of its
+With ``TrainConfig.jitter`` = ``s`` > 0 every step adds one copy of its
 batch whose moving device (the transmitter in the moving-TX task, the array with the receiver in
 the moving-RX task) is displaced by ``N(0, (s lambda)^2)`` per axis, ``lambda`` the carrier
 wavelength, each with the spectrum of the view it was copied from as its target. The training

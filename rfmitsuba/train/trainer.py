@@ -249,8 +249,7 @@ class Trainer:
         t = self._progress(step, train_time)
         net = _lr(o.lr_net, o.lr_net_final, t)
         means = _lr(o.lr_means, o.lr_means_final, t)
-        rotations = _lr(o.lr_rotations, o.lr_rotations_final, t)
-        return {"means": means, "log_scales": o.lr_log_scales, "rotations": rotations,
+        return {"means": means, "log_scales": o.lr_log_scales, "rotations": o.lr_rotations,
                 "opacity_logits": o.lr_opacity, "net": net,
                 "amp": _lr(o.lr_amp, o.lr_amp_final, t), "embed": net, "offsets": means}
 
@@ -547,7 +546,7 @@ class Trainer:
         pick = rng.choice(len(fit), size=min(self.cfg.batch_views, len(fit)), replace=False)
         views, gt_np = self.views(fit[pick]), gt_fit[pick]
         if self.jitter > 0:
-            views, gt_np = jittered(views, gt_np, spread=self.jitter, copies=self.cfg.jitter_views, rng=rng)
+            views, gt_np = jittered(views, gt_np, spread=self.jitter, copies=1, rng=rng)   # one copy, as measured
         gt = upload(B.TensorXf, gt_np)   # aligned: the loss's kernels compile once
         if self._records(field):
             loss = self._frozen_loss(self.frozen + [field], views, gt, loss_fn)

@@ -221,11 +221,8 @@ def test_epochs_lengthen_a_run_to_passes_over_the_fitting_positions(tiny_ds, tmp
 
 def test_learning_rate_schedules_decay_to_their_final_values(tiny_ds, tmp_path):
     """A group with a ``*_final`` rate decays exponentially to it at the last step (half-way:
-    the geometric mean); the rotations' rate stays constant unless ``lr_rotations_final`` is set."""
-    import dataclasses
-
+    the geometric mean); the rotations' rate stays constant."""
     from rfmitsuba.data.views import TrainData
-    from rfmitsuba.train.config import OptimConfig
     from rfmitsuba.train.trainer import Trainer
 
     data = TrainData.open(tiny_ds)
@@ -234,12 +231,6 @@ def test_learning_rate_schedules_decay_to_their_final_values(tiny_ds, tmp_path):
     assert t._lrs(0)["rotations"] == t._lrs(100)["rotations"] == cfg.optim.lr_rotations
     assert t._lrs(100)["means"] == pytest.approx(cfg.optim.lr_means_final)
     assert t._lrs(50)["means"] == pytest.approx((cfg.optim.lr_means * cfg.optim.lr_means_final) ** 0.5)
-    o = dataclasses.replace(cfg.optim, lr_rotations=1e-3, lr_rotations_final=1e-5)
-    t = Trainer(dataclasses.replace(cfg, optim=o), data, tmp_path / "b", quiet=True)
-    assert t._lrs(0)["rotations"] == pytest.approx(1e-3)
-    assert t._lrs(50)["rotations"] == pytest.approx(1e-4)
-    assert t._lrs(100)["rotations"] == pytest.approx(1e-5)
-    assert OptimConfig().lr_rotations_final == 0.0
 
 
 def _scripted_validation(monkeypatch, table: dict):
@@ -332,6 +323,41 @@ def test_run_folders_written_with_removed_options_still_open(tiny_ds, tmp_path):
         C.load(TrainConfig, mine)
     with pytest.raises(ConfigError, match="the section 'field' is called 'splat' now"):
         C.override(cfg, ["field.num_gaussians=10"])
+
+
+def test_run_folders_from_before_the_last_options_were_removed_still_open(tiny_ds, tmp_path):
+    """A run saved with the options removed since (one jittered copy, a decay of the rotations'
+    rate, density control's stop step, the coherent Gaussian field's furniture planes, the
+    network's encoding and hash-grid settings) at their old defaults opens as the same
+    configuration; a saved hash-grid network is refused naming the option, and a user's override
+    of any of them is told it was removed."""
+    from rfmitsuba.core import config as C
+    from rfmitsuba.core.errors import ConfigError
+    from rfmitsuba.data.views import TrainData
+    from rfmitsuba.train.trainer import Trainer, load_run
+
+    data = TrainData.open(tiny_ds)
+    cfg = tiny_cfg(iterations=10)
+    run = tmp_path / "run"
+    Trainer(cfg, data, run, quiet=True).run()
+    toml = run / "config.toml"
+    old = {"": "jitter_views = 1\n", "[optim]\n": "lr_rotations_final = 0.0\n", "[density]\n": "stop = 100000\n",
+           "[coherent_gaussians]\n": 'furniture_planes = "faces"\n',
+           "[splat.net]\n": 'encoding = "sin"\nhash_levels = 8\nhash_features = 2\nhash_log2_size = 14\n'
+                            'hash_base_resolution = 4\nhash_per_level_scale = 1.6\n'}
+    text = toml.read_text()
+    for section, lines in old.items():
+        assert section in text
+        text = lines + text if not section else text.replace(section, section + lines, 1)
+    toml.write_text(text)
+    assert load_run(run)[0] == cfg
+    toml.write_text(text.replace('encoding = "sin"', 'encoding = "hashgrid"'))
+    with pytest.raises(ConfigError, match="encoding = 'hashgrid': this saved file used an option that was removed"):
+        load_run(run)
+    for option in ("jitter_views=2", "optim.lr_rotations_final=1e-5", "density.stop=500",
+                   'coherent_gaussians.furniture_planes="box"', "splat.net.hash_levels=4"):
+        with pytest.raises(ConfigError, match="this option was removed"):
+            C.override(cfg, [option])
 
 
 def test_run_folder_of_another_config_is_refused(tiny_ds, tmp_path):

@@ -108,7 +108,7 @@ def initial_field(cfg, data, *, scene_xml: Path | None, field_class: type, extra
 
         maps = scene_image_maps(RoomGeometry.from_xml(scene_xml), room_order=c.room_order,
                                 furniture_order=c.furniture_order, min_face_area=c.min_face_area,
-                                distinct_paths=c.ray_visibility, furniture_planes=c.furniture_planes)
+                                distinct_paths=c.ray_visibility, furniture_planes="faces")
         if c.ray_visibility and c.prune_unseen:
             # parsimony: an image whose path exists at no training position has no gradient
             from ...sim.visibility import SpecularVisibility

@@ -42,7 +42,6 @@ class CoherentGaussianConfig:
     init_reflection: initial gain of an image of order n, ``init_reflection ** n`` [1] (0.5).
     scatterer_gain: initial contribution of a scatterer relative to the direct path [1] (0.2).
     ray_visibility: known room: each image path's existence and blockage per view by Mitsuba ray casts (true).
-    furniture_planes: known room: furniture planes from the meshes' "faces" or each piece's "box" ("faces").
     init_through: initial remainder ``img_through`` of a blocked path relative to its clear gain [1] (0.0).
     depth_limit: a path with more reflections plus crossings than the data's ray-tracer depth is absent (true).
     segment_limit: a path with a segment shorter than the data's ray-tracer threshold is absent (true).
@@ -68,7 +67,7 @@ class CoherentGaussianConfig:
     #: options that were removed because they did not help (core.config: saved files still load)
     removed_options: ClassVar[dict] = {"amp_l1": 0.0, "material_through": False, "init_transmission": None,
                                        "frame_min_gain": None, "calibration_twin": None,
-                                       "coupling_model": "neighbours"}
+                                       "coupling_model": "neighbours", "furniture_planes": "faces"}
     #: values that were removed: a saved file's frame_search "apply" only steered the start
     removed_values: ClassVar[dict] = {"frame_search": {"apply": "report"}, "images": {None: "auto"},
                                       "vis_grid": {None: "auto"}}
@@ -95,7 +94,6 @@ class CoherentGaussianConfig:
     init_reflection: float = 0.5
     scatterer_gain: float = 0.2
     ray_visibility: bool = True
-    furniture_planes: Literal["faces", "box"] = "faces"
     init_through: float = 0.0
     depth_limit: bool = True
     segment_limit: bool = True
@@ -156,9 +154,6 @@ class CoherentGaussianConfig:
             raise ConfigError(f"CoherentGaussianConfig: pursuit_planes >= 0, pursuit_views >= 1 and every pursuit_at "
                               f"in (0, 1) required, got {self.pursuit_planes!r}, {self.pursuit_views!r}, "
                               f"{self.pursuit_at!r}")
-        if self.furniture_planes not in ("faces", "box"):
-            raise ConfigError(f"CoherentGaussianConfig.furniture_planes must be 'faces' or 'box', got "
-                              f"{self.furniture_planes!r}")
         if not (0 < self.init_reflection <= 1 and self.scatterer_gain > 0 and 0 <= self.init_through <= 1):
             raise ConfigError("CoherentGaussianConfig: init_reflection in (0, 1], scatterer_gain > 0 and init_through "
                               "in [0, 1] required")

@@ -22,7 +22,7 @@ B*N (view, Gaussian) pairs::
 network is an ordinary MLP on ``[enc(p_i), enc(q_b), extra_b]``.
 
 The package holds one step per module: :mod:`.config` (the architecture and number format),
-:mod:`.encoding`, :mod:`.grad_barrier`, :mod:`.mlp`, :mod:`.hash_grid`, :mod:`.em_network`, and
+:mod:`.encoding`, :mod:`.grad_barrier`, :mod:`.mlp`, :mod:`.em_network`, and
 the host path of the LLVM backend: :mod:`.host_columns` (host arrays behind uploads),
 :mod:`.host_pass` (one MLP call in NumPy) and :mod:`.host_ops` (the custom AD ops around it).
 """
@@ -30,8 +30,7 @@ from .config import PRECISIONS, NetConfig, config_dict, resolve_precision
 from .em_network import EMNetwork
 from .encoding import encode
 from .grad_barrier import grad_barrier
-from .hash_grid import HashGrid
 from .mlp import MLP
 
-__all__ = ["EMNetwork", "HashGrid", "MLP", "NetConfig", "PRECISIONS", "config_dict", "encode", "grad_barrier",
+__all__ = ["EMNetwork", "MLP", "NetConfig", "PRECISIONS", "config_dict", "encode", "grad_barrier",
            "resolve_precision"]

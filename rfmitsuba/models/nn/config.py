@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from ...core import backend as B
 from ...core.errors import ConfigError
@@ -14,13 +14,10 @@ from ...core.errors import ConfigError
 class NetConfig:
     """Architecture of the EM-feature network.
 
-    encoding: positional encoding of the Gaussian position, "sin" (NeRF-style sines), "tri"
-        (triangle waves) or "hashgrid" (multiresolution hash grid, Instant-NGP style).
-    gaussian_octaves / antenna_octaves: octaves of the sine/triangle encodings (0 = raw input only).
+    gaussian_octaves / antenna_octaves: octaves of the sine encodings of the Gaussian and the
+        antenna positions (0 = raw input only; :func:`rfmitsuba.models.nn.encode`).
     width: hidden width of every layer; branch_layers: hidden layers of each branch;
     head_layers: hidden layers of the head that runs on every (view, Gaussian) pair.
-    hash_*: hash-grid settings (levels, features per level, log2 table size, coarsest
-        resolution, growth factor between levels); only used with encoding="hashgrid".
     signal_bias: initial bias of the signal output (signal = sigmoid(out)), so training
         starts from a dim field.
     host_products: on the LLVM backend, run the MLPs' matrix products on the host's BLAS
@@ -31,17 +28,17 @@ class NetConfig:
         (float16 products and inputs, float32 master weights: :class:`MLP`).
     """
 
-    encoding: Literal["sin", "tri", "hashgrid"] = "sin"
+    #: options this class no longer has (:mod:`rfmitsuba.core.config`): the triangle-wave and
+    #: hash-grid encodings, never measured to help; None: only read with the hash grid
+    removed_options: ClassVar[dict] = {"encoding": "sin", "hash_levels": None, "hash_features": None,
+                                       "hash_log2_size": None, "hash_base_resolution": None,
+                                       "hash_per_level_scale": None}
+
     gaussian_octaves: int = 6
     antenna_octaves: int = 6
     width: int = 64
     branch_layers: int = 1
     head_layers: int = 1
-    hash_levels: int = 8
-    hash_features: int = 2
-    hash_log2_size: int = 14
-    hash_base_resolution: int = 4
-    hash_per_level_scale: float = 1.6
     signal_bias: float = -2.0
     host_products: bool = True
     precision: Literal["auto", "single", "half"] = "auto"
@@ -54,8 +51,6 @@ class NetConfig:
                 raise ConfigError(f"NetConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.width < 1:
             raise ConfigError(f"NetConfig.width must be >= 1, got {self.width}")
-        if self.encoding == "hashgrid" and (self.hash_levels < 1 or self.hash_features < 1):
-            raise ConfigError("NetConfig: hash_levels and hash_features must be >= 1")
 
 
 #: Number formats of :class:`MLP`'s products ("auto": :func:`resolve_precision`).

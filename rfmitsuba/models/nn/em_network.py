@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from .config import NetConfig
 from .encoding import encode
-from .hash_grid import HashGrid
 from .host_ops import HostEMNet
 from .mlp import MLP
 
@@ -19,16 +18,15 @@ class EMNetwork:
             position in Stage 2), given to :meth:`__call__` already normalised to about [0, 1].
         seed: weight initialisation seed.
 
-    Parameters (see :meth:`parameters`): ``"gaussian"``, ``"antenna"``, ``"head"`` packed MLP
-    weights, plus ``"hash"`` for the hash-grid encoding.
+    Parameters (see :meth:`modules`): the ``"gaussian"``, ``"antenna"`` and ``"head"`` packed MLP
+    weights.
     """
 
     def __init__(self, cfg: NetConfig, *, extra_inputs: int = 0, seed: int = 0):
         self.cfg = cfg
         self.extra_inputs = int(extra_inputs)
         w = cfg.width
-        self.hash = HashGrid(cfg, seed=seed) if cfg.encoding == "hashgrid" else None
-        n_g = (3 + self.hash.n_out) if self.hash else 3 * (1 + 2 * cfg.gaussian_octaves)
+        n_g = 3 * (1 + 2 * cfg.gaussian_octaves)
         n_a = 3 * (1 + 2 * cfg.antenna_octaves) + self.extra_inputs
         kw = {"host": cfg.host_products, "precision": cfg.precision}
         self.gaussian = MLP(n_g, w, width=w, layers=cfg.branch_layers, seed=seed + 1, **kw)
@@ -38,10 +36,7 @@ class EMNetwork:
 
     def modules(self) -> dict:
         """Name -> module (each has ``weights``, ``set_weights``, ``num_parameters``)."""
-        mods = {"gaussian": self.gaussian, "antenna": self.antenna, "head": self.head}
-        if self.hash is not None:
-            mods["hash"] = self.hash
-        return mods
+        return {"gaussian": self.gaussian, "antenna": self.antenna, "head": self.head}
 
     @property
     def num_parameters(self) -> int:
@@ -52,11 +47,8 @@ class EMNetwork:
         return self.gaussian(self._gaussian_inputs(pos01))
 
     def _gaussian_inputs(self, pos01: list) -> list:
-        """The Gaussian branch's inputs: the positions and their hash-grid features, or the
-        positions' encoding."""
-        if self.hash is not None:
-            return list(pos01) + self.hash(pos01)
-        return encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves, kind=self.cfg.encoding)
+        """The Gaussian branch's inputs: the encoded positions."""
+        return encode([p * 0.5 for p in pos01], octaves=self.cfg.gaussian_octaves)
 
     def antenna_features(self, ant01: list, extra: list | None = None) -> list:
         """Per-view branch: ant01 list of 3 ``Float`` [B] in [0, 1], extra list of
@@ -65,8 +57,7 @@ class EMNetwork:
 
     def _antenna_inputs(self, ant01: list, extra: list | None) -> list:
         """The antenna branch's inputs: the encoded antenna position, then the extra inputs."""
-        kind = "tri" if self.cfg.encoding == "tri" else "sin"
-        x = encode([a * 0.5 for a in ant01], octaves=self.cfg.antenna_octaves, kind=kind)
+        x = encode([a * 0.5 for a in ant01], octaves=self.cfg.antenna_octaves)
         extra = list(extra or [])
         if len(extra) != self.extra_inputs:
             raise ValueError(f"EMNetwork expects {self.extra_inputs} extra inputs, got {len(extra)}")
@@ -85,7 +76,7 @@ class EMNetwork:
             view-major (b*N + i).
         """
         mods = (self.gaussian, self.antenna, self.head)
-        if self.hash is None and all(m._host_layers is not None for m in mods):
+        if all(m._host_layers is not None for m in mods):
             # the whole network in one host op (:class:`HostEMNet`)
             import drjit as dr
 

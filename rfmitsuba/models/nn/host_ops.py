@@ -77,7 +77,7 @@ class HostMLP:
 
 class HostEMNet:
     """The whole EM-feature network on the host as one ``dr.CustomOp`` (LLVM backend, every MLP
-    with host products, no hash grid): the Gaussian branch on the encoded positions, the antenna
+    with host products): the Gaussian branch on the encoded positions, the antenna
     branch on the encoded antenna inputs and the head on every (view, Gaussian) pair, three
     :class:`HostPass` objects run one after the other in one host section, and their backward
     passes in reverse order.

@@ -9,7 +9,7 @@ def test_sin_encoding_matches_numpy(variant):
     from rfmitsuba.models.nn import encode
 
     x = np.array([0.0, 0.1, 0.37, 0.5], np.float32)
-    out = encode([B.Float(x)], octaves=3, kind="sin")
+    out = encode([B.Float(x)], octaves=3)
     assert len(out) == 1 + 2 * 3
     np.testing.assert_allclose(out[0].numpy(), x)
     for k in range(3):
