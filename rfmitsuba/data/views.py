@@ -118,6 +118,26 @@ def _scene_xml(meta: dict, root: Path) -> Path | None:
     return None
 
 
+def varies_by_measurement(meta: dict, *, measured: bool = False) -> bool:
+    """Whether a dataset's spectra vary from one measurement to the next beyond what a field of
+    the stated positions draws.
+
+    Measured spectra do (docs/results/measured/diagnosis.md: the measured NeRF2 RFID spectra of
+    tags 1-2 cm apart are less alike than any field at the carrier allows). So: True for measured
+    data (``measured``: a NeRF2 folder as published) and for any dataset whose metadata records no
+    ray tracer (no ``"solver"``: measured spectra in another folder format, or written beside an
+    ``rfmitsuba.json`` of the user's), and for a simulation with a measurement drift (``"impairments":
+    {"drift": {...}}``, :func:`rfmitsuba.sim.nerf2like.measurement_drift`); False for a ray-traced
+    simulation without one. A NeRF2 folder's own metadata is read from its ``rfmitsuba.json``
+    (``meta["nerf2"]``).
+    """
+    own = meta.get("nerf2") if isinstance(meta.get("nerf2"), dict) else meta
+    if measured or not isinstance(own.get("solver"), dict):
+        return True
+    impairments = own.get("impairments")
+    return isinstance(impairments, dict) and bool(impairments.get("drift"))
+
+
 def _max_depth(meta: dict, root: Path) -> int | None:
     """The simulating ray tracer's path depth (meta "solver": {"max_depth": n}), or None."""
     solver = meta.get("solver")
@@ -181,6 +201,9 @@ class TrainData:
     #: measured data (a NeRF2 folder as published, not written by this package): exact geometry
     #: and impairments are unknown, so models should expect calibration errors
     measured: bool = False
+    #: the spectra vary from one measurement to the next beyond what a field of position draws
+    #: (:func:`varies_by_measurement`): measured, or simulated with a measurement drift
+    varies_by_measurement: bool = False
     #: most interactions (reflections and surface crossings) per path of the ray tracer that
     #: simulated the data (meta "solver": {"max_depth"}), None when no tracer made it (measured data)
     max_depth: int | None = None
@@ -231,6 +254,7 @@ class TrainData:
                    scene_xml=xml, transmitter=fixed if task == "rx" else None, bounds=bounds, state=state,
                    frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
                    readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)),
+                   varies_by_measurement=varies_by_measurement(meta, measured=bool(getattr(ds, "measured", False))),
                    max_depth=_max_depth(meta, path), min_segment=_min_segment(meta, path))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))

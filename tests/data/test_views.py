@@ -54,6 +54,41 @@ def test_min_segment_comes_from_the_dataset_solver(tmp_path):
             TrainData.open(ds)
 
 
+def test_spectra_vary_by_measurement_where_no_tracer_made_them_or_a_drift_was_simulated(tmp_path):
+    """A dataset made by a ray tracer does not vary by measurement; one whose metadata names no
+    tracer (measured spectra) does, and so does a simulation with a measurement drift; a NeRF2
+    folder as published does, and one whose rfmitsuba.json records a tracer (a NeRF2-like
+    simulation) does only with a drift."""
+    from stage1_data import make_dataset
+
+    from rfmitsuba.data import nerf2
+    from rfmitsuba.data.store import open_dataset
+    from rfmitsuba.data.views import TrainData
+
+    ds = make_dataset(tmp_path / "ds", num_antennas=12, task="tx")
+    _with_solver(ds, {"max_depth": 3})
+    assert TrainData.open(ds).varies_by_measurement is False
+    meta = json.loads((ds / "meta.json").read_text())
+    (ds / "meta.json").write_text(json.dumps(meta | {"impairments": {"drift": {"magnitude_db": 8.0}}}))
+    assert TrainData.open(ds).varies_by_measurement is True
+    (ds / "meta.json").write_text(json.dumps(meta | {"impairments": {"drift": None}}))
+    assert TrainData.open(ds).varies_by_measurement is False
+    _with_solver(ds, None)
+    assert TrainData.open(ds).varies_by_measurement is True
+    folder = nerf2.write(open_dataset(ds), tmp_path / "n")
+    extra = folder / "rfmitsuba.json"
+    own = json.loads(extra.read_text())
+    for solver, drift, varies in ((None, None, True), ({"max_depth": 3}, None, False),
+                                  ({"max_depth": 3}, {"magnitude_db": 7.0}, True)):
+        extra.write_text(json.dumps({k: v for k, v in own.items() if k not in ("solver", "impairments")}
+                                    | ({"solver": solver} if solver else {}) | {"impairments": {"drift": drift}}))
+        d = TrainData.open(folder)
+        assert (d.measured, d.varies_by_measurement) == (False, varies), (solver, drift)
+    extra.unlink()                                   # as published
+    d = TrainData.open(folder)
+    assert d.measured and d.varies_by_measurement
+
+
 def test_sionna_min_segment_is_the_installed_sionnas():
     """The constant the datasets are read with is the one the installed Sionna RT drops paths by."""
     pytest.importorskip("sionna.rt")

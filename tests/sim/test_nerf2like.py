@@ -284,6 +284,9 @@ def test_measured_style_options_change_the_spectra_and_are_recorded(folder, extr
     assert json.loads((amp / nerf2.EXTRA).read_text())["config"]["readout"] == "amplitude"
     nb = lambda d: float(np.mean(ssim_images(d.pas(0)[:-1], d.pas(0)[1:])))   # consecutive tags, 9 mm apart
     assert nb(c) < nb(b) - 0.02
+    from rfmitsuba.data.views import TrainData
+    # the drift makes the spectra vary by measurement (auto then tries the Gaussian-process field); the tracer alone does not
+    assert TrainData.open(drift).varies_by_measurement and not TrainData.open(amp).varies_by_measurement
     with pytest.raises(ConfigError, match="readout"):
         nl.make_nerf2like(tmp_path / "bad", num_tags=N, readout="power")
     with pytest.raises(ConfigError, match="drift_db"):
@@ -295,7 +298,8 @@ def test_measured_style_folder_is_where_the_gaussian_process_field_beats_idw3(tm
     amplitude read-out and a measurement drift (8 dB, 60 degrees, 0.985 from tag to tag; the setting
     whose floors and SSIM-against-distance curve come closest to the measured RFID folder's,
     docs/results/measured/simulator.md). The spectra of neighbouring tags differ as measured ones do,
-    and the Gaussian-process field beats IDW-3 on the folder's own split."""
+    they vary by measurement (so auto tries the Gaussian-process field), and the Gaussian-process
+    field beats IDW-3 on the folder's own split."""
     from rfmitsuba.core.ssim import ssim_images
     from rfmitsuba.eval.metrics import floors
     from rfmitsuba.models.gaussian_process import GaussianProcessField
@@ -304,6 +308,9 @@ def test_measured_style_folder_is_where_the_gaussian_process_field_beats_idw3(tm
     out = nl.make_nerf2like(tmp_path / "measured_style", num_tags=120, seed=1, solver=fast_solver(),
                             region_size=(0.5, 1.0, 0.2), readout="amplitude", snr_db=30.0,
                             drift_db=8.0, drift_deg=60.0, drift_correlation=0.985)
+    from rfmitsuba.data.views import TrainData
+
+    assert TrainData.open(out).varies_by_measurement
     ds = nerf2.read(out)
     pas = ds.pas(0).astype(np.float32)
     pas = normalize(pas)

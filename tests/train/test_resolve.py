@@ -66,6 +66,7 @@ def test_dry_run_trains_and_writes_nothing(tiny_ds, tmp_path, capsys):
     assert main(["train", str(tiny_ds), "--out", str(out), "--dry-run", "--set", "iterations=40",
                  "--set", "coherent_gaussians.scatterers=4", "--quiet"]) == 0
     text = capsys.readouterr().out
-    assert 'model = "auto": trials of coherent_gaussians, splat at 50 steps each' in text
+    # the synthetic spectra record no ray tracer: the Gaussian-process field is a candidate too
+    assert 'model = "auto": trials of coherent_gaussians, splat, gaussian_process at 50 steps each' in text
     assert "# if the trials choose coherent_gaussians:" in text and "# if the trials choose splat:" in text
     assert not out.exists()

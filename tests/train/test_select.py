@@ -12,7 +12,7 @@ def test_auto_trains_each_candidate_keeps_the_best_and_resumes(tmp_path):
     from rfmitsuba.data import nerf2
     from rfmitsuba.data.store import open_dataset
     from rfmitsuba.eval.run import evaluate_run
-    from rfmitsuba.train.select import AUTO_KINDS, trial_config
+    from rfmitsuba.train.select import AUTO_KINDS, MEASURED_KINDS, trial_config
     from rfmitsuba.train.trainer import load_run, train
 
     folder = nerf2.write(open_dataset(make_dataset(tmp_path / "tx", num_antennas=30, task="tx")), tmp_path / "n")
@@ -26,9 +26,10 @@ def test_auto_trains_each_candidate_keeps_the_best_and_resumes(tmp_path):
     out = tmp_path / "run"
     s = train(folder, out, cfg=cfg, quiet=True)
     choice = json.loads((out / "select" / "choice.json").read_text())
-    assert set(choice["trials"]) == set(AUTO_KINDS)
+    # synthetic spectra record no ray tracer: they vary by measurement, and the Gaussian-process field is tried too
+    assert set(choice["trials"]) == {*AUTO_KINDS, *MEASURED_KINDS}
     best = max(choice["trials"], key=lambda k: choice["trials"][k]["best_val_ssim"])
-    assert choice["chosen"] == best and s["model"] == best and s["steps"] == 200
+    assert choice["chosen"] == best and s["model"] == best and s["steps"] == (0 if best in MEASURED_KINDS else 200)
     rcfg, _, renderer = load_run(out)
     assert rcfg.model == best and renderer.fields[0].kind == best
     assert evaluate_run(out)["model"]["n"] > 0
@@ -46,6 +47,7 @@ def test_auto_names_every_refusal(tmp_path, monkeypatch):
 
     data = TrainData.open(make_dataset(tmp_path / "ds", num_antennas=20))
     monkeypatch.setattr(select, "AUTO_KINDS", ("coherent",))  # needs a scene the synthetic data lacks
+    monkeypatch.setattr(select, "MEASURED_KINDS", ())
     with pytest.raises(ConfigError, match="no candidate field can train.*coherent:.*needs the scene geometry"):
         select.select_model(tiny_cfg(model='"auto"'), data, tmp_path / "run", trainer=Trainer, quiet=True)
 
@@ -102,15 +104,17 @@ def test_a_known_room_also_tries_more_paths_and_the_field_without_ray_casts(tmp_
     assert select.candidate_config(cfg, "splat").model == "splat"
 
 
-def test_a_measured_folder_also_tries_the_gaussian_process_field():
+def test_spectra_that_vary_by_measurement_also_try_the_gaussian_process_field():
+    """Measured spectra, or a simulation with a measurement drift (TrainData.varies_by_measurement),
+    add the Gaussian-process field to the candidates; a ray-traced simulation without one does not."""
     from types import SimpleNamespace
 
     from rfmitsuba.train import select
     from rfmitsuba.train.config import TrainConfig
 
     cfg = TrainConfig()
-    measured = SimpleNamespace(scene_xml=None, measured=True)
-    simulated = SimpleNamespace(scene_xml=None, measured=False)
+    measured = SimpleNamespace(scene_xml=None, varies_by_measurement=True)
+    simulated = SimpleNamespace(scene_xml=None, varies_by_measurement=False)
     assert select.candidates(cfg, measured) == [*select.AUTO_KINDS, *select.MEASURED_KINDS]
     assert "gaussian_process" in select.MEASURED_KINDS
     assert select.candidates(cfg, simulated) == list(select.AUTO_KINDS)
