@@ -248,13 +248,14 @@ class TrainData:
         if len(train) == 0 or len(test) == 0:
             raise DatasetError(f"{path}: the split has {len(train)} training and {len(test)} test positions; both must be > 0")
         xml = _scene_xml(meta, path)
+        measured = bool(getattr(ds, "measured", False))
         pts = np.concatenate([ap, fixed[None]])
         bounds = (pts.min(0), pts.max(0))
         data = cls(path=path, task=task, antenna_pos=ap, view_pos=view, rx_to_world=r2w, train=train, test=test,
                    scene_xml=xml, transmitter=fixed if task == "rx" else None, bounds=bounds, state=state,
                    frequency_hz=float(getattr(ds, "frequency_hz", 2.4e9)),
-                   readout=str(getattr(ds, "readout", "amplitude")), measured=bool(getattr(ds, "measured", False)),
-                   varies_by_measurement=varies_by_measurement(meta, measured=bool(getattr(ds, "measured", False))),
+                   readout=str(getattr(ds, "readout", "amplitude")), measured=measured,
+                   varies_by_measurement=varies_by_measurement(meta, measured=measured),
                    max_depth=_max_depth(meta, path), min_segment=_min_segment(meta, path))
         data._pas = ds.pas(state)
         shp = tuple(np.shape(data._pas))

@@ -9,22 +9,22 @@ from .host_columns import host_columns, upload_kept
 from .host_pass import HostPass
 
 
-HOST_OPS: dict = {}
+_HOST_OPS: dict = {}
 
 
-def host_op(name: str, eval_fn, backward_fn):
+def _host_op(name: str, eval_fn, backward_fn):
     """A ``dr.CustomOp`` class called ``name``, made once, whose ``eval`` and ``backward`` are
     ``eval_fn(op, ...)`` and ``backward_fn(op)``; forward-mode AD raises (the host passes are
     reverse mode only)."""
-    if name not in HOST_OPS:
+    if name not in _HOST_OPS:
         import drjit as dr
 
         def forward(self):
             raise NotImplementedError(f"{name}: forward-mode AD is not implemented (use reverse mode)")
 
-        HOST_OPS[name] = type(name, (dr.CustomOp,), {
+        _HOST_OPS[name] = type(name, (dr.CustomOp,), {
             "eval": eval_fn, "backward": backward_fn, "forward": forward, "name": lambda self: name})
-    return HOST_OPS[name]
+    return _HOST_OPS[name]
 
 
 class HostMLP:
@@ -47,7 +47,7 @@ class HostMLP:
     @staticmethod
     def op():
         """The ``dr.CustomOp`` class (made once)."""
-        return host_op("HostMLP", HostMLP._eval, HostMLP._backward)
+        return _host_op("HostMLP", HostMLP._eval, HostMLP._backward)
 
     # eval and backward of the op (``op`` is the CustomOp instance)
     @staticmethod
@@ -91,7 +91,7 @@ class HostEMNet:
     @staticmethod
     def op():
         """The ``dr.CustomOp`` class (made once)."""
-        return host_op("HostEMNet", HostEMNet._eval, HostEMNet._backward)
+        return _host_op("HostEMNet", HostEMNet._eval, HostEMNet._backward)
 
     @staticmethod
     def _eval(op, xs, ants, w_gaussian, w_antenna, w_head, layers):

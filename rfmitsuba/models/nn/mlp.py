@@ -11,7 +11,7 @@ from .grad_barrier import grad_barrier
 from .host_ops import HostMLP
 
 
-def tensor_type(*, half: bool = False):
+def _tensor_type(*, half: bool = False):
     return B.ensure().TensorXf16 if half else B.ensure().TensorXf
 
 
@@ -54,7 +54,7 @@ class MLP:
         for _ in range(layers):
             mods += [nn.Linear(-1, width), nn.LeakyReLU(0.01)]
         mods.append(nn.Linear(-1, n_out))
-        tensor = tensor_type(half=half)
+        tensor = _tensor_type(half=half)
         net = nn.Sequential(*mods).alloc(tensor, n_in, rng=dr.rng(seed=int(seed) + 0x1000))
         if out_bias is not None:
             net.layers[-1].bias = tensor(np.asarray(out_bias, dtype=np.float16 if half else np.float32))
